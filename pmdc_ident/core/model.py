@@ -1,0 +1,535 @@
+"""The PMDC motor model: exact ZOH discretisation and simulation with effects.
+
+State ``x = [i (A), w (rad/s), theta (rad)]``. Sample convention (zero-order
+hold): ``voltage[k]`` is held over ``[t_k, t_k + dt)`` and the outputs at index
+``k`` are the state at ``t_k``, so ``current[0]`` is the initial current.
+A NaN voltage means the armature is open over that interval: no current flows
+and the rotor coasts (DESIGN.md §2: commanding 0 V would brake it instead).
+
+Two simulators share this convention:
+
+* :func:`simulate_linear` - the seeds' linear model, one exact ZOH step per
+  sample (the fast path used inside fits);
+* :func:`simulate` - the model with any effects of :mod:`pmdc_ident.core.effects`,
+  with sub-steps per sample. The linear part of every sub-step is again exact
+  (so a stiff L/R far below the sample period is stable and accurate) and the
+  nonlinear torques and voltages are held over the sub-step; a rotor at rest is
+  held by static friction until the drive torque exceeds it (stiction).
+
+:class:`Plant` advances the same kernel one sample at a time for the simulated
+driver.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import expm
+
+from pmdc_ident.core._jit import njit
+from pmdc_ident.core.effects import (
+    BrushDrop,
+    Cogging,
+    CoulombFriction,
+    CurrentOffset,
+    DeadZone,
+    Delay,
+    Effect,
+    InductanceSaturation,
+    LoadTorque,
+    QuadraticDrag,
+    ResistanceDrift,
+    StribeckFriction,
+)
+from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.params import MotorParams
+
+__all__ = [
+    "Model",
+    "Plant",
+    "SimResult",
+    "apply_dead_zone",
+    "apply_delay",
+    "continuous_state_space",
+    "discretize_zoh",
+    "simulate",
+    "simulate_linear",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Model:
+    """The linear motor plus a tuple of effects (at most one of each kind)."""
+
+    params: MotorParams
+    effects: tuple[Effect, ...] = ()
+
+    def __post_init__(self) -> None:
+        names = [e.NAME for e in self.effects]
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            msg = f"each effect may appear once in a model; repeated: {', '.join(dupes)}"
+            raise ParameterError(msg)
+        object.__setattr__(self, "effects", tuple(self.effects))
+
+    def effect(self, name: str) -> Effect | None:
+        for e in self.effects:
+            if e.NAME == name:
+                return e
+        return None
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        return tuple(e.NAME for e in self.effects)
+
+    def with_effects(self, *effects: Effect) -> Model:
+        """A copy with these effects added (replacing effects of the same kind)."""
+        new = {e.NAME: e for e in self.effects}
+        new.update({e.NAME: e for e in effects})
+        return Model(self.params, tuple(new.values()))
+
+    def without(self, *names: str) -> Model:
+        return Model(self.params, tuple(e for e in self.effects if e.NAME not in names))
+
+
+@dataclass(frozen=True)
+class SimResult:
+    """Sampled simulation output; arrays have one entry per input sample."""
+
+    t: FloatArray
+    current: FloatArray  # measured current, A (includes a current_offset effect)
+    speed: FloatArray  # rad/s
+    position: FloatArray  # rad
+    applied_voltage: FloatArray  # V at the armature after dead zone and delay (NaN = open)
+    final_state: FloatArray = field(repr=False)  # [i, w, theta, int i^2 dt, stuck]
+
+
+# ---------------------------------------------------------------------------
+# Linear model
+# ---------------------------------------------------------------------------
+def continuous_state_space(params: MotorParams) -> tuple[FloatArray, FloatArray]:
+    """``dx/dt = A x + B u`` with ``x = [i, w]``, ``u = [V, T_load]`` (seed 000 eq. 5)."""
+    p = params
+    a = np.array([[-p.R / p.L, -p.Ke / p.L], [p.Kt / p.J, -p.B / p.J]])
+    b = np.array([[1.0 / p.L, 0.0], [0.0, -1.0 / p.J]])
+    return a, b
+
+
+def discretize_zoh(params: MotorParams, dt_s: float) -> tuple[FloatArray, FloatArray]:
+    """Exact zero-order-hold discretisation including the shaft angle.
+
+    Returns ``(Phi, Gamma)`` with ``x[k+1] = Phi x[k] + Gamma [V, T][k]`` for
+    ``x = [i, w, theta]``; ``T`` is a torque opposing positive rotation (load,
+    friction) in N*m.
+    """
+    _check_dt(dt_s)
+    a2, b2 = continuous_state_space(params)
+    m = np.zeros((5, 5))
+    m[:2, :2] = a2
+    m[2, 1] = 1.0
+    m[:2, 3:] = b2
+    e = expm(m * dt_s)
+    return np.ascontiguousarray(e[:3, :3]), np.ascontiguousarray(e[:3, 3:])
+
+
+def simulate_linear(
+    params: MotorParams,
+    voltage: ArrayLike,
+    dt_s: float,
+    x0: ArrayLike | None = None,
+    load_torque_nm: ArrayLike | float = 0.0,
+) -> SimResult:
+    """Simulate the seeds' linear model, one exact ZOH step per sample.
+
+    NaN voltage samples (open armature) force the current to zero and let the
+    rotor coast under viscous friction and the load torque.
+    """
+    v = _as_voltage(voltage)
+    n = v.size
+    tl = np.broadcast_to(np.asarray(load_torque_nm, dtype=float), (n,)).copy()
+    phi, gam = discretize_zoh(params, dt_s)
+    a_mech = params.B / params.J
+    decay = math.exp(-a_mech * dt_s)
+    x = _initial_state(x0)
+    out = _linear_kernel(v, tl, phi, gam, decay, a_mech, params.J, dt_s, x)
+    return SimResult(
+        t=np.arange(n) * dt_s,
+        current=out[:, 0],
+        speed=out[:, 1],
+        position=out[:, 2],
+        applied_voltage=v,
+        final_state=np.array([x[0], x[1], x[2], 0.0, 0.0]),
+    )
+
+
+@njit
+def _coast_step(w, th, torque, a_mech, j, h):  # pragma: no cover - jitted
+    """Exact step of J dw/dt = -B w - torque over h; returns (w, theta)."""
+    if a_mech * h > 1e-9:
+        e = math.exp(-a_mech * h)
+        w_inf = -torque / (a_mech * j)
+        w_new = w_inf + (w - w_inf) * e
+        th_new = th + w_inf * h + (w - w_inf) * (1.0 - e) / a_mech
+    else:
+        acc = -torque / j
+        w_new = w + acc * h
+        th_new = th + w * h + 0.5 * acc * h * h
+    return w_new, th_new
+
+
+@njit
+def _linear_kernel(v, tl, phi, gam, decay, a_mech, j, dt, x):  # pragma: no cover - jitted
+    n = v.shape[0]
+    out = np.empty((n, 3))
+    i, w, th = x[0], x[1], x[2]
+    for k in range(n):
+        out[k, 0] = i
+        out[k, 1] = w
+        out[k, 2] = th
+        if math.isnan(v[k]):
+            i = 0.0
+            w, th = _coast_step(w, th, tl[k], a_mech, j, dt)
+        else:
+            i_n = phi[0, 0] * i + phi[0, 1] * w + gam[0, 0] * v[k] + gam[0, 1] * tl[k]
+            w_n = phi[1, 0] * i + phi[1, 1] * w + gam[1, 0] * v[k] + gam[1, 1] * tl[k]
+            th = phi[2, 0] * i + phi[2, 1] * w + th + gam[2, 0] * v[k] + gam[2, 1] * tl[k]
+            i, w = i_n, w_n
+    x[0], x[1], x[2] = i, w, th
+    return out
+
+
+# ---------------------------------------------------------------------------
+# Model with effects
+# ---------------------------------------------------------------------------
+# Layout of the coefficient vector handed to the kernel.
+_R, _L, _KE, _KT, _J, _B = 0, 1, 2, 3, 4, 5
+_TC, _TS, _WS, _CQ, _TL, _VB, _TCOG, _NCOG, _PHCOG, _KR, _ISAT = range(6, 17)
+_NCOEF = 17
+
+
+def _coefficients(model: Model) -> FloatArray:
+    p = model.params
+    c = np.zeros(_NCOEF)
+    c[[_R, _L, _KE, _KT, _J, _B]] = p.R, p.L, p.Ke, p.Kt, p.J, p.B
+    c[_WS] = 1.0
+    for e in model.effects:
+        if isinstance(e, CoulombFriction):
+            c[_TC] = e.torque_nm
+        elif isinstance(e, StribeckFriction):
+            c[_TS], c[_WS] = e.torque_nm, e.speed_rad_s
+        elif isinstance(e, QuadraticDrag):
+            c[_CQ] = e.coeff_nm_s2
+        elif isinstance(e, LoadTorque):
+            c[_TL] = e.torque_nm
+        elif isinstance(e, BrushDrop):
+            c[_VB] = e.voltage_v
+        elif isinstance(e, Cogging):
+            c[_TCOG], c[_NCOG], c[_PHCOG] = e.torque_nm, e.periods_per_rev, e.phase_rad
+        elif isinstance(e, ResistanceDrift):
+            c[_KR] = e.coeff_per_a2s
+        elif isinstance(e, InductanceSaturation):
+            c[_ISAT] = e.saturation_current_a
+    return c
+
+
+def apply_dead_zone(voltage: FloatArray, dead_zone_v: float) -> FloatArray:
+    """``sign(V) max(|V| - Vdz, 0)``; NaN (open armature) passes through."""
+    if dead_zone_v <= 0.0:
+        return voltage
+    with np.errstate(invalid="ignore"):
+        return np.sign(voltage) * np.maximum(np.abs(voltage) - dead_zone_v, 0.0)
+
+
+def apply_delay(voltage: FloatArray, delay_s: float, dt_s: float, initial_v: float = 0.0) -> FloatArray:
+    """Delay a sampled (ZOH) voltage by ``delay_s``, with fractional-sample interpolation.
+
+    Before the first command arrives the motor sees ``initial_v``. An open-armature
+    interval is delayed by the rounded number of samples.
+    """
+    if delay_s <= 0.0:
+        return voltage
+    n = voltage.size
+    shift = delay_s / dt_s
+    whole = int(math.floor(shift))
+    frac = shift - whole
+    padded = np.concatenate([np.full(whole + 1, initial_v), voltage])
+    idx = np.arange(n) + 1  # padded[idx + whole] is voltage[k - whole]
+    cur = padded[idx]  # voltage[k - whole]
+    prev = padded[idx - 1]  # voltage[k - whole - 1]
+    out = (1.0 - frac) * cur + frac * prev
+    # Where an open-armature (NaN) sample is involved, take the nearer sample
+    # instead of mixing: open intervals are delayed by the rounded shift.
+    near = prev if frac >= 0.5 else cur
+    return np.where(np.isnan(out), near, out)
+
+
+def simulate(
+    model: Model,
+    voltage: ArrayLike,
+    dt_s: float,
+    x0: ArrayLike | None = None,
+    substeps: int = 8,
+) -> SimResult:
+    """Simulate the motor with all effects of ``model`` under a ZOH voltage command.
+
+    ``x0`` is ``[i, w, theta]`` (default at rest). ``substeps`` sub-steps per
+    sample resolve friction reversals and stiction; the linear part of each
+    sub-step is exact.
+    """
+    _check_dt(dt_s)
+    if substeps < 1:
+        msg = f"substeps must be >= 1, got {substeps}"
+        raise ParameterError(msg)
+    v_cmd = _as_voltage(voltage)
+    dz = model.effect("dead_zone")
+    dl = model.effect("delay")
+    v_app = apply_dead_zone(v_cmd, dz.voltage_v if isinstance(dz, DeadZone) else 0.0)
+    v_app = apply_delay(v_app, dl.delay_s if isinstance(dl, Delay) else 0.0, dt_s)
+    state = np.zeros(5)
+    state[:3] = _initial_state(x0)
+    out = _run_effects(model, v_app, dt_s, state, substeps)
+    off = model.effect("current_offset")
+    current = out[:, 0] + (off.offset_a if isinstance(off, CurrentOffset) else 0.0)
+    return SimResult(
+        t=np.arange(v_cmd.size) * dt_s,
+        current=current,
+        speed=out[:, 1],
+        position=out[:, 2],
+        applied_voltage=v_app,
+        final_state=state,
+    )
+
+
+def _run_effects(
+    model: Model, v_app: FloatArray, dt_s: float, state: FloatArray, substeps: int
+) -> FloatArray:
+    c = _coefficients(model)
+    h = dt_s / substeps
+    varying = c[_KR] > 0.0 or c[_ISAT] > 0.0
+    phi, gam = discretize_zoh(model.params, h)
+    if state[4] == 0.0 and state[1] == 0.0 and c[_TC] + c[_TS] > 0.0:
+        state[4] = 1.0  # starts at rest: held by static friction until it breaks away
+    return _effects_kernel(v_app, c, phi, gam, h, substeps, varying, state)
+
+
+@njit
+def _zoh2(a11, a12, a21, a22, h):  # pragma: no cover - jitted
+    """Closed-form exp(A h) and int_0^h exp(A s) ds for a 2x2 matrix with det(A) != 0."""
+    s = 0.5 * (a11 + a22)
+    d = 0.5 * (a11 - a22)
+    q2 = d * d + a12 * a21
+    es = math.exp(s * h)
+    if q2 > 1e-300:
+        q = math.sqrt(q2)
+        ch = math.cosh(q * h)
+        sh = math.sinh(q * h) / q
+    elif q2 < -1e-300:
+        q = math.sqrt(-q2)
+        ch = math.cos(q * h)
+        sh = math.sin(q * h) / q
+    else:
+        ch = 1.0
+        sh = h
+    e11 = es * (ch + sh * (a11 - s))
+    e12 = es * sh * a12
+    e21 = es * sh * a21
+    e22 = es * (ch + sh * (a22 - s))
+    det = a11 * a22 - a12 * a21
+    # int = A^-1 (E - I)
+    m11, m12, m21, m22 = e11 - 1.0, e12, e21, e22 - 1.0
+    g11 = (a22 * m11 - a12 * m21) / det
+    g12 = (a22 * m12 - a12 * m22) / det
+    g21 = (-a21 * m11 + a11 * m21) / det
+    g22 = (-a21 * m12 + a11 * m22) / det
+    return e11, e12, e21, e22, g11, g12, g21, g22
+
+
+@njit
+def _effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - jitted
+    r0, l0, ke, kt, j, b = c[0], c[1], c[2], c[3], c[4], c[5]
+    tc, ts, ws, cq, tl, vb = c[6], c[7], c[8], c[9], c[10], c[11]
+    tcog, ncog, phcog, kr, isat = c[12], c[13], c[14], c[15], c[16]
+    t_static = tc + ts
+    a_mech = b / j
+    n = v.shape[0]
+    out = np.empty((n, 3))
+    i, w, th, q, stuck = st[0], st[1], st[2], st[3], st[4] > 0.5
+    r, lcur, v_eff = r0, l0, 0.0
+    for k in range(n):
+        out[k, 0] = i
+        out[k, 1] = w
+        out[k, 2] = th
+        vk = v[k]
+        is_open = math.isnan(vk)
+        for _ in range(nsub):
+            # Torques that do not depend on the sign of w (opposing +w when positive).
+            t_pos = tl
+            if tcog > 0.0:
+                t_pos += tcog * math.sin(ncog * th + phcog)
+            if is_open:
+                i = 0.0
+                drive = -t_pos
+            else:
+                # Brush drop: a dead band on the voltage that drives current.
+                e_drive = vk - ke * w
+                if vb > 0.0:
+                    if e_drive > vb:
+                        v_eff = vk - vb
+                    elif e_drive < -vb:
+                        v_eff = vk + vb
+                    else:
+                        v_eff = ke * w  # no net voltage to drive current through brushes
+                else:
+                    v_eff = vk
+                r = r0 * (1.0 + kr * q) if kr > 0.0 else r0
+                lcur = l0 / (1.0 + (i / isat) ** 2) if isat > 0.0 else l0
+                drive = kt * i - t_pos
+            if stuck:
+                if is_open:
+                    if abs(drive) <= t_static:
+                        continue
+                else:
+                    # Electrical step with the rotor held: exact first-order decay.
+                    i_inf = v_eff / r
+                    i_held = i_inf + (i - i_inf) * math.exp(-r * h / lcur)
+                    i_avg = i_inf + (i - i_inf) * (1.0 - math.exp(-r * h / lcur)) * lcur / (r * h)
+                    if abs(kt * i_avg - t_pos) <= t_static:
+                        q += i_held * i_held * h
+                        i = i_held
+                        continue
+                    drive = kt * i_avg - t_pos
+                stuck = False
+                sgn = 1.0 if drive > 0.0 else -1.0
+            else:
+                sgn = 1.0 if w > 0.0 else (-1.0 if w < 0.0 else (1.0 if drive > 0.0 else -1.0))
+            fric = sgn * (tc + ts * math.exp(-((w / ws) ** 2)))
+            t_opp = t_pos + fric + cq * w * abs(w)
+            if is_open:
+                w_new, th_new = _coast_step(w, th, t_opp, a_mech, j, h)
+                i_new = 0.0
+            elif varying:
+                e11, e12, e21, e22, g11, g12, g21, g22 = _zoh2(
+                    -r / lcur, -ke / lcur, kt / j, -b / j, h
+                )
+                u1 = v_eff / lcur
+                u2 = -t_opp / j
+                i_new = e11 * i + e12 * w + g11 * u1 + g12 * u2
+                w_new = e21 * i + e22 * w + g21 * u1 + g22 * u2
+                th_new = th + 0.5 * (w + w_new) * h
+            else:
+                i_new = phi[0, 0] * i + phi[0, 1] * w + gam[0, 0] * v_eff + gam[0, 1] * t_opp
+                w_new = phi[1, 0] * i + phi[1, 1] * w + gam[1, 0] * v_eff + gam[1, 1] * t_opp
+                th_new = phi[2, 0] * i + phi[2, 1] * w + th + gam[2, 0] * v_eff + gam[2, 1] * t_opp
+            if t_static > 0.0 and w_new * sgn < 0.0:
+                # Friction brought the rotor to rest within the sub-step.
+                w_new = 0.0
+                held = -t_pos if is_open else kt * i_new - t_pos
+                if abs(held) <= t_static:
+                    stuck = True
+            if not is_open:
+                q += 0.5 * (i * i + i_new * i_new) * h
+            i, w, th = i_new, w_new, th_new
+    st[0], st[1], st[2], st[3] = i, w, th, q
+    st[4] = 1.0 if stuck else 0.0
+    return out
+
+
+# ---------------------------------------------------------------------------
+# Streaming plant for the simulated driver
+# ---------------------------------------------------------------------------
+class Plant:
+    """The motor model advanced one sample at a time on an exact grid.
+
+    ``step(v)`` holds ``v`` (volts, or ``None``/NaN for an open armature) over
+    one sample period and returns the state at the end of it. Dead zone and
+    delay act on the command stream exactly as in :func:`simulate`, so a
+    sequence of ``step`` calls reproduces :func:`simulate` sample by sample.
+    """
+
+    def __init__(self, model: Model, dt_s: float, substeps: int = 8) -> None:
+        _check_dt(dt_s)
+        self.model = model
+        self.dt_s = float(dt_s)
+        self.substeps = int(substeps)
+        dz = model.effect("dead_zone")
+        dl = model.effect("delay")
+        off = model.effect("current_offset")
+        self._dead_zone_v = dz.voltage_v if isinstance(dz, DeadZone) else 0.0
+        self._delay_s = dl.delay_s if isinstance(dl, Delay) else 0.0
+        self._offset_a = off.offset_a if isinstance(off, CurrentOffset) else 0.0
+        self._history = np.zeros(int(math.floor(self._delay_s / self.dt_s)) + 2)
+        self._coef = _coefficients(model)
+        self._varying = bool(self._coef[_KR] > 0.0 or self._coef[_ISAT] > 0.0)
+        self._phi, self._gam = discretize_zoh(model.params, self.dt_s / self.substeps)
+        self._state = np.zeros(5)
+        self._state[4] = 1.0 if self._coef[_TC] + self._coef[_TS] > 0.0 else 0.0
+        self.samples = 0
+
+    @property
+    def time_s(self) -> float:
+        return self.samples * self.dt_s
+
+    @property
+    def current_a(self) -> float:
+        """Measured current (true current plus any sensor offset)."""
+        return float(self._state[0]) + self._offset_a
+
+    @property
+    def speed_rad_s(self) -> float:
+        return float(self._state[1])
+
+    @property
+    def position_rad(self) -> float:
+        return float(self._state[2])
+
+    def step(self, voltage_v: float | None) -> None:
+        v = math.nan if voltage_v is None else float(voltage_v)
+        v_arr = apply_dead_zone(np.array([v]), self._dead_zone_v)
+        if self._delay_s > 0.0:
+            self._history = np.roll(self._history, -1)
+            self._history[-1] = v_arr[0]
+            delayed = apply_delay(self._history, self._delay_s, self.dt_s)
+            v_arr = delayed[-1:]
+        _effects_kernel(
+            v_arr,
+            self._coef,
+            self._phi,
+            self._gam,
+            self.dt_s / self.substeps,
+            self.substeps,
+            self._varying,
+            self._state,
+        )
+        self.samples += 1
+
+
+# ---------------------------------------------------------------------------
+def _check_dt(dt_s: float) -> None:
+    if not (math.isfinite(dt_s) and dt_s > 0.0):
+        msg = f"sample period dt_s must be a positive number of seconds, got {dt_s}"
+        raise ParameterError(msg)
+
+
+def _as_voltage(voltage: ArrayLike) -> FloatArray:
+    v = np.ascontiguousarray(np.asarray(voltage, dtype=float).ravel())
+    if np.isinf(v).any():
+        msg = "voltage contains infinite values (NaN marks an open armature; inf is refused)"
+        raise ParameterError(msg)
+    return v
+
+
+def _initial_state(x0: ArrayLike | None) -> FloatArray:
+    if x0 is None:
+        return np.zeros(3)
+    x = np.asarray(x0, dtype=float).ravel()
+    if x.size == 2:
+        x = np.append(x, 0.0)
+    if x.size != 3 or not np.isfinite(x).all():
+        msg = "initial state x0 must be finite [current_a, speed_rad_s(, position_rad)]"
+        raise ParameterError(msg)
+    return x.copy()
