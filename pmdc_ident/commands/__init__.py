@@ -1,0 +1,1 @@
+"""Sub-commands of ``pmdc-ident`` (see :mod:`pmdc_ident.cli`)."""

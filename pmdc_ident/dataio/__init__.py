@@ -1,0 +1,28 @@
+"""Reading and writing runs: CSV (``csvio``) and rosbag2/MCAP (``bagio``), ROS-free."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pmdc_ident.core.data import Run
+from pmdc_ident.core.errors import DataError
+
+__all__ = ["load_data"]
+
+
+def load_data(path: str | Path) -> Run:
+    """Load one DATA argument: a CSV file, an ``.mcap`` file or a rosbag2 directory."""
+    p = Path(path)
+    if not p.exists():
+        msg = f"{p}: no such file or directory"
+        raise DataError(msg)
+    if p.is_dir() or p.suffix.lower() == ".mcap":
+        from pmdc_ident.dataio.bagio import read_bag
+
+        return read_bag(p)
+    if p.suffix.lower() in (".csv", ".txt"):
+        from pmdc_ident.dataio.csvio import read_csv
+
+        return read_csv(p)
+    msg = f"{p}: unknown data format (expected .csv, .mcap or a rosbag2 directory)"
+    raise DataError(msg)
