@@ -1,0 +1,53 @@
+# Developer entry points. `make demo` and `make test` work on a fresh machine
+# with Python 3.11: the first run creates $(VENV) and installs the pinned set.
+
+VENV ?= .venv
+PYTHON ?= $(shell command -v python3.11 2>/dev/null || command -v python3)
+VPY := $(VENV)/bin/python
+STAMP := $(VENV)/.pmdc_ident-installed
+
+# Keep every ROS 2 process started from here on this machine: Fast DDS uses
+# only the loopback interface (see config/fastdds_localhost.xml) and ROS 2
+# discovery stays on localhost, on a fixed domain unless overridden.
+ROS_DOMAIN_ID ?= 42
+export ROS_DOMAIN_ID
+# Fast DDS 2.14 (Jazzy) reads FASTRTPS_DEFAULT_PROFILES_FILE; Fast DDS 3 reads
+# FASTDDS_DEFAULT_PROFILES_FILE. Set both.
+export FASTDDS_DEFAULT_PROFILES_FILE := $(CURDIR)/config/fastdds_localhost.xml
+export FASTRTPS_DEFAULT_PROFILES_FILE := $(FASTDDS_DEFAULT_PROFILES_FILE)
+export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+
+# Only the paths that exist (benchmarks/ and launch/ may not yet).
+LINT_PATHS := $(wildcard pmdc_ident test benchmarks launch setup.py)
+BENCHES := $(sort $(wildcard benchmarks/bench_*.py))
+
+.PHONY: venv demo test lint bench clean
+
+venv: $(STAMP)
+
+# Re-run the install only when what it installs changes.
+$(STAMP): requirements-dev.txt constraints.txt setup.py setup.cfg
+	test -x $(VPY) || $(PYTHON) -m venv $(VENV)
+	$(VPY) -m pip install -r requirements-dev.txt -c constraints.txt
+	$(VPY) -m pip install -e . --no-deps
+	test -x $(VENV)/bin/pmdc-ident
+	touch $@
+
+demo: $(STAMP)
+	$(VPY) -m pmdc_ident.demo
+
+test: $(STAMP)
+	$(VPY) -m pytest -q test --timeout=600
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check $(LINT_PATHS)
+	$(VENV)/bin/ruff format --check $(LINT_PATHS)
+
+bench: $(STAMP)
+	@if [ -z "$(BENCHES)" ]; then echo "no benchmarks/bench_*.py yet"; fi
+	@set -e; for b in $(BENCHES); do echo "== $$b"; $(VPY) $$b; done
+
+clean:
+	rm -rf build install log out .pytest_cache .ruff_cache *.egg-info
+	find . -path ./$(VENV) -prune -o -name __pycache__ -type d -print0 | xargs -0 rm -rf
+	rm -f $(STAMP)
