@@ -1,14 +1,21 @@
 import os
-from glob import glob
 
 from setuptools import find_packages, setup
 
 package_name = "pmdc_ident"
 
 
-def _files(pattern: str) -> list[str]:
-    """Regular files matching ``pattern`` (skips directories and dot-files)."""
-    return sorted(p for p in glob(pattern) if os.path.isfile(p))
+def _tree(src: str) -> list[tuple[str, list[str]]]:
+    """data_files entries installing ``src/`` under share/<pkg>/, keeping subfolders.
+
+    Dot-files (such as launch/.gitkeep) and __pycache__ are left out.
+    """
+    entries = []
+    for folder, dirs, files in os.walk(src):
+        dirs[:] = sorted(d for d in dirs if not d.startswith(".") and d != "__pycache__")
+        paths = sorted(os.path.join(folder, f) for f in files if not f.startswith("."))
+        entries.append((os.path.join("share", package_name, folder), paths))
+    return entries
 
 
 setup(
@@ -18,8 +25,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
-        ("share/" + package_name + "/config", _files("config/*")),
-        ("share/" + package_name + "/launch", _files("launch/*")),
+        *_tree("config"),
+        *_tree("launch"),
     ],
     # Only the numerics. ROS (rclpy, message packages) comes from the ROS
     # distribution on a robot, or from requirements-dev.txt in the .venv.
