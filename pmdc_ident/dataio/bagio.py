@@ -1,0 +1,390 @@
+"""rosbag2/MCAP reading and writing without ROS (the ``rosbags`` library, ROS 2 Jazzy types).
+
+What a session bag holds (topic names are matched by their last component, so a
+namespaced graph works too):
+
+=================  ===========================  =======================================
+topic              type                         content
+=================  ===========================  =======================================
+``current``        sensor_msgs/msg/JointState   effort[0] armature current, A
+``encoder``        sensor_msgs/msg/JointState   position[0] rad, velocity[0] rad/s
+``voltage_applied``sensor_msgs/msg/JointState   effort[0] applied V (NaN: armature
+                                                open), effort[1] terminal V if measured
+``voltage_cmd``    std_msgs/msg/Float64         the identification node's command, V
+``segment``        std_msgs/msg/String          JSON :class:`~pmdc_ident.core.session.Marker`
+=================  ===========================  =======================================
+
+Driver topics carry the driver's own sample time in ``header.stamp``;
+:func:`read_bag` joins them on that stamp and cuts the session's segments at the
+markers' driver times (``start <= t < end``). The identification node builds its
+online :class:`Run` with the same :func:`assemble_run`, so offline and online
+identification see the same samples.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pmdc_ident.core.data import Run, Segment
+from pmdc_ident.core.errors import DataError, PmdcError
+from pmdc_ident.core.session import Marker, MarkerEvent
+
+__all__ = [
+    "BagWriter",
+    "DriverArrays",
+    "TOPIC_TYPES",
+    "assemble_run",
+    "header_stamp_ns",
+    "read_bag",
+    "read_driver_arrays",
+    "write_bag",
+]
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+JOINT_STATE = "sensor_msgs/msg/JointState"
+FLOAT64 = "std_msgs/msg/Float64"
+STRING = "std_msgs/msg/String"
+TOPIC_TYPES: dict[str, str] = {
+    "current": JOINT_STATE,
+    "encoder": JOINT_STATE,
+    "voltage_applied": JOINT_STATE,
+    "voltage_cmd": FLOAT64,
+    "segment": STRING,
+}
+_STAMP = struct.Struct("<iI")
+
+
+def _typestore():  # type: ignore[no-untyped-def]
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def header_stamp_ns(cdr: bytes | memoryview) -> int:
+    """``header.stamp`` in ns of a little-endian CDR message that starts with a Header."""
+    if len(cdr) < 12 or cdr[1] != 1:
+        msg = "not a little-endian CDR message with a header"
+        raise DataError(msg)
+    sec, nsec = _STAMP.unpack_from(cdr, 4)
+    return sec * 1_000_000_000 + nsec
+
+
+# ---------------------------------------------------------------------------
+# Assembling a Run from the driver topics
+# ---------------------------------------------------------------------------
+@dataclass
+class DriverArrays:
+    """Driver samples per topic: stamps in ns (driver clock) and values (SI units)."""
+
+    current_ns: IntArray
+    current_a: FloatArray
+    encoder_ns: IntArray
+    position_rad: FloatArray | None
+    speed_rad_s: FloatArray | None
+    voltage_ns: IntArray
+    voltage_v: FloatArray
+    terminal_v: FloatArray | None
+    markers: list[Marker]
+
+
+def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = None) -> Run:
+    """Join the driver topics on their stamps and cut the session's segments.
+
+    Samples missing from any topic are dropped. With ``session`` given only that
+    session's markers are used (default: every session in the data). Times are
+    seconds from the first session start (or the first sample without markers).
+    """
+    enc_ns = np.asarray(arrays.encoder_ns, dtype=np.int64)
+    v_ns = np.asarray(arrays.voltage_ns, dtype=np.int64)
+    stamps, ie, iv = np.intersect1d(enc_ns, v_ns, assume_unique=False, return_indices=True)
+    have_current = arrays.current_ns.size > 0
+    ic = None
+    if have_current:
+        stamps, keep, ic = np.intersect1d(
+            stamps, np.asarray(arrays.current_ns, dtype=np.int64), return_indices=True
+        )
+        ie, iv = ie[keep], iv[keep]
+    if stamps.size < 2:
+        msg = f"{source or 'data'}: fewer than 2 driver samples with matching stamps"
+        raise DataError(msg)
+    pos = None if arrays.position_rad is None else np.asarray(arrays.position_rad, float)[ie]
+    spd = None if arrays.speed_rad_s is None else np.asarray(arrays.speed_rad_s, float)[ie]
+    volt = np.asarray(arrays.voltage_v, dtype=float)[iv]
+    term = None if arrays.terminal_v is None else np.asarray(arrays.terminal_v, float)[iv]
+    cur = np.asarray(arrays.current_a, dtype=float)[ic] if ic is not None else None
+    dt_ns = int(np.median(np.diff(stamps)))
+
+    markers = [m for m in arrays.markers if session is None or m.session == session]
+    spans = _segment_spans(markers)
+    starts = [m for m in markers if m.event is MarkerEvent.SESSION_START]
+    t0_ns = _ns(starts[0].t_s) if starts else int(stamps[0])
+    if not spans:
+        spans = [("run", int(stamps[0]), int(stamps[-1]) + dt_ns)]
+    segments: list[Segment] = []
+    half = dt_ns // 2
+    for label, a_ns, b_ns in spans:
+        lo = int(np.searchsorted(stamps, a_ns - half, side="left"))
+        hi = int(np.searchsorted(stamps, b_ns - half, side="left"))
+        if hi - lo < 2:
+            continue
+        sl = slice(lo, hi)
+        tv = None
+        if term is not None and np.isfinite(term[sl]).all():
+            tv = term[sl]
+        segments.append(
+            Segment(
+                label=label,
+                t=(stamps[sl] - t0_ns) * 1e-9,
+                voltage=volt[sl],
+                current=None if cur is None else cur[sl],
+                position=None if pos is None else pos[sl],
+                speed=None if spd is None else spd[sl],
+                terminal_voltage=tv,
+            )
+        )
+    if not segments:
+        msg = f"{source or 'data'}: no segment holds 2 or more driver samples"
+        raise DataError(msg)
+    return Run(tuple(segments), source)
+
+
+def _ns(t_s: float) -> int:
+    return int(round(t_s * 1e9))
+
+
+def _segment_spans(markers: Sequence[Marker]) -> list[tuple[str, int, int]]:
+    """(label, start ns, end ns) from START/END marker pairs, in time order."""
+    open_: dict[tuple[str, str], int] = {}
+    spans: list[tuple[str, int, int]] = []
+    for m in sorted(markers, key=lambda m: m.t_s):
+        key = (m.session, m.label)
+        if m.event is MarkerEvent.START:
+            open_[key] = _ns(m.t_s)
+        elif m.event is MarkerEvent.END and key in open_:
+            spans.append((m.label, open_.pop(key), _ns(m.t_s)))
+    return sorted(spans, key=lambda s: s[1])
+
+
+# ---------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------
+def _topic_role(topic: str) -> str | None:
+    last = topic.rstrip("/").rsplit("/", 1)[-1]
+    return last if last in TOPIC_TYPES else None
+
+
+def read_driver_arrays(path: str | Path) -> DriverArrays:
+    """The driver topics and segment markers of a bag directory or ``.mcap`` file."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.rosbag2.errors import ReaderError
+
+    p = Path(path)
+    ts = _typestore()
+    cols: dict[str, list[Any]] = {k: [] for k in ("cur", "enc", "volt")}
+    markers: list[Marker] = []
+    try:
+        with Reader(p) as reader:
+            conns = [c for c in reader.connections if _topic_role(c.topic)]
+            roles = {_topic_role(c.topic) for c in conns}
+            for need in ("encoder", "voltage_applied"):
+                if need not in roles:
+                    msg = (
+                        f"{p}: no '{need}' topic in the bag (topics: "
+                        + ", ".join(sorted(c.topic for c in reader.connections))
+                        + ")"
+                    )
+                    raise DataError(msg)
+            for conn, _, raw in reader.messages(connections=conns):
+                role = _topic_role(conn.topic)
+                if role == "segment":
+                    text = ts.deserialize_cdr(raw, STRING).data
+                    try:
+                        markers.append(Marker.from_json(text))
+                    except PmdcError:
+                        continue
+                    continue
+                if role == "voltage_cmd":
+                    continue
+                msg = ts.deserialize_cdr(raw, JOINT_STATE)
+                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                if role == "current":
+                    cols["cur"].append((stamp, _first(msg.effort)))
+                elif role == "encoder":
+                    cols["enc"].append((stamp, _first(msg.position), _first(msg.velocity)))
+                else:
+                    eff = msg.effort
+                    cols["volt"].append(
+                        (stamp, _first(eff), float(eff[1]) if len(eff) > 1 else math.nan)
+                    )
+    except (ReaderError, KeyError, struct.error) as exc:
+        msg = f"{p}: not a readable rosbag2/MCAP bag ({exc})"
+        raise DataError(msg) from None
+
+    def arr(rows: list[Any], n: int) -> NDArray[Any]:
+        return np.array(rows, dtype=float).reshape(-1, n)
+
+    cur, enc, volt = arr(cols["cur"], 2), arr(cols["enc"], 3), arr(cols["volt"], 3)
+    speed = enc[:, 2] if enc.size and np.isfinite(enc[:, 2]).all() else None
+    position = enc[:, 1] if enc.size and np.isfinite(enc[:, 1]).all() else None
+    term = volt[:, 2] if volt.size and np.isfinite(volt[:, 2]).any() else None
+    return DriverArrays(
+        current_ns=cur[:, 0].astype(np.int64),
+        current_a=cur[:, 1],
+        encoder_ns=enc[:, 0].astype(np.int64),
+        position_rad=position,
+        speed_rad_s=speed,
+        voltage_ns=volt[:, 0].astype(np.int64),
+        voltage_v=volt[:, 1],
+        terminal_v=term,
+        markers=markers,
+    )
+
+
+def _first(values: Sequence[float] | NDArray[Any]) -> float:
+    return float(values[0]) if len(values) else math.nan
+
+
+def read_bag(path: str | Path, session: str | None = None) -> Run:
+    """A recorded session (bag directory or ``.mcap`` file) as a :class:`Run`."""
+    p = Path(path)
+    if not p.exists():
+        msg = f"{p}: no such bag"
+        raise DataError(msg)
+    return assemble_run(read_driver_arrays(p), source=str(p), session=session)
+
+
+# ---------------------------------------------------------------------------
+# Writing
+# ---------------------------------------------------------------------------
+class BagWriter:
+    """A rosbag2 (MCAP storage) writer for the session topics; a context manager.
+
+    ``write_raw`` takes CDR bytes as rclpy delivers them with ``raw=True``;
+    ``write_msg`` serializes a rosbags message object.
+    """
+
+    def __init__(self, path: str | Path, topics: dict[str, str]) -> None:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        self.path = Path(path)
+        if self.path.exists():
+            msg = f"{self.path}: exists already; a bag is never overwritten"
+            raise DataError(msg)
+        self.typestore = _typestore()
+        self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._topics = dict(topics)
+        self._conns: dict[str, Any] = {}
+        self.counts: dict[str, int] = {}
+        self.is_open = False
+
+    def open(self) -> BagWriter:
+        self._writer.open()
+        for topic, msgtype in self._topics.items():
+            self._conns[topic] = self._writer.add_connection(
+                topic, msgtype, typestore=self.typestore
+            )
+            self.counts[topic] = 0
+        self.is_open = True
+        return self
+
+    def __enter__(self) -> BagWriter:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def write_raw(self, topic: str, timestamp_ns: int, data: bytes | memoryview) -> None:
+        self._writer.write(self._conns[topic], int(timestamp_ns), data)
+        self.counts[topic] += 1
+
+    def write_msg(self, topic: str, timestamp_ns: int, msg: Any) -> None:
+        data = self.typestore.serialize_cdr(msg, self._topics[topic])
+        self.write_raw(topic, timestamp_ns, data)
+
+    def close(self) -> None:
+        if self.is_open:
+            self.is_open = False
+            self._writer.close()
+
+
+def _joint_state(ts: Any, stamp_ns: int, name: list[str], **arrays: Iterable[float]) -> Any:
+    JS = ts.types[JOINT_STATE]
+    Header = ts.types["std_msgs/msg/Header"]
+    Time = ts.types["builtin_interfaces/msg/Time"]
+    sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+    empty = np.zeros(0)
+    return JS(
+        header=Header(stamp=Time(sec=sec, nanosec=nsec), frame_id=""),
+        name=name,
+        position=np.asarray(list(arrays.get("position", empty)), dtype=float),
+        velocity=np.asarray(list(arrays.get("velocity", empty)), dtype=float),
+        effort=np.asarray(list(arrays.get("effort", empty)), dtype=float),
+    )
+
+
+def write_bag(run: Run, path: str | Path, session: str = "export") -> Path:
+    """Write a Run as a session bag (driver topics + segment markers) that read_bag reads.
+
+    Segments whose times do not follow the previous one are shifted to start one
+    sample period after it, so the bag keeps one increasing driver clock.
+    """
+    p = Path(path)
+    offset = 0.0
+    last_t = -math.inf
+    with BagWriter(p, {k: v for k, v in TOPIC_TYPES.items() if k != "voltage_cmd"}) as w:
+        ts = w.typestore
+        String = ts.types[STRING]
+        first = True
+        for seg in run.segments:
+            t = seg.t + offset
+            if t[0] <= last_t:
+                shift = last_t + seg.dt_s - t[0]
+                offset += shift
+                t = t + shift
+            if t[0] < 0:  # the driver clock is never negative
+                offset -= t[0]
+                t = t - t[0]
+            stamps = np.round(t * 1e9).astype(np.int64)
+            end_ns = int(stamps[-1]) + int(round(seg.dt_s * 1e9))
+            events = []
+            if first:  # the session starts at driver time 0: read_bag gives back seg.t
+                events.append(Marker(MarkerEvent.SESSION_START, "", 0.0, session))
+                first = False
+            events.append(Marker(MarkerEvent.START, seg.label, stamps[0] * 1e-9, session))
+            for m in events:
+                w.write_msg("segment", int(stamps[0]), String(data=m.to_json()))
+            speed = seg.speed
+            pos = seg.position if seg.position is not None else np.full(seg.n, math.nan)
+            volt = seg.voltage if seg.voltage is not None else np.full(seg.n, math.nan)
+            for k in range(seg.n):
+                s = int(stamps[k])
+                if seg.current is not None:
+                    w.write_msg(
+                        "current", s, _joint_state(ts, s, ["armature"], effort=[seg.current[k]])
+                    )
+                enc: dict[str, list[float]] = {"position": [pos[k]]}
+                if speed is not None:
+                    enc["velocity"] = [speed[k]]
+                w.write_msg("encoder", s, _joint_state(ts, s, ["shaft"], **enc))
+                eff = [volt[k]]
+                names = ["armature"]
+                if seg.terminal_voltage is not None:
+                    eff.append(seg.terminal_voltage[k])
+                    names.append("terminal")
+                w.write_msg("voltage_applied", s, _joint_state(ts, s, names, effort=eff))
+            end = Marker(MarkerEvent.END, seg.label, end_ns * 1e-9, session)
+            w.write_msg("segment", end_ns, String(data=end.to_json()))
+            last_t = float(t[-1])
+        done = Marker(MarkerEvent.SESSION_END, "", end_ns * 1e-9, session)
+        w.write_msg("segment", end_ns, String(data=done.to_json()))
+    return p
