@@ -1,0 +1,1 @@
+"""Thin rclpy nodes: the only layer that imports rclpy and message packages."""

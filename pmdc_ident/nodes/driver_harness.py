@@ -1,0 +1,332 @@
+"""Run the driver node in a child process and talk to it over DDS (demo, tests, benchmark).
+
+* :func:`ros_env` - the environment that keeps DDS on this machine (loopback
+  Fast DDS profile, localhost discovery, a chosen domain id);
+* :class:`DriverProcess` - ``python -m pmdc_ident.nodes.driver_node`` as a child,
+  stopped with SIGINT, its exit status and stderr kept;
+* :class:`DriverClient` - a small node that publishes ``voltage_cmd``, calls
+  ``open_armature`` and records ``current``/``encoder``/``voltage_applied`` by stamp;
+* :func:`run_step_demo` - the foundation-stage demo (``make demo``).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
+
+from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.model import simulate
+from pmdc_ident.core.motors import builtin_motor_dir, load_motor
+from pmdc_ident.nodes.driver_node import COMMAND_QOS, sample_qos
+
+__all__ = [
+    "DriverClient",
+    "DriverProcess",
+    "StepDemoResult",
+    "fastdds_profile",
+    "ros_env",
+    "run_step_demo",
+]
+
+
+class DemoError(PmdcError):
+    """The demo could not reach the driver or the driver misbehaved (one line)."""
+
+
+def fastdds_profile() -> Path:
+    """The loopback-only Fast DDS profile (source tree or installed share/)."""
+    return builtin_motor_dir().parent / "fastdds_localhost.xml"
+
+
+def ros_env(domain_id: int | None = None, base: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Environment keeping ROS 2 on localhost; FASTRTPS_* is what Fast DDS 2.14 reads."""
+    env = dict(os.environ if base is None else base)
+    profile = str(fastdds_profile())
+    env.setdefault("FASTDDS_DEFAULT_PROFILES_FILE", profile)
+    env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", env["FASTDDS_DEFAULT_PROFILES_FILE"])
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    if domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(domain_id)
+    env.setdefault("ROS_DOMAIN_ID", "42")
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    return env
+
+
+def apply_ros_env(domain_id: int | None = None) -> None:
+    """Put :func:`ros_env` into ``os.environ`` (before ``rclpy.init`` in this process)."""
+    os.environ.update(ros_env(domain_id))
+
+
+def _param_arg(name: str, value: Any) -> str:
+    if isinstance(value, bool):
+        text = "true" if value else "false"
+    elif isinstance(value, float):
+        text = repr(value)  # always with a '.', so ROS reads a double
+    else:
+        text = str(value)
+    return f"{name}:={text}"
+
+
+class DriverProcess:
+    """The driver node as a child process (a context manager that always stops it)."""
+
+    def __init__(self, params: Mapping[str, Any] | None = None, *, domain_id: int | None = None):
+        self.params = dict(params or {})
+        self.env = ros_env(domain_id)
+        self.proc: subprocess.Popen[str] | None = None
+        self.returncode: int | None = None
+        self.stderr = ""
+        self.stdout = ""
+
+    def start(self) -> DriverProcess:
+        cmd = [sys.executable, "-m", "pmdc_ident.nodes.driver_node", "--ros-args"]
+        for name, value in self.params.items():
+            cmd += ["-p", _param_arg(name, value)]
+        self.proc = subprocess.Popen(
+            cmd, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        return self
+
+    @property
+    def pid(self) -> int:
+        assert self.proc is not None
+        return self.proc.pid
+
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def stop(self, sig: int = signal.SIGINT, timeout_s: float = 10.0) -> int:
+        """Send ``sig``, wait for the exit; returns the exit status (kills after a timeout)."""
+        if self.proc is None:
+            return 0
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            out, err = self.proc.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            out, err = self.proc.communicate()
+        self.stdout, self.stderr = out or "", err or ""
+        self.returncode = self.proc.returncode
+        return self.returncode
+
+    def __enter__(self) -> DriverProcess:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        if self.returncode is None:
+            self.stop()
+
+
+@dataclass
+class Recording:
+    """Samples received on one topic: stamp (ns) and the values of interest."""
+
+    stamps_ns: list[int] = field(default_factory=list)
+    values: list[tuple[float, ...]] = field(default_factory=list)
+    recv_ns: list[int] = field(default_factory=list)
+
+    def array(self) -> np.ndarray:
+        return np.array(self.values, dtype=float).reshape(len(self.values), -1)
+
+    def times_s(self, t0_ns: int | None = None) -> np.ndarray:
+        s = np.array(self.stamps_ns, dtype=np.int64)
+        return (s - (s[0] if t0_ns is None else t0_ns)) * 1e-9 if s.size else np.zeros(0)
+
+
+class DriverClient(Node):
+    """Commands the driver and records what it publishes."""
+
+    def __init__(self, rate_hz: float = 1000.0, name: str = "driver_client") -> None:
+        super().__init__(name)
+        qos = sample_qos(rate_hz)
+        self.current = Recording()
+        self.encoder = Recording()
+        self.voltage = Recording()
+        self._pub = self.create_publisher(Float64, "voltage_cmd", COMMAND_QOS)
+        self.create_subscription(JointState, "current", self._rec(self.current, "c"), qos)
+        self.create_subscription(JointState, "encoder", self._rec(self.encoder, "e"), qos)
+        self.create_subscription(JointState, "voltage_applied", self._rec(self.voltage, "v"), qos)
+        self._open = self.create_client(Trigger, "open_armature")
+
+    def _rec(self, rec: Recording, kind: str) -> Callable[[JointState], None]:
+        def cb(msg: JointState) -> None:
+            rec.stamps_ns.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+            rec.recv_ns.append(time.time_ns())
+            if kind == "c":
+                rec.values.append((msg.effort[0],))
+            elif kind == "e":
+                rec.values.append((msg.position[0], msg.velocity[0]))
+            else:
+                rec.values.append(tuple(msg.effort))
+
+        return cb
+
+    def send(self, volts: float) -> None:
+        self._pub.publish(Float64(data=float(volts)))
+
+    def spin_for(
+        self, seconds: float, every_s: float = 0.0, action: Callable[[], None] | None = None
+    ):
+        """Spin ``seconds``; call ``action`` every ``every_s`` (e.g. to repeat a command)."""
+        end = time.monotonic() + seconds
+        next_action = time.monotonic()
+        while (now := time.monotonic()) < end:
+            if action is not None and now >= next_action:
+                action()
+                next_action += every_s
+            timeout = max(0.0, min(end, next_action if action else end) - time.monotonic())
+            rclpy.spin_once(self, timeout_sec=min(timeout, 0.05))
+
+    def wait_for_driver(self, timeout_s: float = 15.0) -> None:
+        """Until the driver's samples arrive and it sees our command publisher."""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            rclpy.spin_once(self, timeout_sec=0.05)
+            if self.encoder.stamps_ns and self._pub.get_subscription_count() > 0:
+                return
+        msg = f"no samples from the driver within {timeout_s:g} s (is it running?)"
+        raise DemoError(msg)
+
+    def open_armature(self, timeout_s: float = 5.0) -> str:
+        if not self._open.wait_for_service(timeout_sec=timeout_s):
+            msg = "open_armature service not available"
+            raise DemoError(msg)
+        fut = self._open.call_async(Trigger.Request())
+        rclpy.spin_until_future_complete(self, fut, timeout_sec=timeout_s)
+        if not fut.done() or fut.result() is None or not fut.result().success:
+            msg = "open_armature call failed"
+            raise DemoError(msg)
+        return fut.result().message
+
+    def clear(self) -> None:
+        for rec in (self.current, self.encoder, self.voltage):
+            rec.stamps_ns.clear()
+            rec.values.clear()
+            rec.recv_ns.clear()
+
+
+@dataclass(frozen=True)
+class StepDemoResult:
+    """What the step demo measured (SI units) and the driver's exit."""
+
+    t_s: np.ndarray  # since the step reached the motor
+    voltage_v: np.ndarray  # command applied (NaN = open)
+    current_a: np.ndarray
+    speed_rad_s: np.ndarray
+    steady_current_a: float  # mean over the last 0.2 s of the step
+    steady_speed_rad_s: float
+    predicted_current_a: float  # the motor model under the same step
+    predicted_speed_rad_s: float
+    driver_exit: int
+    driver_final_line: str
+
+
+def _aligned(client: DriverClient) -> tuple[np.ndarray, ...]:
+    """Samples present on all three topics, matched by stamp, in stamp order."""
+    c = dict(zip(client.current.stamps_ns, client.current.values, strict=True))
+    e = dict(zip(client.encoder.stamps_ns, client.encoder.values, strict=True))
+    v = dict(zip(client.voltage.stamps_ns, client.voltage.values, strict=True))
+    stamps = sorted(set(c) & set(e) & set(v))
+    arr = np.array([(s, v[s][0], c[s][0], e[s][1]) for s in stamps], dtype=float)
+    if arr.size == 0:
+        return (np.zeros(0, dtype=np.int64),) + (np.zeros(0),) * 3
+    return np.array(stamps, dtype=np.int64), arr[:, 1], arr[:, 2], arr[:, 3]
+
+
+def run_step_demo(
+    *,
+    volts: float = 10.0,
+    motor: str = "seed000_ebike",
+    step_s: float = 2.0,
+    rate_hz: float = 1000.0,
+    command_hz: float = 100.0,
+    domain_id: int | None = None,
+    out: Callable[[str], None] = print,
+) -> StepDemoResult:
+    """Start the driver, apply a voltage step, print a table and the steady state."""
+    apply_ros_env(domain_id)
+    spec = load_motor(motor)
+    driver = DriverProcess(
+        {"motor": motor, "rate_hz": float(rate_hz)},
+        domain_id=int(os.environ["ROS_DOMAIN_ID"]),
+    ).start()
+    rclpy.init()
+    client = DriverClient(rate_hz)
+    try:
+        client.wait_for_driver()
+        client.clear()
+        client.spin_for(step_s, 1.0 / command_hz, lambda: client.send(volts))
+        stamps_step, v_step, i_step, w_step = _aligned(client)
+        client.open_armature()
+        client.spin_for(0.3)
+    finally:
+        client.destroy_node()
+        rclpy.try_shutdown()
+        rc = driver.stop(signal.SIGINT)
+    final = next(
+        (ln for ln in driver.stderr.splitlines() if "driver stopped" in ln), "(no final line)"
+    )
+    if rc != 0:
+        msg = f"driver exited with status {rc}: {driver.stderr.strip().splitlines()[-1:]}"
+        raise DemoError(msg)
+    driven = ~np.isnan(v_step)
+    if driven.sum() < 0.5 * rate_hz:
+        msg = f"only {int(driven.sum())} driven samples received in {step_s:g} s"
+        raise DemoError(msg)
+    k0 = int(np.argmax(driven))
+    t = (stamps_step[k0:] - stamps_step[k0]) * 1e-9
+    v, i, w = v_step[k0:], i_step[k0:], w_step[k0:]
+    dt = 1.0 / rate_hz
+    pred = simulate(spec.model, np.full(t.size, volts), dt)
+    tail = t >= t[-1] - 0.2
+    res = StepDemoResult(
+        t_s=t,
+        voltage_v=v,
+        current_a=i,
+        speed_rad_s=w,
+        steady_current_a=float(np.mean(i[tail])),
+        steady_speed_rad_s=float(np.mean(w[tail])),
+        predicted_current_a=float(np.mean(pred.current[tail])),
+        predicted_speed_rad_s=float(np.mean(pred.speed[tail])),
+        driver_exit=rc,
+        driver_final_line=final,
+    )
+    _print_demo(res, spec.name, volts, out)
+    return res
+
+
+def _print_demo(res: StepDemoResult, motor: str, volts: float, out: Callable[[str], None]):
+    out(f"voltage step {volts:g} V on motor {motor} through the driver node (sim backend)")
+    out(f"{'t (s)':>8} {'V (V)':>8} {'I (A)':>9} {'w (rad/s)':>10}")
+    marks = [0.0, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5]
+    marks += [res.t_s[-1]]
+    for m in marks:
+        if m > res.t_s[-1] + 1e-9:
+            continue
+        k = int(np.argmin(np.abs(res.t_s - m)))
+        out(
+            f"{res.t_s[k]:8.3f} {res.voltage_v[k]:8.2f} {res.current_a[k]:9.3f} "
+            f"{res.speed_rad_s[k]:10.2f}"
+        )
+    rel_w = (res.steady_speed_rad_s - res.predicted_speed_rad_s) / res.predicted_speed_rad_s
+    out(
+        f"steady state (last 0.2 s): current {res.steady_current_a:.3f} A "
+        f"(model {res.predicted_current_a:.3f} A), speed {res.steady_speed_rad_s:.2f} rad/s "
+        f"(model {res.predicted_speed_rad_s:.2f} rad/s, {100 * rel_w:+.2f} %)"
+    )
+    out(f"armature opened; driver stopped with status {res.driver_exit}: {res.driver_final_line}")
