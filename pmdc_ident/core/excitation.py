@@ -169,7 +169,9 @@ def default_plan(
     if cfg.coast:
         n_up = samples(cfg.coast_spinup_tau * tau_m_s)
         open_s = cfg.coast_open_s or coast_decel_time_s or 5.0 * tau_m_s
-        v = np.concatenate([np.full(n_up, cfg.coast_fraction * vmax), np.full(samples(open_s), np.nan)])
+        v = np.concatenate(
+            [np.full(n_up, cfg.coast_fraction * vmax), np.full(samples(open_s), np.nan)]
+        )
         segs.append(PlannedSegment("coast", v))
     if not segs:
         msg = "the sequence configuration selects no test"
@@ -185,8 +187,16 @@ def apply_sensors(
     rng: np.random.Generator,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Measurement noise and encoder quantisation as the simulated driver applies them."""
-    i = current + rng.normal(0.0, sensors.current_noise_a, current.shape) if sensors.current_noise_a else current.copy()
-    w = speed + rng.normal(0.0, sensors.speed_noise_rad_s, speed.shape) if sensors.speed_noise_rad_s else speed.copy()
+    i = (
+        current + rng.normal(0.0, sensors.current_noise_a, current.shape)
+        if sensors.current_noise_a
+        else current.copy()
+    )
+    w = (
+        speed + rng.normal(0.0, sensors.speed_noise_rad_s, speed.shape)
+        if sensors.speed_noise_rad_s
+        else speed.copy()
+    )
     if sensors.encoder_counts_per_rev > 0:
         step = 2.0 * math.pi / sensors.encoder_counts_per_rev
         th = np.floor(position / step) * step
@@ -233,9 +243,7 @@ def synthesize_run(
     return Run(tuple(out), source)
 
 
-def plan_for_motor(
-    spec: MotorSpec, dt_s: float, config: SequenceConfig | None = None
-) -> TestPlan:
+def plan_for_motor(spec: MotorSpec, dt_s: float, config: SequenceConfig | None = None) -> TestPlan:
     """The default plan sized from a motor description (its tau_m, limits, coast time)."""
     p = spec.model.params
     tau = p.mechanical_time_constant_s

@@ -245,7 +245,9 @@ def apply_dead_zone(voltage: FloatArray, dead_zone_v: float) -> FloatArray:
         return np.sign(voltage) * np.maximum(np.abs(voltage) - dead_zone_v, 0.0)
 
 
-def apply_delay(voltage: FloatArray, delay_s: float, dt_s: float, initial_v: float = 0.0) -> FloatArray:
+def apply_delay(
+    voltage: FloatArray, delay_s: float, dt_s: float, initial_v: float = 0.0
+) -> FloatArray:
     """Delay a sampled (ZOH) voltage by ``delay_s``, with fractional-sample interpolation.
 
     Before the first command arrives the motor sees ``initial_v``. An open-armature

@@ -115,9 +115,7 @@ class MotorParams:
         """J R / (R B + Ke Kt): the time constant of speed when L -> 0."""
         return self.J * self.R / (self.R * self.B + self.Ke * self.Kt)
 
-    def steady_state(
-        self, voltage_v: float, load_torque_nm: float = 0.0
-    ) -> tuple[float, float]:
+    def steady_state(self, voltage_v: float, load_torque_nm: float = 0.0) -> tuple[float, float]:
         """Steady current (A) and speed (rad/s) under a constant voltage and load torque."""
         den = self.R * self.B + self.Ke * self.Kt
         current = (self.B * voltage_v + self.Ke * load_torque_nm) / den
@@ -130,7 +128,11 @@ class MotorParams:
         Normalised by J so the denominator reads ``L s^2 + (R + L B/J) s + (R B + Ke Kt)/J``
         (seed 001 prints 0.1042 s^2 + 3.123 s + 60.83 for its first trial).
         """
-        den = [self.L, self.R + self.L * self.B / self.J, (self.R * self.B + self.Ke * self.Kt) / self.J]
+        den = [
+            self.L,
+            self.R + self.L * self.B / self.J,
+            (self.R * self.B + self.Ke * self.Kt) / self.J,
+        ]
         return {
             "current_per_voltage": ([1.0, self.B / self.J], den),
             "speed_per_voltage": ([self.Kt / self.J], den),
