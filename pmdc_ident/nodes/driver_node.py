@@ -203,6 +203,7 @@ class DriverNode(Node):
         self._diag_count = 0
         self._diag_t = self._clock_s()
         self._last_rate_hz = 0.0
+        self._link_error = ""
 
         qos = sample_qos(self._rate_hz)
         self._pub_current = self.create_publisher(JointState, "current", qos)
@@ -314,7 +315,9 @@ class DriverNode(Node):
             msg = f"backend 'serial' is not available ({exc})"
             raise DriverConfigError(msg) from None
         try:
-            return SerialBackend(cfg["port"], int(cfg["baud"]), limits, dt_s, safe_mode)
+            return SerialBackend(
+                cfg["port"], int(cfg["baud"]), limits, dt_s, safe_mode, self.get_logger().warning
+            )
         except (OSError, PmdcError) as exc:
             msg = f"cannot open the driver board on {cfg['port']}: {exc}"
             raise DriverConfigError(msg) from None
@@ -378,7 +381,13 @@ class DriverNode(Node):
         self._safety.command_received(self._clock_s())
 
     def _on_open_armature(self, _req: Trigger.Request, resp: Trigger.Response) -> Any:
-        self.backend.open_armature()
+        try:
+            self.backend.open_armature()
+        except BackendError as exc:
+            self._make_safe()
+            resp.success, resp.message = False, f"{exc}; motor made safe"
+            self.get_logger().error(resp.message)
+            return resp
         self._driving = False
         resp.success = True
         resp.message = "armature open (coasting); the next voltage_cmd closes it"
@@ -400,7 +409,14 @@ class DriverNode(Node):
 
     # -- samples ------------------------------------------------------------------------------
     def _on_poll(self) -> None:
-        samples = self.backend.poll()
+        try:
+            samples = self.backend.poll()
+        except BackendError as exc:  # link lost (serial): safe, report, keep running
+            self._make_safe()
+            self._link_error = str(exc)
+            self.get_logger().error(f"backend: {exc}")
+            self._on_diagnostics()
+            return
         for s in samples:
             if self._safety.check_sample(s):
                 self._make_safe()
@@ -464,6 +480,10 @@ class DriverNode(Node):
             status.message = f"faults: {_fault_names(faults)}" if faults else "sample rate low"
         else:
             status.level, status.message = DiagnosticStatus.OK, "running"
+        link = getattr(self.backend, "link_stats", None)  # serial backend only
+        if link is not None and link.state.value != "streaming":
+            msg = self._link_error or link.last_error or "serial link down"
+            status.level, status.message = DiagnosticStatus.ERROR, msg
         values = {
             "backend": self._backend_name,
             "motor": self._spec.name,
@@ -477,6 +497,8 @@ class DriverNode(Node):
             "watchdog timeout (s)": f"{self._safety.watchdog_s:g}",
             "skipped samples (host stalls)": str(getattr(self.backend, "skipped_samples", 0)),
         }
+        if link is not None:
+            values.update({f"link {k}": v for k, v in link.as_strings().items()})
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.get_clock().now().to_msg()
