@@ -140,7 +140,10 @@ def test_stream_rate_too_fast_for_the_baud_is_refused_with_the_arithmetic(
 ) -> None:
     with VirtualBoard(motor, baud=115200) as vb:
         be = SerialBackend(vb.port, 115200, motor.limits, 0.001)
-        with pytest.raises(BackendError, match=r"shortest period 2\.605 ms, 384 Hz"):
+        with pytest.raises(
+            BackendError,
+            match=r"1000 Hz stream .* at 115200 baud \(at most 384 Hz, period >= 2\.605 ms\)",
+        ):
             be.start()
         be.close()
         ok = SerialBackend(vb.port, 115200, motor.limits, 0.004)
@@ -289,7 +292,7 @@ def test_port_unplugged_mid_run_is_reported_and_never_hangs(board: VirtualBoard)
         t1 = time.monotonic()
         be.close()
         assert time.monotonic() - t1 < 1.0
-    assert sum("unplugged?" in line for line in lines) == 1
+    assert not any("unplugged?" in line for line in lines)  # poll() carries it, once
 
 
 def test_board_watchdog_opens_the_armature_when_the_host_goes_quiet(

@@ -14,8 +14,8 @@ sample of a stream).
 Link loss: a failing port (unplugged), telemetry that stops for
 ``telemetry_timeout_s``, a board that resets (BOOT frame, counter going back,
 or NOT_READY) all make the backend command the motor safe (best effort; the
-board's own watchdog opens the armature if nothing gets through), log one
-line, and raise :class:`BackendError` from the next :meth:`poll` once. It then
+board's own watchdog opens the armature if nothing gets through), and raise
+a one-line :class:`BackendError` from the next :meth:`poll`, once. It then
 reopens the port and re-handshakes every ``reconnect_interval_s`` in the
 background; commands are refused until it streams again. A protocol version
 mismatch or a refused stream rate is fatal (no reconnect).
@@ -113,8 +113,10 @@ class _LinkLostError(Exception):
 
 
 def _reason(exc: BaseException) -> str:
-    text = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
-    return str(text).splitlines()[0]
+    text = str(getattr(exc, "strerror", None) or str(exc) or type(exc).__name__)
+    if "returned no data" in text:  # pyserial's wording when the device vanished
+        return "device disconnected"
+    return text.splitlines()[0]
 
 
 class SerialBackend:
@@ -212,6 +214,11 @@ class SerialBackend:
     @property
     def state(self) -> LinkState:
         return self._state
+
+    @property
+    def command_v(self) -> float:
+        """The last command sent (NaN while the armature is open)."""
+        return self._applied_v
 
     @property
     def board_info(self) -> HelloAck | None:
@@ -452,9 +459,9 @@ class SerialBackend:
 
     def _rate_text(self, min_us: int) -> str:
         return (
-            f"dt_s = {self._dt_s * 1e3:g} ms is faster than the board streams at {self.baud} "
-            f"baud (shortest period {min_us / 1e3:g} ms, {1e6 / min_us:.0f} Hz): "
-            "raise the baud or dt_s"
+            f"a {1.0 / self._dt_s:g} Hz stream (dt_s = {self._dt_s * 1e3:g} ms) is faster than "
+            f"the board streams at {self.baud} baud (at most {1e6 / min_us:.0f} Hz, period >= "
+            f"{min_us / 1e3:g} ms): raise the baud or lower the rate"
         )
 
     def _begin_stream(self, info: HelloAck | None) -> None:
@@ -615,12 +622,10 @@ class SerialBackend:
             self._state = LinkState.LOST
             tail = "; motor commanded safe; reconnecting"
             self._next_attempt = self._lost_at + self._reconnect_s
-        if was is LinkState.STREAMING:
-            self._log(f"serial board: {message}{tail}")
+        if was is LinkState.STREAMING or fatal:
+            # Reported once, by the next poll() (the caller logs it: one line).
             with self._lock:
                 self._pending_error = message + tail
-        elif fatal:
-            self._log(f"serial board: {message}{tail}")
 
     def _try_reconnect(self) -> None:
         now = time.monotonic()

@@ -1,0 +1,86 @@
+"""The driver node with backend:=serial against the virtual board, over DDS.
+
+The board runs in this process on a pty; the driver node is a child process.
+Checks: samples arrive stamped on the board's grid and follow the command; when
+the port is closed mid-run the driver logs one clear line, publishes an ERROR
+diagnostic, keeps running (no crash, no hang) and exits cleanly on SIGINT.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+
+import numpy as np
+import pytest
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.timeout(120)]
+
+DOMAIN_ID = 51
+RATE_HZ = 500.0
+BAUD = 1_000_000
+
+
+def test_driver_over_serial_streams_then_survives_the_port_closing() -> None:
+    rclpy = pytest.importorskip("rclpy")
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    from pmdc_ident.backends.virtual_board import VirtualBoard
+    from pmdc_ident.core.motors import load_motor
+    from pmdc_ident.nodes.driver_harness import DriverClient, DriverProcess, apply_ros_env
+
+    apply_ros_env(DOMAIN_ID)
+    board = VirtualBoard(load_motor("seed000_ebike"), baud=BAUD).start()
+    params = {
+        "backend": "serial",
+        "port": board.port,
+        "baud": BAUD,
+        "rate_hz": RATE_HZ,
+        "poll_rate_hz": 100.0,
+        "watchdog_s": 2.0,
+    }
+    driver = DriverProcess(params, domain_id=DOMAIN_ID).start()
+    rclpy.init()
+    client = DriverClient(RATE_HZ, name="serial_dds_client")
+    diags: list[tuple[int, str]] = []
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        for st in msg.status:
+            if "motor driver" in st.name:
+                level = st.level if isinstance(st.level, int) else st.level[0]  # bytes in rclpy
+                diags.append((int(level), st.message))
+
+    client.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
+    try:
+        client.wait_for_driver(timeout_s=20.0)
+        client.clear()
+        client.spin_for(1.0, 0.05, lambda: client.send(6.0))
+        stamps = np.array(client.encoder.stamps_ns, dtype=np.int64)
+        volts = np.array([v[0] for v in client.voltage.values])
+        speeds = client.encoder.array()[:, 1]
+        board.unplug()
+        client.spin_for(2.0)
+        alive_after_unplug = driver.alive()
+    finally:
+        client.destroy_node()
+        rclpy.try_shutdown()
+        t0 = time.monotonic()
+        rc = driver.stop(signal.SIGINT, timeout_s=15.0)
+        stop_s = time.monotonic() - t0
+        board.close()
+    # Streaming: stamps on the board's 2 ms grid, the command reaches the motor.
+    assert len(stamps) > 0.7 * RATE_HZ
+    gaps = np.diff(stamps)
+    assert np.all(gaps % 2_000_000 == 0) and np.median(gaps) == 2_000_000
+    assert np.nanmax(volts) == pytest.approx(6.0, abs=1e-3)
+    assert speeds.max() > 20.0
+    # Port closed: one clear line, an ERROR diagnostic, no crash, clean exit.
+    assert alive_after_unplug, driver.stderr
+    lines = [ln for ln in driver.stderr.splitlines() if "unplugged?" in ln]
+    assert len(lines) == 1, driver.stderr
+    assert "motor commanded safe" in lines[0]
+    error = DiagnosticStatus.ERROR[0]  # ERROR is b"\x02"
+    assert any(lvl == error and "unplugged?" in m for lvl, m in diags), diags
+    assert rc == 0, driver.stderr
+    assert stop_s < 10.0
+    assert "Traceback" not in driver.stderr
