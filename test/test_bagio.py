@@ -20,6 +20,7 @@ from pmdc_ident.dataio.bagio import (
 )
 
 DT = 1e-3
+JS = "sensor_msgs/msg/JointState"
 CFG = SequenceConfig(
     staircase_levels=2,
     staircase_hold_tau=3.0,
@@ -143,3 +144,30 @@ def test_a_missing_or_foreign_bag_is_one_clear_error(tmp_path):
     (tmp_path / "junk.mcap").write_bytes(b"not an mcap file")
     with pytest.raises(DataError, match="not a readable"):
         read_bag(tmp_path / "junk.mcap")
+
+
+@pytest.mark.parametrize(
+    ("name", "fields"),
+    [
+        (["armature"], {"effort": [1.25]}),
+        (["shaft"], {"position": [3.5], "velocity": [-7.0]}),
+        (["armature", "terminal"], {"effort": [float("nan"), 11.5]}),
+        ([], {}),
+    ],
+)
+def test_raw_joint_state_parser_agrees_with_the_rosbags_decoder(name, fields):
+    from rosbags.typesys import Stores, get_typestore
+
+    from pmdc_ident.dataio.bagio import _joint_state, parse_joint_state
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    raw = ts.serialize_cdr(_joint_state(ts, 12_345_678_901, name, **fields), JS)
+    stamp, pos, vel, e0, e1 = parse_joint_state(raw)
+    assert stamp == 12_345_678_901
+    want = [
+        fields.get("position", [np.nan])[0],
+        fields.get("velocity", [np.nan])[0],
+        fields.get("effort", [np.nan])[0],
+        (fields.get("effort", [np.nan, np.nan]) + [np.nan])[1],
+    ]
+    np.testing.assert_array_equal([pos, vel, e0, e1], want)

@@ -38,7 +38,15 @@ SHORT = SequenceConfig(
 )
 
 
-def _run(session: Session, model, *, latency: int = 2, max_samples: int = 200_000, noise=None):
+def _run(
+    session: Session,
+    model,
+    *,
+    latency: int = 2,
+    max_samples: int = 200_000,
+    noise=None,
+    drop: float = 0.0,
+):
     """Close the loop; returns per-sample arrays (t, applied V, i, w)."""
     plant = Plant(model, DT, substeps=4)
     pipe: deque[float] = deque([0.0] * latency)
@@ -52,8 +60,11 @@ def _run(session: Session, model, *, latency: int = 2, max_samples: int = 200_00
         if noise:
             i += rng.normal(0, noise[0])
             w += rng.normal(0, noise[1])
-        step = session.on_sample(t, i, w)
-        pipe.append(step.command.voltage_v if step.command else applied_v)
+        if drop and rng.random() < drop and session.state is SessionState.RUNNING:
+            pipe.append(pipe[-1] if pipe else applied_v)  # sample lost: no new command
+        else:
+            step = session.on_sample(t, i, w)
+            pipe.append(step.command.voltage_v if step.command else applied_v)
         applied_v = pipe.popleft()
         rows.append((t, applied_v, i, w))
         plant.step(applied_v)
@@ -236,3 +247,19 @@ def test_plan_check_refuses_voltages_above_the_driver_limit_before_anything_move
 def test_marker_json_round_trip():
     m = Marker(MarkerEvent.START, "staircase_03", 12.345, "s1", "")
     assert Marker.from_json(m.to_json()) == m
+
+
+def test_lost_samples_do_not_stretch_segments_on_the_driver_clock():
+    spec = load_motor("seed001_110v")
+    plan = plan_for_motor(spec, DT, SHORT)
+    tau = spec.model.params.mechanical_time_constant_s
+    s = Session(plan, SafetyConfig.for_limits(spec.limits, tau), tau_m_s=tau)
+    _run(s, spec.model, drop=0.2)
+    assert s.state is SessionState.DONE
+    assert s.skipped_samples > 0.1 * plan.n_samples
+    starts = {m.label: m.t_s for m in s.markers if m.event is MarkerEvent.START}
+    ends = {m.label: m.t_s for m in s.markers if m.event is MarkerEvent.END}
+    for seg in plan.segments:
+        if not seg.label.startswith("staircase"):
+            span = (ends[seg.label] - starts[seg.label]) / DT
+            assert span == pytest.approx(seg.voltage.size, abs=1e-6), seg.label

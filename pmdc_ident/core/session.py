@@ -410,10 +410,15 @@ class Session:
         self._c = _Cursor()
         self._last_wall_s: float | None = None
         self._t_last_s = 0.0
+        self.skipped_samples = 0  # driver samples that never reached the session
         self.held_samples: dict[str, int] = {}  # label -> samples actually held
         self.settled: dict[str, bool] = {}  # staircase label -> steady state reached
 
     # -- public -----------------------------------------------------------------
+    @property
+    def plan_labels(self) -> tuple[str, ...]:
+        return tuple(s.label for s in self.plan.segments)
+
     @property
     def safe_command(self) -> Command:
         return Command(math.nan if self.safe_mode is SafeMode.OPEN else 0.0)
@@ -456,41 +461,71 @@ class Session:
     def on_sample(
         self, t_s: float, current_a: float, speed_rad_s: float, wall_s: float | None = None
     ) -> SessionStep:
-        """Consume the driver sample at ``t_s``; return the command for the next sample."""
+        """Consume the driver sample at ``t_s``; return the command for the next sample.
+
+        The plan advances by driver time: when samples were lost on the way, the
+        plan skips as many samples as the driver produced, so segments keep their
+        length on the driver's clock. A sample not newer than the last is ignored.
+        """
         if wall_s is not None:
             self._last_wall_s = wall_s
-        self._t_last_s = t_s
-        if self.state is SessionState.IDLE or not self.active:
+        t_prev = self._t_last_s
+        if not self.active:
             return SessionStep(None)
         reason = self.monitor.check(t_s, current_a, speed_rad_s)
         if reason is not None:
+            self._t_last_s = max(t_s, t_prev)
             return self.abort(reason, t_s, self.monitor.detail)
-        c = self._c
-        t_next = t_s + self.dt_s
         markers: list[Marker] = []
         if self.state is SessionState.WAITING:
+            self._t_last_s = t_s
             self.state = SessionState.RUNNING
+            t_next = t_s + self.dt_s
             markers.append(self._mark(MarkerEvent.SESSION_START, "", t_next))
             markers.append(self._mark(MarkerEvent.START, self.plan.segments[0].label, t_next))
             self.detector.reset()
-        else:
-            c.samples += 1
-            seg = self.plan.segments[c.seg]
-            if seg.kind is TestKind.STAIRCASE:
-                self.detector.push(t_s, current_a, speed_rad_s)
-            if self._segment_finished(seg):
-                self.held_samples[seg.label] = c.pos
-                markers.append(self._mark(MarkerEvent.END, seg.label, t_next))
-                c.seg += 1
-                c.pos = 0
-                self.detector.reset()
-                if c.seg >= len(self.plan.segments):
-                    self.state = SessionState.DONE
-                    markers.append(self._mark(MarkerEvent.SESSION_END, "", t_next))
-                    return SessionStep(self.safe_command, tuple(markers))
-                markers.append(
-                    self._mark(MarkerEvent.START, self.plan.segments[c.seg].label, t_next)
-                )
+            return SessionStep(Command(self._next_voltage()), tuple(markers))
+        steps = int(round((t_s - t_prev) / self.dt_s))
+        if steps < 1:
+            return SessionStep(None)
+        self._t_last_s = t_s
+        self.skipped_samples += steps - 1
+        for j in range(steps):
+            t = t_prev + (j + 1) * self.dt_s
+            if self._advance(t, current_a, speed_rad_s, markers, real=j == steps - 1):
+                return SessionStep(self.safe_command, tuple(markers))
+        return SessionStep(Command(self._next_voltage()), tuple(markers))
+
+    def _advance(
+        self, t_s: float, current_a: float, speed_rad_s: float, markers: list[Marker], real: bool
+    ) -> bool:
+        """One driver sample of the plan; True when the session just completed."""
+        c = self._c
+        c.samples += 1
+        seg = self.plan.segments[c.seg]
+        if real and seg.kind is TestKind.STAIRCASE:
+            self.detector.push(t_s, current_a, speed_rad_s)
+        if not self._segment_finished(seg):
+            if not real:
+                self._next_voltage()  # a lost sample still used its plan slot
+            return False
+        t_next = t_s + self.dt_s
+        self.held_samples[seg.label] = c.pos
+        markers.append(self._mark(MarkerEvent.END, seg.label, t_next))
+        c.seg += 1
+        c.pos = 0
+        self.detector.reset()
+        if c.seg >= len(self.plan.segments):
+            self.state = SessionState.DONE
+            markers.append(self._mark(MarkerEvent.SESSION_END, "", t_next))
+            return True
+        markers.append(self._mark(MarkerEvent.START, self.plan.segments[c.seg].label, t_next))
+        if not real:
+            self._next_voltage()
+        return False
+
+    def _next_voltage(self) -> float:
+        c = self._c
         seg = self.plan.segments[c.seg]
         if c.pos < seg.voltage.size:
             v = float(seg.voltage[c.pos])
@@ -499,7 +534,7 @@ class Session:
             v = c.last_v  # staircase held beyond its nominal length
         c.pos += 1
         c.last_v = v
-        return SessionStep(Command(v), tuple(markers))
+        return v
 
     def check_link(self, wall_s: float) -> SessionStep | None:
         """Lost driver data: no sample within ``data_timeout_s`` of wall time."""

@@ -43,6 +43,7 @@ __all__ = [
     "TOPIC_TYPES",
     "assemble_run",
     "header_stamp_ns",
+    "parse_joint_state",
     "read_bag",
     "read_driver_arrays",
     "write_bag",
@@ -77,6 +78,46 @@ def header_stamp_ns(cdr: bytes | memoryview) -> int:
         raise DataError(msg)
     sec, nsec = _STAMP.unpack_from(cdr, 4)
     return sec * 1_000_000_000 + nsec
+
+
+_U32 = struct.Struct("<I")
+_F64 = struct.Struct("<d")
+_NAN = math.nan
+
+
+def parse_joint_state(cdr: bytes | memoryview) -> tuple[int, float, float, float, float]:
+    """(stamp ns, position[0], velocity[0], effort[0], effort[1]) of a raw JointState.
+
+    Decodes little-endian CDR directly (missing entries are NaN): about ten
+    times cheaper than building a message object, which matters at 3 kHz.
+    """
+    b = cdr
+    if len(b) < 16 or b[1] != 1:
+        msg = "not a little-endian CDR JointState"
+        raise DataError(msg)
+    sec, nsec = _STAMP.unpack_from(b, 4)
+    o = 8  # offsets relative to the payload (after the 4-byte encapsulation)
+    (n,) = _U32.unpack_from(b, 4 + o)
+    o += 4 + n
+    o = (o + 3) & ~3
+    (count,) = _U32.unpack_from(b, 4 + o)
+    o += 4
+    for _ in range(count):
+        o = (o + 3) & ~3
+        (n,) = _U32.unpack_from(b, 4 + o)
+        o += 4 + n
+    out = [_NAN, _NAN, _NAN, _NAN]
+    for field_no in range(3):
+        o = (o + 3) & ~3
+        (count,) = _U32.unpack_from(b, 4 + o)
+        o += 4
+        if count:
+            o = (o + 7) & ~7
+            out[field_no] = _F64.unpack_from(b, 4 + o)[0]
+            if field_no == 2 and count > 1:
+                out[3] = _F64.unpack_from(b, 4 + o + 8)[0]
+            o += 8 * count
+    return sec * 1_000_000_000 + nsec, out[0], out[1], out[2], out[3]
 
 
 # ---------------------------------------------------------------------------
@@ -215,18 +256,14 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
                     continue
                 if role == "voltage_cmd":
                     continue
-                msg = ts.deserialize_cdr(raw, JOINT_STATE)
-                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                stamp, pos, vel, e0, e1 = parse_joint_state(raw)
                 if role == "current":
-                    cols["cur"].append((stamp, _first(msg.effort)))
+                    cols["cur"].append((stamp, e0))
                 elif role == "encoder":
-                    cols["enc"].append((stamp, _first(msg.position), _first(msg.velocity)))
+                    cols["enc"].append((stamp, pos, vel))
                 else:
-                    eff = msg.effort
-                    cols["volt"].append(
-                        (stamp, _first(eff), float(eff[1]) if len(eff) > 1 else math.nan)
-                    )
-    except (ReaderError, KeyError, struct.error) as exc:
+                    cols["volt"].append((stamp, e0, e1))
+    except (ReaderError, KeyError, struct.error, DataError) as exc:
         msg = f"{p}: not a readable rosbag2/MCAP bag ({exc})"
         raise DataError(msg) from None
 
@@ -248,10 +285,6 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
         terminal_v=term,
         markers=markers,
     )
-
-
-def _first(values: Sequence[float] | NDArray[Any]) -> float:
-    return float(values[0]) if len(values) else math.nan
 
 
 def read_bag(path: str | Path, session: str | None = None) -> Run:

@@ -1,0 +1,250 @@
+"""The recorder node: every identification session into its own rosbag2/MCAP bag.
+
+It subscribes to the driver's sample topics *raw* (CDR bytes, no Python message
+objects) and writes them unchanged, so it keeps up with 1 kHz. A bag
+``<output_dir>/<session>/`` (``metadata.yaml`` + one ``.mcap``) is opened when the
+identification node's ``session_start`` marker arrives; driver samples are kept in
+a short ring so none stamped at or after the session start is lost while the
+marker travels. The bag holds the driver samples with ``start <= stamp < end``
+(``margin_s`` widens that), every marker, the commands, progress and status, and
+is closed when all driver topics have passed the session's end, on Ctrl-C or
+SIGTERM (metadata written, readable by rosbags and mcap_ros2).
+
+Publishes ``recorder_status`` (std_msgs/String JSON, reliable, transient-local):
+heartbeat at 5 Hz with the state, session, bag path and samples written.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, String
+
+from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.session import Marker, MarkerEvent
+from pmdc_ident.dataio.bagio import TOPIC_TYPES, BagWriter, header_stamp_ns
+from pmdc_ident.nodes.identification_node import (
+    COMMAND_QOS,
+    LATCHED_QOS,
+    SEGMENT_QOS,
+    make_executor,
+    sample_qos,
+)
+
+__all__ = ["RecorderNode", "main"]
+
+NODE_NAME = "recorder_node"
+DRIVER_TOPICS = ("current", "encoder", "voltage_applied")
+# topic -> (type in the bag, rclpy type, QoS); driver topics are added with the rate's QoS
+OTHER_TOPICS: dict[str, tuple[str, Any, QoSProfile]] = {
+    "voltage_cmd": (TOPIC_TYPES["voltage_cmd"], Float64, COMMAND_QOS),
+    "segment": (TOPIC_TYPES["segment"], String, SEGMENT_QOS),
+    "progress": ("std_msgs/msg/String", String, LATCHED_QOS),
+    "status": ("std_msgs/msg/String", String, LATCHED_QOS),
+}
+
+
+class RecorderNode(Node):
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self.declare_parameter(
+            "output_dir",
+            "pmdc_sessions",
+            ParameterDescriptor(description="folder the session bags go into", read_only=True),
+        )
+        for name, default, desc in (
+            ("rate_hz", 1000.0, "driver sample rate, Hz (sizes the queues and the ring)"),
+            ("margin_s", 0.0, "also keep driver samples this long before/after a session, s"),
+            ("ring_s", 3.0, "driver samples kept while no bag is open, s"),
+        ):
+            self.declare_parameter(
+                name,
+                default,
+                ParameterDescriptor(
+                    description=desc,
+                    read_only=True,
+                    floating_point_range=[
+                        FloatingPointRange(from_value=0.0, to_value=20000.0, step=0.0)
+                    ],
+                ),
+            )
+        self.output_dir = Path(self.get_parameter("output_dir").value).expanduser()
+        rate = float(self.get_parameter("rate_hz").value) or 1000.0
+        self.margin_ns = int(float(self.get_parameter("margin_s").value) * 1e9)
+        ring_n = int(3 * rate * max(float(self.get_parameter("ring_s").value), 0.5))
+        self.ring: deque[tuple[str, int, bytes, int]] = deque(maxlen=ring_n)
+        self.writer: BagWriter | None = None
+        self.session = ""
+        self.start_ns = 0
+        self.end_ns: int | None = None
+        self.last_ns = dict.fromkeys(DRIVER_TOPICS, -1)
+        self.samples = 0
+        self.bags: list[str] = []
+        self.finished = False
+        self.stop_requested = False
+        self._end_wall = 0.0
+        from rosbags.typesys import Stores, get_typestore
+
+        self._typestore = get_typestore(Stores.ROS2_JAZZY)
+        self._topics = {t: "sensor_msgs/msg/JointState" for t in DRIVER_TOPICS}
+        self._topics.update({t: v[0] for t, v in OTHER_TOPICS.items()})
+        qos = sample_qos(rate)
+        for topic in DRIVER_TOPICS:
+            self.create_subscription(JointState, topic, self._driver_cb(topic), qos, raw=True)
+        for topic, (_, msg_type, tqos) in OTHER_TOPICS.items():
+            cb = self._on_segment if topic == "segment" else self._other_cb(topic)
+            self.create_subscription(msg_type, topic, cb, tqos, raw=True)
+        self.pub_status = self.create_publisher(String, "recorder_status", LATCHED_QOS)
+        self.create_timer(0.2, self._heartbeat)
+        self._heartbeat()
+        self.get_logger().info(f"recorder ready: bags go to {self.output_dir}")
+
+    # -- callbacks ----------------------------------------------------------------------------
+    def _driver_cb(self, topic: str) -> Any:
+        def cb(raw: bytes) -> None:
+            ns = header_stamp_ns(raw)
+            self.last_ns[topic] = ns
+            w = self.writer
+            if w is None:
+                self.ring.append((topic, ns, raw, time.time_ns()))
+                return
+            if ns >= self.start_ns - self.margin_ns and (
+                self.end_ns is None or ns < self.end_ns + self.margin_ns
+            ):
+                w.write_raw(topic, time.time_ns(), raw)
+                if topic == "encoder":
+                    self.samples += 1
+            elif (
+                self.end_ns is not None
+                and min(self.last_ns.values()) >= self.end_ns + self.margin_ns
+            ):
+                self._close("session ended")
+
+        return cb
+
+    def _other_cb(self, topic: str) -> Any:
+        def cb(raw: bytes) -> None:
+            if self.writer is not None:
+                self.writer.write_raw(topic, time.time_ns(), raw)
+
+        return cb
+
+    def _on_segment(self, raw: bytes) -> None:
+        text = self._typestore.deserialize_cdr(raw, "std_msgs/msg/String").data
+        try:
+            m = Marker.from_json(text)
+        except PmdcError:
+            return
+        if m.event is MarkerEvent.SESSION_START and m.session != self.session:
+            oldest = self.ring[0][1] if self.ring else None
+            if oldest is not None and round(m.t_s * 1e9) < oldest - 1_000_000_000:
+                return  # a stale (transient-local) marker of a session long gone
+            self._open(m)
+        if self.writer is not None and m.session == self.session:
+            self.writer.write_raw("segment", time.time_ns(), raw)
+            if m.event is MarkerEvent.SESSION_END:
+                self.end_ns = round(m.t_s * 1e9)
+                self._end_wall = time.monotonic()
+
+    # -- bag ----------------------------------------------------------------------------------
+    def _open(self, m: Marker) -> None:
+        if self.writer is not None:
+            self._close(f"new session {m.session} started")
+        name = m.session or f"session_{int(time.time())}"
+        path = self.output_dir / name
+        k = 1
+        while path.exists():
+            k += 1
+            path = self.output_dir / f"{name}_{k}"
+        self.output_dir.mkdir(parents=True, exist_ok=True)
+        self.writer = BagWriter(path, self._topics).open()
+        self.session, self.start_ns, self.end_ns, self.samples = (
+            m.session,
+            round(m.t_s * 1e9),
+            None,
+            0,
+        )
+        for topic, ns, raw, log_ns in self.ring:
+            if ns >= self.start_ns - self.margin_ns:
+                self.writer.write_raw(topic, log_ns, raw)
+                if topic == "encoder":
+                    self.samples += 1
+        self.ring.clear()
+        self.get_logger().info(f"recording session {m.session} into {path}")
+        self._heartbeat()
+
+    def _close(self, why: str) -> None:
+        w = self.writer
+        if w is None:
+            return
+        self.writer = None
+        w.close()
+        self.bags.append(str(w.path))
+        self.get_logger().info(
+            f"bag closed ({why}): {w.path} with {self.samples} driver samples, "
+            + ", ".join(f"{t} {n}" for t, n in w.counts.items())
+        )
+        self._heartbeat(closed=str(w.path))
+
+    def _heartbeat(self, closed: str = "") -> None:
+        if self.end_ns is not None and self.writer is not None:
+            if time.monotonic() - self._end_wall > 3.0:  # the driver stopped sending
+                self._close("session ended (driver samples stopped)")
+                return
+        d = {
+            "state": "recording" if self.writer is not None else "idle",
+            "session": self.session,
+            "path": str(self.writer.path) if self.writer is not None else closed,
+            "samples": self.samples,
+            "bags": self.bags[-5:],
+        }
+        self.pub_status.publish(String(data=json.dumps(d)))
+
+    def shutdown(self) -> None:
+        self._close("shutdown")
+
+
+def main(args: list[str] | None = None) -> int:
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node: RecorderNode | None = None
+    flag: list[int] = []
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        flag.append(signum)
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    status = 0
+    try:
+        node = RecorderNode()
+        executor = make_executor()
+        executor.add_node(node)
+        while rclpy.ok() and not flag:
+            executor.spin_once(timeout_sec=0.1)
+    except PmdcError as exc:
+        print(f"{NODE_NAME}: {exc}", file=sys.stderr, flush=True)
+        status = 2
+    finally:
+        if node is not None:
+            node.shutdown()
+            for b in node.bags:
+                print(f"{NODE_NAME}: bag {b}", file=sys.stderr, flush=True)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status if not flag or status else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
