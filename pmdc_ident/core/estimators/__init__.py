@@ -1,0 +1,1 @@
+"""Identification estimators: classical chain, equation error, frequency response, pipeline."""
