@@ -3,7 +3,7 @@
 Shared vectors in firmware/test/vectors/ are generated from Python
 (firmware/test/gen_vectors.py). Checked both ways: the C encoder reproduces
 the Python bytes and Python decodes what C wrote; the C decoder recovers the
-Python fields. The C board state machine answers a 330-step script with the
+Python fields. The C board state machine answers a 300-step script with the
 same bytes as the Python board. A fuzz run under ASan/UBSan and an AVR build
 (when avr-gcc is installed) follow.
 """
