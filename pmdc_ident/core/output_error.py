@@ -657,6 +657,18 @@ def fit_output_error(
                 msg = f"weights keys must be among {SIGNALS}, got {k!r}"
                 raise ParameterError(msg)
 
+    if check_inductance and not current_mode and "L" in free_names:
+        dt_min = min(ps.dt for ps in segs)
+        if values["L"] / values["R"] < _MIN_TAU_E_SAMPLES * dt_min * 0.5:
+            # The start already puts L/R far below the sample period: hold L from the
+            # start (the check after the fit reports it) instead of fitting twice.
+            free_names = [n for n in free_names if n != "L"]
+            l_pre_held = True
+        else:
+            l_pre_held = False
+    else:
+        l_pre_held = False
+
     prob = _Problem(segs, base, values, free_names, tie_kt, fast, noise, weights or {})
     z, lm = _levenberg_marquardt(prob, prob.z0(), max_nfev, progress)
     if refine_noise:
@@ -665,17 +677,14 @@ def fit_output_error(
         lm = _LMState(lm2.cost, lm.nfev + lm2.nfev, lm.it + lm2.it, lm2.converged, lm2.message)
 
     result = _finish(prob, z, lm, reasons, fixed, closure if tie_kt else None, warnings, t_start)
+    if l_pre_held:
+        tau_e = values["L"] / values["R"]
+        return _flag_inductance(result, tau_e, min(ps.dt for ps in segs), values["L"], t_start)
     if check_inductance and not current_mode and "L" in result.free:
         tau_e = result.values["L"] / result.values["R"]
         dt_min = min(s.dt for s in segs)
         if tau_e < _MIN_TAU_E_SAMPLES * dt_min:
-            need_hz = _NEEDED_TAU_E_SAMPLES / tau_e
-            reason = (
-                f"L/R = {tau_e * 1e3:.3g} ms is below the sample period "
-                f"{dt_min * 1e3:.3g} ms: the current settles within one sample, so L is "
-                f"not identifiable from these data; sample at >= {need_hz / 1e3:.3g} kHz "
-                f"or fix L from an LCR meter (--fix L=...)"
-            )
+            reason = _inductance_reason(tau_e, dt_min)
             held = float(model.params.L)
             new_fixed = dict(fixed)
             new_fixed["L"] = held
@@ -707,6 +716,33 @@ def fit_output_error(
                 elapsed_s=time.perf_counter() - t_start,
             )
     return result
+
+
+def _inductance_reason(tau_e: float, dt_min: float) -> str:
+    need_hz = _NEEDED_TAU_E_SAMPLES / tau_e
+    return (
+        f"L/R = {tau_e * 1e3:.3g} ms is below the sample period "
+        f"{dt_min * 1e3:.3g} ms: the current settles within one sample, so L is "
+        f"not identifiable from these data; sample at >= {need_hz / 1e3:.3g} kHz "
+        f"or fix L from an LCR meter (--fix L=...)"
+    )
+
+
+def _flag_inductance(
+    res: FitResult, tau_e: float, dt_min: float, held: float, t_start: float
+) -> FitResult:
+    reason = _inductance_reason(tau_e, dt_min)
+    reasons = dict(res.reasons)
+    reasons["L"] = reason + f" (held at {held:.4g} H)"
+    ident = dict(res.identifiable)
+    ident["L"] = False
+    return _replace(
+        res,
+        reasons=reasons,
+        identifiable=ident,
+        warnings=(*res.warnings, "L: " + reason),
+        elapsed_s=time.perf_counter() - t_start,
+    )
 
 
 def _replace(res: FitResult, **changes: object) -> FitResult:
@@ -860,21 +896,45 @@ class _Problem:
         r = np.concatenate(r_parts)
         return r, A, g
 
+    def _mixing(self, z: FloatArray, model: Model, ps: _Seg) -> tuple[FloatArray, FloatArray]:
+        """Kernel sensitivities (11 columns) -> local Jacobian columns; offset column mask."""
+        vals = _model_values(model)
+        dvdz = self.dvalue_dz(z)
+        m_loc = self.n_global + len(ps.nuis)
+        mx = np.zeros((_NS, m_loc))
+        off = np.zeros(m_loc)
+        for j, name in enumerate(self.free):
+            if name in _COL:
+                mx[_COL[name], j] = dvdz[j] / vals[name]
+                if name == "Ke" and self.tie_kt:
+                    mx[_COL["Kt"], j] = dvdz[j] / vals[name]
+            elif name == "coulomb_friction.torque_nm":
+                mx[_COL_TC, j] = dvdz[j]
+            elif name == "load_torque.torque_nm":
+                mx[_COL_TL, j] = dvdz[j]
+            elif name == "current_offset.offset_a":
+                off[j] = dvdz[j]
+            else:
+                msg = f"parameter {name} has no analytic sensitivity"
+                raise ParameterError(msg)
+        for k, sidx in enumerate(ps.nuis):
+            mx[_COL_I0 + sidx, self.n_global + k] = 1.0
+        return mx, off
+
     def _local_jac(self, q, ps, X, S, z, model, dvdz, fd_cache) -> FloatArray:
         n = ps.seg.n
-        vals = model_vals = _model_values(model)
-        del model_vals
         m_loc = self.n_global + len(ps.nuis)
         cols = np.zeros((n * len(ps.outputs), m_loc))
+        if self.fast:
+            mx, off = self._mixing(z, model, ps)
         for o, (idx, _y) in enumerate(ps.outputs):
             rows = slice(o * n, (o + 1) * n)
             sc = self.scale(idx)
             if self.fast:
-                for j, name in enumerate(self.free):
-                    col = _fast_column(name, S, idx, self.tie_kt, ps, vals[name])
-                    cols[rows, j] = col * dvdz[j] * sc
-                for k, sidx in enumerate(ps.nuis):
-                    cols[rows, self.n_global + k] = S[:, idx, _COL_I0 + sidx] * sc
+                block = S[:, idx, :] @ (mx * sc)
+                if idx == 0 and off.any():
+                    block += off * sc
+                cols[rows] = block
             else:
                 for j in range(self.n_global):
                     cols[rows, j] = fd_cache[j][q][:, idx] * sc
@@ -923,25 +983,6 @@ class _Problem:
         return out
 
 
-def _fast_column(
-    name: str, S: FloatArray, idx: int, tie_kt: bool, ps: _Seg, value: float
-) -> FloatArray:
-    """d(output)/d(parameter) from the kernel's sensitivities (motor ones per log p)."""
-    if name in _COL:
-        col = S[:, idx, _COL[name]]
-        if name == "Ke" and tie_kt:
-            col = col + S[:, idx, _COL["Kt"]]
-        return col / value
-    if name == "coulomb_friction.torque_nm":
-        return S[:, idx, _COL_TC]
-    if name == "load_torque.torque_nm":
-        return S[:, idx, _COL_TL]
-    if name == "current_offset.offset_a":
-        return np.ones(ps.seg.n) if idx == 0 else np.zeros(ps.seg.n)
-    msg = f"parameter {name} has no analytic sensitivity"
-    raise ParameterError(msg)
-
-
 @dataclass(frozen=True)
 class _LMState:
     cost: float
@@ -957,7 +998,13 @@ def _levenberg_marquardt(
     max_nfev: int,
     progress: Callable[[int, float], None] | None,
 ) -> tuple[FloatArray, _LMState]:
-    """Levenberg-Marquardt on the normal equations with box bounds (projection)."""
+    """Levenberg-Marquardt on the normal equations with box bounds.
+
+    Trial points cost one simulation without sensitivities; the Jacobian is
+    computed only where a step is accepted. A parameter at a bound whose step
+    points outwards is held for that step (active set), so a friction torque
+    that wants to be zero converges instead of chattering on its bound.
+    """
     z = prob.clip(z)
     r, A, g = prob.evaluate(z, True)
     cost = 0.5 * float(r @ r)
@@ -966,6 +1013,8 @@ def _levenberg_marquardt(
     it = 0
     converged = False
     message = "maximum number of evaluations reached"
+    lo = np.array([b[0] for b in prob.bounds] + [-np.inf] * (prob.n_total - prob.n_global))
+    hi = np.array([b[1] for b in prob.bounds] + [np.inf] * (prob.n_total - prob.n_global))
     while nfev < max_nfev:
         it += 1
         d = np.diag(A).copy()
@@ -973,23 +1022,36 @@ def _levenberg_marquardt(
         improved = False
         while nfev < max_nfev:
             M = A + lam * np.diag(d)
-            try:
-                step = -np.linalg.solve(M, g)
-            except np.linalg.LinAlgError:
-                step = -np.linalg.lstsq(M, g, rcond=None)[0]
+            active = np.ones(prob.n_total, dtype=bool)
+            for _ in range(3):
+                step = np.zeros(prob.n_total)
+                sub = np.ix_(active, active)
+                try:
+                    step[active] = -np.linalg.solve(M[sub], g[active])
+                except np.linalg.LinAlgError:
+                    step[active] = -np.linalg.lstsq(M[sub], g[active], rcond=None)[0]
+                out = ((z <= lo) & (step < 0)) | ((z >= hi) & (step > 0))
+                if not (out & active).any():
+                    break
+                active &= ~out
             z_new = prob.clip(z + prob.limit_step(step))
-            r_new, A_new, g_new = prob.evaluate(z_new, True)
+            r_new, _, _ = prob.evaluate(z_new, False)
             nfev += 1
             cost_new = 0.5 * float(r_new @ r_new)
             if math.isfinite(cost_new) and cost_new <= cost:
                 rel = (cost - cost_new) / max(cost, 1e-300)
                 small_step = np.all(np.abs(z_new - z) <= 1e-9 * (1.0 + np.abs(z)))
-                z, r, A, g, cost = z_new, r_new, A_new, g_new, cost_new
+                decrease = cost - cost_new
+                z, cost = z_new, cost_new
                 lam = max(lam / 5.0, 1e-12)
                 improved = True
-                if rel < 1e-10 or small_step:
+                # residuals are noise-normalised: a decrease below 0.01 moves no
+                # parameter combination by more than 0.15 of its standard error
+                if rel < 1e-12 or decrease < 1e-2 or small_step:
                     converged = True
                     message = "cost no longer decreases"
+                else:
+                    r, A, g = prob.evaluate(z, True)
                 break
             lam *= 6.0
             if lam > 1e12:
@@ -999,8 +1061,6 @@ def _levenberg_marquardt(
         if progress is not None:
             progress(it, cost)
         if converged or not improved:
-            if not improved and not converged:
-                message = "maximum number of evaluations reached"
             break
     return z, _LMState(cost, nfev, it, converged, message)
 

@@ -252,13 +252,15 @@ def fit_coastdown(
     if moving.sum() >= 4:
 
         def resid2(z: FloatArray) -> FloatArray:
-            return coast_speed(t, z[0], math.exp(z[1]), math.exp(z[2])) - w
+            zz = np.clip(z[1:], -50.0, 50.0)
+            return coast_speed(t, z[0], math.exp(zz[0]), math.exp(zz[1])) - w
 
         a0 = max(B, 1e-12) / J
         c0 = max(Tc, 1e-12) / J
         sol = least_squares(resid2, [w[0], math.log(a0), math.log(c0)], method="lm")
-        a = math.exp(sol.x[1])
-        c = math.exp(sol.x[2])
+        zz = np.clip(sol.x[1:], -50.0, 50.0)
+        a = math.exp(zz[0])
+        c = math.exp(zz[1])
         jtc = Tc / c if Tc > 0 else None
         jb = B / a if B > 0 else None
     stop = int(np.argmax(w <= 0)) if (w <= 0).any() else t.size - 1

@@ -1,0 +1,218 @@
+"""Equation-error (ARX-type) regression on the exactly discretised equations.
+
+A fast, non-iterative start for the output-error fit. Over every pair of
+consecutive samples with the armature closed, the exact ZOH model reads::
+
+    [i, w][k+1] = Phi [i, w][k] + Gamma_V V[k] + Gamma_T (Tc sign(w[k]) + T_load)
+
+which is linear in the entries of ``Phi`` and ``Gamma``; both rows are solved by
+least squares and mapped back to the continuous parameters through the matrix
+logarithm (``A = log(Phi)/dt``, ``B = A (Phi - I)^-1 Gamma``). When the
+electrical time constant is far below the sample period (``Phi_ii`` near 0,
+the logarithm ill-posed), a quasi-static form is used instead: ``V = R i + Ke
+w`` on the samples and the mechanical row alone, with ``L`` left unknown.
+
+Equation error is biased when the regressors are noisy (errors in variables);
+that is why it only starts the output-error fit and is reported for comparison.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import logm
+
+from pmdc_ident.core.data import Segment
+from pmdc_ident.core.errors import DataError
+
+__all__ = ["EquationErrorResult", "fit_equation_error", "fit_mechanical_equation_error"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class EquationErrorResult:
+    values: dict[str, float]  # R, L (may be absent), Ke, Kt, J, B, coulomb/load torques
+    method: str  # "zoh-log" or "quasi-static"
+    n_samples: int
+    notes: tuple[str, ...]
+
+
+def _rows(segments: Sequence[Segment]) -> tuple[FloatArray, ...]:
+    cols: list[list[FloatArray]] = [[] for _ in range(7)]
+    dts = []
+    for s in segments:
+        if s.voltage is None or s.current is None or s.n < 4 or not s.is_uniform:
+            continue
+        w = s.speed_or_derivative()
+        v = s.voltage
+        ok = ~np.isnan(v[:-1]) & ~np.isnan(v[1:])
+        if ok.sum() < 3:
+            continue
+        idx = np.nonzero(ok)[0]
+        cols[0].append(s.current[idx])
+        cols[1].append(w[idx])
+        cols[2].append(v[idx])
+        cols[3].append(np.sign(w[idx]))
+        cols[4].append(s.current[idx + 1])
+        cols[5].append(w[idx + 1])
+        cols[6].append(np.full(idx.size, s.dt_s))
+        dts.append(s.dt_s)
+    if not dts:
+        msg = "equation error needs uniformly sampled segments with voltage and current"
+        raise DataError(msg)
+    return tuple(np.concatenate(c) for c in cols)
+
+
+def fit_equation_error(
+    segments: Sequence[Segment],
+    *,
+    coulomb: bool = True,
+    Kt: float | None = None,
+    J: float | None = None,
+) -> EquationErrorResult:
+    """Regress the discretised equations (see module docs); Kt = Ke unless Kt or J given."""
+    i0, w0, v0, s0, i1, w1, dts = _rows(segments)
+    dt = float(np.median(dts))
+    n = i0.size
+    ones = np.ones(n)
+    regs = [i0, w0, v0] + ([s0] if coulomb else []) + [ones]
+    X = np.column_stack(regs)
+    if np.linalg.matrix_rank(X) < X.shape[1]:
+        msg = "no excitation: voltage, current and speed do not vary enough to identify anything"
+        raise DataError(msg)
+    ci, *_ = np.linalg.lstsq(X, i1, rcond=None)
+    cw, *_ = np.linalg.lstsq(X, w1, rcond=None)
+    phi = np.array([[ci[0], ci[1]], [cw[0], cw[1]]])
+    gv = np.array([ci[2], cw[2]])
+    gs = np.array([ci[3], cw[3]]) if coulomb else np.zeros(2)
+    g1 = np.array([ci[-1], cw[-1]])
+    notes: list[str] = []
+    values: dict[str, float] | None = None
+    if phi[0, 0] > 0.05:
+        values = _from_zoh(phi, gv, gs, g1, dt, Kt, J)
+        method = "zoh-log"
+    if values is None:
+        values = _quasi_static(i0, w0, v0, s0, i1, w1, dt, coulomb, Kt, J)
+        method = "quasi-static"
+        notes.append(
+            "equation error: the current settles within a sample; L not estimated "
+            "(quasi-static electrical equation)"
+        )
+    return EquationErrorResult(values, method, n, tuple(notes))
+
+
+def _scale(values: dict[str, float], Kt: float | None, J: float | None, kt_over_j: float) -> None:
+    if Kt is not None:
+        kt = Kt
+    elif J is not None:
+        kt = kt_over_j * J
+    else:
+        kt = values["Ke"]  # closure Kt = Ke
+    values["Kt"] = kt
+    values["J"] = kt / kt_over_j
+
+
+def _from_zoh(phi, gv, gs, g1, dt, Kt, J) -> dict[str, float] | None:
+    try:
+        A = logm(phi) / dt
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    if np.iscomplexobj(A):
+        if np.max(np.abs(A.imag)) > 1e-6 * np.max(np.abs(A.real)):
+            return None
+        A = A.real
+    try:
+        M = A @ np.linalg.inv(phi - np.eye(2))
+    except np.linalg.LinAlgError:
+        return None
+    bv = M @ gv
+    bs = M @ gs
+    b1 = M @ g1
+    if not (bv[0] > 0 and A[1, 0] > 0 and A[0, 0] < 0 and A[0, 1] < 0):
+        return None
+    L = 1.0 / bv[0]
+    vals = {"R": -A[0, 0] * L, "L": L, "Ke": -A[0, 1] * L}
+    kt_over_j = A[1, 0]
+    _scale(vals, Kt, J, kt_over_j)
+    vals["B"] = max(-A[1, 1] * vals["J"], 0.0)
+    vals["coulomb_friction.torque_nm"] = -bs[1] * vals["J"]
+    vals["load_torque.torque_nm"] = -b1[1] * vals["J"]
+    if min(vals["R"], vals["Ke"], vals["J"]) <= 0:
+        return None
+    return {k: float(v) for k, v in vals.items()}
+
+
+def _quasi_static(i0, w0, v0, s0, i1, w1, dt, coulomb, Kt, J) -> dict[str, float]:
+    # electrical: the current at k+1 is already settled: V[k] = R i[k+1] + Ke w[k+1]
+    Xe = np.column_stack([i1, w1])
+    (R, Ke), *_ = np.linalg.lstsq(Xe, v0, rcond=None)
+    if R <= 0 or Ke <= 0:
+        msg = "equation error: non-physical R or Ke (check the voltage and current signs)"
+        raise DataError(msg)
+    mech = _mechanical_regression(w0, w1, 0.5 * (i0 + i1), s0, dt, coulomb)
+    kt_over_j, a, c_s, c_1 = mech
+    vals = {"R": float(R), "Ke": float(Ke)}
+    _scale(vals, Kt, J, kt_over_j)
+    vals["B"] = max(a * vals["J"], 0.0)
+    vals["coulomb_friction.torque_nm"] = c_s * vals["J"]
+    vals["load_torque.torque_nm"] = c_1 * vals["J"]
+    return {k: float(v) for k, v in vals.items()}
+
+
+def _mechanical_regression(w0, w1, i_avg, s0, dt, coulomb):
+    """dw/dt = (Kt/J) i - a w - c_s sign(w) - c_1, regressed on one-step differences."""
+    dw = (w1 - w0) / dt
+    wm = 0.5 * (w0 + w1)
+    cols = [i_avg, -wm] + ([-s0] if coulomb else []) + [-np.ones_like(wm)]
+    beta, *_ = np.linalg.lstsq(np.column_stack(cols), dw, rcond=None)
+    kt_over_j, a = float(beta[0]), float(beta[1])
+    c_s = float(beta[2]) if coulomb else 0.0
+    c_1 = float(beta[-1])
+    if kt_over_j <= 0:
+        msg = "equation error: current does not accelerate the rotor (check the signs)"
+        raise DataError(msg)
+    return kt_over_j, a, c_s, c_1
+
+
+def fit_mechanical_equation_error(
+    segments: Sequence[Segment], *, Kt: float, coulomb: bool = True
+) -> EquationErrorResult:
+    """Current-driven data: ``J dw/dt = Kt i - B w - Tc sign(w) - T_load`` given ``Kt``."""
+    parts = [[], [], [], [], []]
+    for s in segments:
+        if s.current is None or s.n < 4:
+            continue
+        w = s.speed_or_derivative()
+        if s.speed is None:
+            # smooth the differentiated position a little: central differences
+            w = np.gradient(s.position, s.t)
+        parts[0].append(w[:-1])
+        parts[1].append(w[1:])
+        parts[2].append(0.5 * (s.current[:-1] + s.current[1:]))
+        parts[3].append(np.sign(w[:-1]))
+        parts[4].append(np.diff(s.t))
+    if not parts[0]:
+        msg = "mechanical-only fit needs current and speed or position"
+        raise DataError(msg)
+    w0, w1, ia, s0, dts = (np.concatenate(p) for p in parts)
+    if np.ptp(w0) <= 0:
+        msg = "no excitation: the speed never changes"
+        raise DataError(msg)
+    # per-sample dt (non-uniform data are fine here)
+    dw = (w1 - w0) / dts
+    wm = 0.5 * (w0 + w1)
+    cols = [ia, -wm] + ([-s0] if coulomb else []) + [-np.ones_like(wm)]
+    beta, *_ = np.linalg.lstsq(np.column_stack(cols), dw, rcond=None)
+    if beta[0] <= 0:
+        msg = "equation error: current does not accelerate the rotor (check the signs)"
+        raise DataError(msg)
+    J = Kt / float(beta[0])
+    vals = {"Kt": Kt, "J": J, "B": max(float(beta[1]) * J, 0.0)}
+    if coulomb:
+        vals["coulomb_friction.torque_nm"] = float(beta[2]) * J
+    vals["load_torque.torque_nm"] = float(beta[-1]) * J
+    return EquationErrorResult(vals, "mechanical", int(w0.size), ())

@@ -1,0 +1,242 @@
+"""Identification results: parameter estimates, method comparison, JSON and motor YAML.
+
+JSON (DESIGN.md §4): ``parameters.{R,L,Ke,Kt,J,B}`` each ``{value, ci95: [lo, hi] |
+null, unit, identifiable}`` (plus ``stderr``, ``reason``), effect parameters as
+``parameters["<effect>.<name>"]``; then ``assumptions``, ``warnings``,
+``methods`` (each method's estimates, for comparison), ``validation``
+(held-out free-run error, residual whiteness, bootstrap check of the
+intervals), ``transfer_functions`` (seed 001's eq. 4-5 form) and ``fit``.
+
+The YAML is a motor file of :mod:`pmdc_ident.core.motors`, so
+``load_motor(path)`` (and the simulated driver) reads it: identify -> simulate.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pmdc_ident.core.model import Model
+from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec, motor_to_yaml
+from pmdc_ident.core.output_error import FitResult, parameter_unit
+
+__all__ = [
+    "IdentificationResult",
+    "ParameterEstimate",
+    "format_polynomial",
+    "transfer_function_dict",
+]
+
+
+@dataclass(frozen=True)
+class ParameterEstimate:
+    name: str
+    value: float
+    ci95: tuple[float, float] | None
+    unit: str
+    identifiable: bool
+    stderr: float | None = None
+    reason: str = ""
+    method: str = ""
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "value": _num(self.value),
+            "ci95": None if self.ci95 is None else [_num(self.ci95[0]), _num(self.ci95[1])],
+            "unit": self.unit,
+            "identifiable": bool(self.identifiable),
+            "stderr": None if self.stderr is None else _num(self.stderr),
+            "reason": self.reason,
+            "method": self.method,
+        }
+
+
+def _num(x: float) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def format_polynomial(coeffs: list[float], var: str = "s") -> str:
+    n = len(coeffs) - 1
+    terms = []
+    for k, c in enumerate(coeffs):
+        p = n - k
+        mag = f"{abs(c):.4g}"
+        if p == 0:
+            t = mag
+        elif p == 1:
+            t = var if mag == "1" else f"{mag} {var}"
+        else:
+            t = f"{var}^{p}" if mag == "1" else f"{mag} {var}^{p}"
+        sign = "-" if c < 0 else "+"
+        terms.append((sign, t))
+    out = ("-" if terms[0][0] == "-" else "") + terms[0][1]
+    for sign, t in terms[1:]:
+        out += f" {sign} {t}"
+    return out
+
+
+def transfer_function_dict(model: Model) -> dict[str, Any]:
+    """I/V and w/V in seed 001's eq. 4-5 form (J-normalised), with readable text."""
+    tf = model.params.transfer_functions()
+    out: dict[str, Any] = {}
+    for key, (num, den) in tf.items():
+        lhs = "I(s)/V(s)" if key.startswith("current") else "W(s)/V(s)"
+        out[key] = {
+            "num": [float(c) for c in num],
+            "den": [float(c) for c in den],
+            "text": f"{lhs} = ({format_polynomial(num)}) / ({format_polynomial(den)})",
+        }
+    return out
+
+
+@dataclass(frozen=True)
+class IdentificationResult:
+    """Everything ``pmdc-ident identify`` reports."""
+
+    sources: tuple[str, ...]
+    model_kind: str  # "linear", "coulomb", "mechanical", "classical"
+    model: Model
+    parameters: dict[str, ParameterEstimate]
+    assumptions: tuple[str, ...]
+    warnings: tuple[str, ...]
+    methods: dict[str, dict[str, Any]]
+    validation: dict[str, Any]
+    noise: dict[str, float]
+    fit: FitResult | None = field(default=None, repr=False)
+    frequency: Any = field(default=None, repr=False)
+    fit_info: dict[str, Any] = field(default_factory=dict)
+    limits: Limits = field(default_factory=Limits)
+
+    # -- text -----------------------------------------------------------------
+    def table(self) -> str:
+        lines = [f"{'parameter':<28} {'value':>12}  {'95 % interval':<26} {'unit':<11} note"]
+        for p in self.parameters.values():
+            if p.ci95 is None:
+                ci = "-"
+            else:
+                ci = f"[{p.ci95[0]:.5g}, {p.ci95[1]:.5g}]"
+            note = "" if p.identifiable else "NOT IDENTIFIABLE"
+            if p.reason and (not p.identifiable or p.reason.startswith(("fixed", "assumed"))):
+                note = (note + " " + p.reason).strip() if not p.identifiable else p.reason
+            lines.append(f"{p.name:<28} {p.value:>12.6g}  {ci:<26} {p.unit:<11} {note}")
+        return "\n".join(lines)
+
+    def text_report(self) -> str:
+        out = [f"model: {self.model_kind}  (data: {', '.join(self.sources)})", self.table()]
+        out.append("assumptions:")
+        out += [f"  - {a}" for a in self.assumptions]
+        if self.warnings:
+            out.append("warnings:")
+            out += [f"  - {w}" for w in self.warnings]
+        tf = transfer_function_dict(self.model)
+        out.append("transfer functions (seed 001 eq. 4-5 form):")
+        out += [f"  {v['text']}" for v in tf.values()]
+        for m, info in self.methods.items():
+            notes = info.get("notes") or []
+            if notes:
+                out.append(f"notes ({m}):")
+                out += [f"  - {n}" for n in notes]
+        comp = self.method_table()
+        if comp:
+            out.append("method comparison:")
+            out.append(comp)
+        ho = self.validation.get("holdout")
+        if ho:
+            txt = ", ".join(f"{k} {v:.4g}" for k, v in ho["rms"].items())
+            out.append(f"validation: free-run rms on held-out {', '.join(ho['labels'])}: {txt}")
+        return "\n".join(out)
+
+    def method_table(self) -> str:
+        names = ["R", "L", "Ke", "Kt", "J", "B", "coulomb_friction.torque_nm"]
+        methods = [m for m in self.methods if self.methods[m].get("values")]
+        if not methods:
+            return ""
+        width = max(12, *(len(m) for m in methods))
+        head = f"  {'parameter':<28}" + "".join(f"{m:>{width + 2}}" for m in methods)
+        rows = [head]
+        for n in names:
+            cells = []
+            for m in methods:
+                v = self.methods[m]["values"].get(n)
+                cells.append(f"{v:>{width + 2}.5g}" if v is not None else f"{'-':>{width + 2}}")
+            rows.append(f"  {n:<28}" + "".join(cells))
+        return "\n".join(rows)
+
+    # -- files ----------------------------------------------------------------
+    def to_json_dict(self) -> dict[str, Any]:
+        return _jsonable(
+            {
+                "sources": list(self.sources),
+                "model": self.model_kind,
+                "parameters": {k: p.as_json() for k, p in self.parameters.items()},
+                "assumptions": list(self.assumptions),
+                "warnings": list(self.warnings),
+                "methods": self.methods,
+                "validation": self.validation,
+                "transfer_functions": transfer_function_dict(self.model),
+                "noise": self.noise,
+                "fit": self.fit_info,
+            }
+        )
+
+    def write_json(self, path: str | Path) -> Path:
+        p = Path(path)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(json.dumps(self.to_json_dict(), indent=2, allow_nan=False) + "\n")
+        return p
+
+    def motor_spec(self, name: str = "identified") -> MotorSpec:
+        sensors = SensorSpec(
+            current_noise_a=float(self.noise.get("current", 0.0)),
+            speed_noise_rad_s=float(self.noise.get("speed", 0.0)),
+        )
+        return MotorSpec(
+            name=name,
+            model=self.model,
+            sensors=sensors,
+            limits=self.limits,
+            description=f"identified by pmdc-ident from {', '.join(self.sources)} "
+            f"({self.model_kind} model)",
+        )
+
+    def write_motor_yaml(self, path: str | Path, name: str | None = None) -> Path:
+        p = Path(path)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        header = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
+        p.write_text(header + motor_to_yaml(self.motor_spec(name or p.stem)))
+        return p
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [_jsonable(v) for v in obj.tolist()]
+    if isinstance(obj, np.bool_ | bool):
+        return bool(obj)
+    if isinstance(obj, np.integer | int):
+        return int(obj)
+    if isinstance(obj, np.floating | float):
+        return _num(float(obj))
+    return obj
+
+
+def estimate_from_fit(fit: FitResult, name: str, method: str) -> ParameterEstimate:
+    return ParameterEstimate(
+        name=name,
+        value=fit.values[name],
+        ci95=fit.ci95.get(name),
+        unit=parameter_unit(name),
+        identifiable=fit.identifiable.get(name, True),
+        stderr=fit.stderr.get(name),
+        reason=fit.reasons.get(name, ""),
+        method=method,
+    )
