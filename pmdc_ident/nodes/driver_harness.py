@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 import rclpy
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -162,6 +163,23 @@ class DriverClient(Node):
         self.create_subscription(JointState, "encoder", self._rec(self.encoder, "e"), qos)
         self.create_subscription(JointState, "voltage_applied", self._rec(self.voltage, "v"), qos)
         self._open = self.create_client(Trigger, "open_armature")
+        self.executor_ = EventsExecutor(context=self.context)
+        self.executor_.add_node(self)
+
+    def spin_once(self, timeout_s: float) -> None:
+        self.executor_.spin_once(timeout_sec=timeout_s)
+
+    def catch_up(self, timeout_s: float = 5.0, slack_s: float = 0.003) -> None:
+        """Spin until every topic has delivered the samples stamped up to ROS time now."""
+        target = self.get_clock().now().nanoseconds - int(slack_s * 1e9)
+        end = time.monotonic() + timeout_s
+        recs = (self.current, self.encoder, self.voltage)
+        while time.monotonic() < end:
+            if all(r.stamps_ns and r.stamps_ns[-1] >= target for r in recs):
+                return
+            self.spin_once(0.01)
+        msg = f"the driver's samples did not catch up within {timeout_s:g} s"
+        raise DemoError(msg)
 
     def _rec(self, rec: Recording, kind: str) -> Callable[[JointState], None]:
         def cb(msg: JointState) -> None:
@@ -190,28 +208,40 @@ class DriverClient(Node):
                 action()
                 next_action += every_s
             timeout = max(0.0, min(end, next_action if action else end) - time.monotonic())
-            rclpy.spin_once(self, timeout_sec=min(timeout, 0.05))
+            self.spin_once(min(timeout, 0.05))
 
     def wait_for_driver(self, timeout_s: float = 15.0) -> None:
         """Until the driver's samples arrive and it sees our command publisher."""
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
-            rclpy.spin_once(self, timeout_sec=0.05)
+            self.spin_once(0.05)
             if self.encoder.stamps_ns and self._pub.get_subscription_count() > 0:
                 return
         msg = f"no samples from the driver within {timeout_s:g} s (is it running?)"
         raise DemoError(msg)
 
     def open_armature(self, timeout_s: float = 5.0) -> str:
-        if not self._open.wait_for_service(timeout_sec=timeout_s):
-            msg = "open_armature service not available"
+        return self.trigger("open_armature", timeout_s)
+
+    def trigger(self, service: str, timeout_s: float = 5.0) -> str:
+        """Call one of the driver's std_srvs/Trigger services; returns its message."""
+        cli = self._open if service == "open_armature" else self.create_client(Trigger, service)
+        if not cli.wait_for_service(timeout_sec=timeout_s):
+            msg = f"{service} service not available"
             raise DemoError(msg)
-        fut = self._open.call_async(Trigger.Request())
-        rclpy.spin_until_future_complete(self, fut, timeout_sec=timeout_s)
+        fut = cli.call_async(Trigger.Request())
+        end = time.monotonic() + timeout_s
+        while not fut.done() and time.monotonic() < end:
+            self.spin_once(0.05)
         if not fut.done() or fut.result() is None or not fut.result().success:
-            msg = "open_armature call failed"
+            msg = f"{service} call failed"
             raise DemoError(msg)
         return fut.result().message
+
+    def destroy_node(self) -> None:
+        self.executor_.remove_node(self)
+        self.executor_.shutdown()
+        super().destroy_node()
 
     def clear(self) -> None:
         for rec in (self.current, self.encoder, self.voltage):

@@ -541,8 +541,11 @@ def main(args: list[str] | None = None) -> int:
         print(f"{NODE_NAME}: {exc}", file=sys.stderr, flush=True)
         status = 2
     except Exception as exc:  # unexpected: still leave the motor safe, then report
-        print(f"{NODE_NAME}: internal error: {exc!r}", file=sys.stderr, flush=True)
-        status = 1
+        if node is not None and not node.context.ok():
+            pass  # a signal shut the context down while the executor was waiting: normal exit
+        else:
+            print(f"{NODE_NAME}: internal error: {exc!r}", file=sys.stderr, flush=True)
+            status = 1
     finally:
         if node is not None:
             final = node.shutdown_safe()
