@@ -20,7 +20,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -163,12 +163,15 @@ def run_session(
     quiet: bool = False,
     with_recorder: bool = True,
     nice: int = -5,
+    during: Callable[[dict[str, subprocess.Popen[bytes]], float], None] | None = None,
 ) -> BringupResult:
     """Start the three nodes, run one session, stop them in the safe order.
 
-    ``nice`` is applied to the driver and the identification node where the
-    system permits it (a negative value raises their priority: a motor loop should
-    not wait behind a compiler); it is ignored otherwise.
+    ``during(processes, elapsed_s)`` is called about every 50 ms while the
+    session runs (tests use it to break things on purpose). ``nice`` is applied to
+    the driver and the identification node where the system permits it (a negative
+    value raises their priority: a motor loop should not wait behind a compiler);
+    it is ignored otherwise.
     """
     t0 = time.monotonic()
     out = Path(output_dir).resolve()
@@ -236,6 +239,8 @@ def run_session(
         deadline = time.monotonic() + timeout_s
         while ident.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)  # a crashed peer is noticed by identification itself
+            if during is not None:
+                during({k: v.popen for k, v in procs.items()}, time.monotonic() - t0)
         rc["identification"] = procs["identification"].stop(timeout_s=10.0)
     finally:
         for name in ("identification", "recorder", "driver"):

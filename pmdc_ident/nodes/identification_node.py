@@ -163,6 +163,13 @@ PARAMETERS: dict[str, tuple[Any, str, float | None, float | None]] = {
         0.001,
         10.0,
     ),
+    "settle_s": (1.0, "driver samples must arrive on time this long before a start, s", 0.0, 60.0),
+    "confirm_timeout_s": (
+        3.0,
+        "after an abort, resend the safe command until the driver reports it, s",
+        0.1,
+        60.0,
+    ),
     "require_recorder": (True, "wait for the recorder and abort if it disappears", None, None),
     "peer_timeout_s": (1.5, "recorder heartbeat timeout, s", 0.1, 60.0),
     "autostart": (True, "start a session as soon as the driver is up", None, None),
@@ -265,6 +272,14 @@ class IdentificationNode(Node):
         self._last_current = 0.0
         self._last_sample_wall = -math.inf
         self._last_lag_ns = 0
+        self._settled_since = math.inf
+        self._last_tick = time.monotonic()
+        self._confirm_after_ns: int | None = None
+        self._confirm_deadline = 0.0
+        self._confirm_sent = 0.0
+        self.safe_confirmed = False
+        self._last_enc_ns_seen = 0
+        self._suspect_until = 0.0
         self._max_lag_ns = int(float(p("safety.data_timeout_s")) * 1e9)
         self._lag = _Columns(0)  # receive time - driver stamp, ns (latency report)
         self._last_cmd_v = math.nan
@@ -353,11 +368,15 @@ class IdentificationNode(Node):
         if self._recording():
             ns, _, _, v, vt = parse_joint_state(raw)
             self._volt.append(ns, v, vt)
+        elif self._confirm_after_ns is not None:
+            ns, _, _, v, _ = parse_joint_state(raw)
+            self._check_confirm(ns, v)
 
     def _on_encoder(self, raw: bytes) -> None:
         ns, pos, spd, _, _ = parse_joint_state(raw)
         wall = time.monotonic()
         self._last_sample_wall = wall
+        self._last_enc_ns_seen = ns
         lag_ns = time.time_ns() - ns
         self._last_lag_ns = lag_ns
         if not self._recording():
@@ -434,6 +453,7 @@ class IdentificationNode(Node):
         self._prep_deadline = time.monotonic() + float(self._p("driver_wait_s"))
         self._driver_params = None
         self._param_future = None
+        self._settled_since = math.inf
         self._publish_status("preparing")
         return True, "session requested"
 
@@ -479,7 +499,13 @@ class IdentificationNode(Node):
         if now - self._last_sample_wall > 0.5:
             return  # no driver samples yet
         if self._last_lag_ns > float(self._p("max_start_latency_s")) * 1e9:
-            return  # still working through a backlog: commands would arrive late
+            self._settled_since = math.inf  # still working through a backlog
+            return
+        # samples must have kept arriving on time for settle_s (the other processes are
+        # done starting up), so the first commands are not late
+        self._settled_since = min(self._settled_since, now)
+        if now - self._settled_since < float(self._p("settle_s")):
+            return
         if self._p("require_recorder") and now - self._recorder_seen > float(
             self._p("peer_timeout_s")
         ):
@@ -570,12 +596,20 @@ class IdentificationNode(Node):
     # -- timer: link checks, progress, end of session -----------------------------------------
     def _on_timer(self) -> None:
         now = time.monotonic()
+        if now - self._last_tick > 0.1:
+            # This node itself was held up (the timer is late): samples may be waiting
+            # in its queue, so judge the driver's link only after they are processed.
+            self._suspect_until = now + 0.05
+        self._last_tick = now
         if self.stop_requested is not None:
-            self._stop(self.stop_requested)
+            reason, self.stop_requested = self.stop_requested, None
+            self._stop(reason)
             return
         if self.phase is Phase.PREPARING:
             self._prepare()
         elif self.phase is Phase.RUNNING and self.session is not None:
+            if self._suspect_until > now:
+                return
             step = self.session.check_link(now)
             if (
                 step is None
@@ -592,8 +626,10 @@ class IdentificationNode(Node):
                 self.pub_progress.publish(String(data=self.session.progress().to_json()))
         elif self.phase is Phase.FLUSHING:
             self._maybe_identify(now)
-        elif self.phase is Phase.FINISHED and self._worker is not None:
-            if not self._worker.is_alive():
+        elif self.phase is Phase.FINISHED:
+            if self.confirming:
+                self._confirm_tick(now)
+            elif self._worker is None or not self._worker.is_alive():
                 self._worker = None
                 if self._p("exit_when_done"):
                     self.finished = True
@@ -606,23 +642,57 @@ class IdentificationNode(Node):
             self._apply(self.session.abort(reason, None, f"{reason.value} by signal"))
         else:
             self._make_safe()
+            self.get_logger().warning(
+                f"stopped by signal while {self.phase.value}: no session running, 0 V / open sent"
+            )
+            self._publish_status("stopped", reason=reason.value)
+            self._start_confirm(self._last_enc_ns_seen)
         self.finished = True
-        if self.exit_code == 0:
-            self.exit_code = 130
+        self.exit_code = 130
 
     def _on_aborted(self) -> None:
         s = self.session
         assert s is not None
         self._make_safe()
-        text = f"session {s.name} ABORTED ({s.abort_reason.value}): {s.abort_detail}; motor safe"
-        self.get_logger().error(text)
+        reason = s.abort_reason.value if s.abort_reason else "?"
+        self.get_logger().error(
+            f"session {s.name} ABORTED ({reason}): {s.abort_detail}; safe command sent"
+        )
         self.pub_progress.publish(String(data=s.progress().to_json()))
         self._publish_status("aborted", reason=s.abort_reason.value, detail=s.abort_detail)
         self.exit_code = EXIT_ABORTED
         self.phase = Phase.FINISHED
-        if self._p("exit_when_done"):
-            self._worker = threading.Thread(target=lambda: time.sleep(0.3), daemon=True)
-            self._worker.start()
+        self._start_confirm(round(s.markers[-1].t_s * 1e9))
+
+    # -- confirming the safe state on the driver's own telemetry ------------------------------
+    def _start_confirm(self, after_ns: int) -> None:
+        """Watch voltage_applied until the driver shows 0 V or an open armature."""
+        self._confirm_after_ns = after_ns
+        self._confirm_deadline = time.monotonic() + float(self._p("confirm_timeout_s"))
+        self._confirm_sent = time.monotonic()
+
+    @property
+    def confirming(self) -> bool:
+        return self._confirm_after_ns is not None
+
+    def _check_confirm(self, ns: int, v: float) -> None:
+        if self._confirm_after_ns is not None and ns >= self._confirm_after_ns:
+            if v == 0.0 or math.isnan(v):
+                state = "armature open" if math.isnan(v) else "0 V applied"
+                self.get_logger().info(f"motor confirmed safe by the driver: {state}")
+                self._confirm_after_ns = None
+                self.safe_confirmed = True
+
+    def _confirm_tick(self, now: float) -> None:
+        if now > self._confirm_deadline:
+            self.get_logger().error(
+                "could NOT confirm the safe state: the driver did not report 0 V or an open "
+                f"armature within {self._p('confirm_timeout_s'):g} s (its watchdog opens it)"
+            )
+            self._confirm_after_ns = None
+        elif now - self._confirm_sent > 0.1:
+            self._confirm_sent = now
+            self._make_safe()  # repeat: the first command may have been lost
 
     def _begin_flush(self) -> None:
         s = self.session
@@ -732,10 +802,13 @@ def main(args: list[str] | None = None) -> int:
         executor.add_node(node)
         while rclpy.ok() and not node.finished:
             executor.spin_once(timeout_sec=0.05)
-        # let the last command, markers and status leave before the node goes
+        # let the last command, markers and status leave before the node goes, and see
+        # the safe state confirmed by the driver (a Ctrl-C ends here)
         t_end = time.monotonic() + 0.3
-        while rclpy.ok() and time.monotonic() < t_end:
+        while rclpy.ok() and (time.monotonic() < t_end or node.confirming):
             executor.spin_once(timeout_sec=0.02)
+            if node.confirming:
+                node._confirm_tick(time.monotonic())
         status = node.exit_code
     except PmdcError as exc:
         print(f"{NODE_NAME}: {exc}", file=sys.stderr, flush=True)

@@ -68,6 +68,7 @@ class RecorderNode(Node):
             ("rate_hz", 1000.0, "driver sample rate, Hz (sizes the queues and the ring)"),
             ("margin_s", 0.0, "also keep driver samples this long before/after a session, s"),
             ("ring_s", 3.0, "driver samples kept while no bag is open, s"),
+            ("hold_s", 0.25, "samples wait this long before being written (late end marker), s"),
         ):
             self.declare_parameter(
                 name,
@@ -83,6 +84,8 @@ class RecorderNode(Node):
         self.output_dir = Path(self.get_parameter("output_dir").value).expanduser()
         rate = float(self.get_parameter("rate_hz").value) or 1000.0
         self.margin_ns = int(float(self.get_parameter("margin_s").value) * 1e9)
+        self.half_dt_ns = int(0.5e9 / rate)
+        self.hold_ns = int(float(self.get_parameter("hold_s").value) * 1e9)
         ring_n = int(3 * rate * max(float(self.get_parameter("ring_s").value), 0.5))
         self.ring: deque[tuple[str, int, bytes, int]] = deque(maxlen=ring_n)
         self.writer: BagWriter | None = None
@@ -98,14 +101,20 @@ class RecorderNode(Node):
         from rosbags.typesys import Stores, get_typestore
 
         self._typestore = get_typestore(Stores.ROS2_JAZZY)
-        self._topics = {t: "sensor_msgs/msg/JointState" for t in DRIVER_TOPICS}
-        self._topics.update({t: v[0] for t, v in OTHER_TOPICS.items()})
+        types = {t: "sensor_msgs/msg/JointState" for t in DRIVER_TOPICS}
+        types.update({t: v[0] for t, v in OTHER_TOPICS.items()})
+        self._name: dict[str, str] = {}  # relative topic -> resolved name in the bag
         qos = sample_qos(rate)
         for topic in DRIVER_TOPICS:
-            self.create_subscription(JointState, topic, self._driver_cb(topic), qos, raw=True)
+            sub = self.create_subscription(
+                JointState, topic, self._driver_cb(topic), qos, raw=True
+            )
+            self._name[topic] = sub.topic_name
         for topic, (_, msg_type, tqos) in OTHER_TOPICS.items():
             cb = self._on_segment if topic == "segment" else self._other_cb(topic)
-            self.create_subscription(msg_type, topic, cb, tqos, raw=True)
+            sub = self.create_subscription(msg_type, topic, cb, tqos, raw=True)
+            self._name[topic] = sub.topic_name
+        self._topics = {self._name[t]: types[t] for t in types}
         self.pub_status = self.create_publisher(String, "recorder_status", LATCHED_QOS)
         self.create_timer(0.2, self._heartbeat)
         self._heartbeat()
@@ -116,28 +125,48 @@ class RecorderNode(Node):
         def cb(raw: bytes) -> None:
             ns = header_stamp_ns(raw)
             self.last_ns[topic] = ns
-            w = self.writer
-            if w is None:
-                self.ring.append((topic, ns, raw, time.time_ns()))
-                return
-            if ns >= self.start_ns - self.margin_ns and (
-                self.end_ns is None or ns < self.end_ns + self.margin_ns
-            ):
-                w.write_raw(topic, time.time_ns(), raw)
-                if topic == "encoder":
-                    self.samples += 1
-            elif (
-                self.end_ns is not None
-                and min(self.last_ns.values()) >= self.end_ns + self.margin_ns
-            ):
-                self._close("session ended")
+            self.ring.append((topic, ns, raw, time.time_ns()))
+            if self.writer is not None:
+                self._drain(ns - self.hold_ns)
+                end = self.end_ns
+                if end is not None and min(self.last_ns.values()) >= (
+                    end + self.margin_ns + self.hold_ns
+                ):
+                    self._drain_rest_and_close("session ended")
 
         return cb
+
+    def _in_window(self, ns: int) -> bool:
+        lo = self.start_ns - self.margin_ns - self.half_dt_ns
+        hi = None if self.end_ns is None else self.end_ns + self.margin_ns - self.half_dt_ns
+        return ns >= lo and (hi is None or ns < hi)
+
+    def _drain(self, before_ns: int | None) -> None:
+        """Write the held driver samples older than ``before_ns`` (all: None) in the window.
+
+        Samples are held ``hold_s`` before they are written, so the ones stamped after
+        the session's end (whose marker travels on another topic) stay out of the bag.
+        """
+        w = self.writer
+        ring = self.ring
+        while ring and (before_ns is None or ring[0][1] < before_ns):
+            topic, ns, raw, log_ns = ring.popleft()
+            if w is not None and self._in_window(ns):
+                w.write_raw(self._name[topic], log_ns, raw)
+                if topic == "encoder":
+                    self.samples += 1
+
+    def _drain_rest_and_close(self, why: str) -> None:
+        if self.end_ns is not None:
+            self._drain(self.end_ns + self.margin_ns)
+        else:
+            self._drain(None)
+        self._close(why)
 
     def _other_cb(self, topic: str) -> Any:
         def cb(raw: bytes) -> None:
             if self.writer is not None:
-                self.writer.write_raw(topic, time.time_ns(), raw)
+                self.writer.write_raw(self._name[topic], time.time_ns(), raw)
 
         return cb
 
@@ -153,7 +182,7 @@ class RecorderNode(Node):
                 return  # a stale (transient-local) marker of a session long gone
             self._open(m)
         if self.writer is not None and m.session == self.session:
-            self.writer.write_raw("segment", time.time_ns(), raw)
+            self.writer.write_raw(self._name["segment"], time.time_ns(), raw)
             if m.event is MarkerEvent.SESSION_END:
                 self.end_ns = round(m.t_s * 1e9)
                 self._end_wall = time.monotonic()
@@ -161,7 +190,7 @@ class RecorderNode(Node):
     # -- bag ----------------------------------------------------------------------------------
     def _open(self, m: Marker) -> None:
         if self.writer is not None:
-            self._close(f"new session {m.session} started")
+            self._drain_rest_and_close(f"new session {m.session} started")
         name = m.session or f"session_{int(time.time())}"
         path = self.output_dir / name
         k = 1
@@ -176,12 +205,7 @@ class RecorderNode(Node):
             None,
             0,
         )
-        for topic, ns, raw, log_ns in self.ring:
-            if ns >= self.start_ns - self.margin_ns:
-                self.writer.write_raw(topic, log_ns, raw)
-                if topic == "encoder":
-                    self.samples += 1
-        self.ring.clear()
+        # held samples from before the start marker arrived are written by _drain
         self.get_logger().info(f"recording session {m.session} into {path}")
         self._heartbeat()
 
@@ -201,7 +225,7 @@ class RecorderNode(Node):
     def _heartbeat(self, closed: str = "") -> None:
         if self.end_ns is not None and self.writer is not None:
             if time.monotonic() - self._end_wall > 3.0:  # the driver stopped sending
-                self._close("session ended (driver samples stopped)")
+                self._drain_rest_and_close("session ended (driver samples stopped)")
                 return
         d = {
             "state": "recording" if self.writer is not None else "idle",
@@ -213,7 +237,8 @@ class RecorderNode(Node):
         self.pub_status.publish(String(data=json.dumps(d)))
 
     def shutdown(self) -> None:
-        self._close("shutdown")
+        if self.writer is not None:
+            self._drain_rest_and_close("shutdown")
 
 
 def main(args: list[str] | None = None) -> int:
