@@ -26,6 +26,7 @@ import sys
 import threading
 import time
 
+from pmdc_ident.backends.base import BackendError
 from pmdc_ident.backends.serial_board import SerialBackend
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.protocol import TELEMETRY_WIRE_BYTES, SetVoltage, frame_message
@@ -98,10 +99,14 @@ def measure(baud: int, period_us: int, seconds: float, commands: int) -> dict[st
                 with be.cond:
                     start_len = len(be.arrivals)
                 t_send = time.perf_counter()
-                be.command_voltage(mv / 1000.0)
-                t_seen = _wait_applied(be, start_len, mv / 1000.0, 0.2)
-                lat.append(t_seen - t_send)
-                be.poll()
+                try:
+                    be.command_voltage(mv / 1000.0)
+                    t_seen = _wait_applied(be, start_len, mv / 1000.0, 0.2)
+                    lat.append(t_seen - t_send)
+                    be.poll()
+                except BackendError as exc:  # reported, then the backend reconnects
+                    print(f"  link: {exc}")
+                    time.sleep(0.5)
                 time.sleep(0.003 + (k % 7) * period_us * 1e-6 / 7)
             rtt = be.link_stats.ping_rtt_s
         finally:
@@ -109,7 +114,7 @@ def measure(baud: int, period_us: int, seconds: float, commands: int) -> dict[st
     finally:
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=10)
-    lat.sort()
+    lat = sorted(x for x in lat if x == x)  # NaN: not seen within 0.2 s
     cmd_bytes = len(frame_message(SetVoltage(1000), 1))
     floor_s = (cmd_bytes + TELEMETRY_WIRE_BYTES) * 10 / baud + period_us * 1e-6 / 2
     return {

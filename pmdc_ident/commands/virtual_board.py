@@ -1,0 +1,101 @@
+"""``pmdc-ident virtual-board``: the motor model behind the serial protocol on a pty.
+
+Prints the port, then runs until Ctrl-C (or SIGTERM). Point the driver node at
+it exactly as at hardware: ``backend:=serial port:=<printed path> baud:=<baud>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+from pathlib import Path
+from types import FrameType
+
+from pmdc_ident.core.errors import ParameterError
+
+HELP = "run a simulated motor driver board on a pseudo-terminal (serial protocol v1)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--motor", default="seed000_ebike", help="built-in motor name or motor YAML path"
+    )
+    parser.add_argument(
+        "--baud",
+        type=int,
+        default=115200,
+        help="line rate the board paces its bytes to (a pty does not enforce one)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the current-sensor noise")
+    parser.add_argument(
+        "--supply-v", type=float, default=None, help="bridge supply, V (default: motor limit)"
+    )
+    parser.add_argument(
+        "--link",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="also make PATH a symlink to the pty (a stable name for launch files)",
+    )
+    parser.add_argument(
+        "--protocol-version",
+        type=int,
+        default=None,
+        help=argparse.SUPPRESS,  # testing: pretend to be another firmware version
+    )
+
+
+def _stop(_sig: int, _frame: FrameType | None) -> None:
+    raise KeyboardInterrupt
+
+
+def run(args: argparse.Namespace) -> int:
+    from pmdc_ident.backends.virtual_board import VirtualBoard
+    from pmdc_ident.core.motors import load_motor
+    from pmdc_ident.protocol import PROTOCOL_VERSION
+
+    spec = load_motor(args.motor)
+    if args.supply_v is not None and not args.supply_v > 0:
+        msg = f"--supply-v must be > 0 V, got {args.supply_v}"
+        raise ParameterError(msg)
+    board = VirtualBoard(
+        spec,
+        baud=args.baud,
+        supply_v=args.supply_v,
+        seed=args.seed,
+        protocol_version=args.protocol_version or PROTOCOL_VERSION,
+    )
+    link: Path | None = args.link
+    try:
+        if link is not None:
+            if link.is_symlink():
+                link.unlink()
+            os.symlink(board.port, link)
+        info = board.core.info
+        print(
+            f"virtual board on {board.port} ({args.baud} baud, motor {spec.name}, "
+            f"protocol v{info.protocol_version}, shortest period {info.min_period_us} us = "
+            f"{1e6 / info.min_period_us:.0f} Hz)",
+            flush=True,
+        )
+        if link is not None:
+            print(f"linked as {link}", flush=True)
+        print(
+            f"driver: ros2 run pmdc_ident driver_node --ros-args -p backend:=serial "
+            f"-p port:={link or board.port} -p baud:={args.baud} "
+            f"-p rate_hz:={min(1000.0, 1e6 / info.min_period_us):.1f}  (Ctrl-C to stop)",
+            flush=True,
+        )
+        signal.signal(signal.SIGTERM, _stop)
+        try:
+            board.run_forever()
+        except KeyboardInterrupt:
+            pass
+        print(f"virtual board stopped ({board.frames_sent} frames sent)", file=sys.stderr)
+        return 0
+    finally:
+        board.close()
+        if link is not None and link.is_symlink():
+            link.unlink()
