@@ -487,16 +487,19 @@ def _fast_kernel(
                 for c in range(ns):
                     sn[0, c] = 0.0
         if tc > 0.0 and xn[1] * sg < 0.0:
-            xn[1] = 0.0
-            if want_s:
-                for c in range(ns):
-                    sn[1, c] = 0.0
+            # Crossed zero within the sample: friction holds the rotor if the drive
+            # cannot break it away; otherwise it passes through (friction sign flips
+            # from the next sample on).
             if is_open and not cmode:
                 held = -tl
             else:
                 held = kt * xn[0] - tl
             if abs(held) <= tc:
                 stuck = True
+                xn[1] = 0.0
+                if want_s:
+                    for c in range(ns):
+                        sn[1, c] = 0.0
         for a in range(3):
             x[a] = xn[a]
             if want_s:
@@ -657,18 +660,6 @@ def fit_output_error(
                 msg = f"weights keys must be among {SIGNALS}, got {k!r}"
                 raise ParameterError(msg)
 
-    if check_inductance and not current_mode and "L" in free_names:
-        dt_min = min(ps.dt for ps in segs)
-        if values["L"] / values["R"] < _MIN_TAU_E_SAMPLES * dt_min * 0.5:
-            # The start already puts L/R far below the sample period: hold L from the
-            # start (the check after the fit reports it) instead of fitting twice.
-            free_names = [n for n in free_names if n != "L"]
-            l_pre_held = True
-        else:
-            l_pre_held = False
-    else:
-        l_pre_held = False
-
     prob = _Problem(segs, base, values, free_names, tie_kt, fast, noise, weights or {})
     z, lm = _levenberg_marquardt(prob, prob.z0(), max_nfev, progress)
     if refine_noise:
@@ -677,69 +668,41 @@ def fit_output_error(
         lm = _LMState(lm2.cost, lm.nfev + lm2.nfev, lm.it + lm2.it, lm2.converged, lm2.message)
 
     result = _finish(prob, z, lm, reasons, fixed, closure if tie_kt else None, warnings, t_start)
-    if l_pre_held:
-        tau_e = values["L"] / values["R"]
-        return _flag_inductance(result, tau_e, min(ps.dt for ps in segs), values["L"], t_start)
     if check_inductance and not current_mode and "L" in result.free:
         tau_e = result.values["L"] / result.values["R"]
         dt_min = min(s.dt for s in segs)
         if tau_e < _MIN_TAU_E_SAMPLES * dt_min:
-            reason = _inductance_reason(tau_e, dt_min)
-            held = float(model.params.L)
-            new_fixed = dict(fixed)
-            new_fixed["L"] = held
-            again = fit_output_error(
-                segments,
-                _build_model(model, {**_model_values(result.model), "L": held}),
-                free=[n for n in result.free if n != "L"],
-                fixed=new_fixed,
-                closure=closure,
-                weights=weights,
-                max_nfev=max_nfev,
-                progress=progress,
-                refine_noise=refine_noise,
-                check_inductance=False,
-            )
-            fixed_out = dict(again.fixed)
-            fixed_out.pop("L")
-            reasons_out = dict(again.reasons)
-            reasons_out["L"] = reason + f" (held at {held:.4g} H)"
-            ident = dict(again.identifiable)
-            ident["L"] = False
-            return _replace(
-                again,
-                fixed=fixed_out,
-                reasons=reasons_out,
-                identifiable=ident,
-                warnings=(*again.warnings, "L: " + reason),
-                nfev=again.nfev + result.nfev,
-                elapsed_s=time.perf_counter() - t_start,
-            )
+            # Keep the fitted (rough) value: holding L at a guess would add nothing.
+            result = _flag_inductance(result, tau_e, dt_min, t_start)
     return result
 
 
 def _inductance_reason(tau_e: float, dt_min: float) -> str:
     need_hz = _NEEDED_TAU_E_SAMPLES / tau_e
     return (
-        f"L/R = {tau_e * 1e3:.3g} ms is below the sample period "
+        f"L/R ~ {tau_e * 1e3:.2g} ms is below the sample period "
         f"{dt_min * 1e3:.3g} ms: the current settles within one sample, so L is "
         f"not identifiable from these data; sample at >= {need_hz / 1e3:.3g} kHz "
         f"or fix L from an LCR meter (--fix L=...)"
     )
 
 
-def _flag_inductance(
-    res: FitResult, tau_e: float, dt_min: float, held: float, t_start: float
-) -> FitResult:
+def _flag_inductance(res: FitResult, tau_e: float, dt_min: float, t_start: float) -> FitResult:
     reason = _inductance_reason(tau_e, dt_min)
     reasons = dict(res.reasons)
-    reasons["L"] = reason + f" (held at {held:.4g} H)"
+    reasons["L"] = reason + " (the value is the fit's rough estimate)"
     ident = dict(res.identifiable)
     ident["L"] = False
+    ci95 = dict(res.ci95)
+    ci95["L"] = None
+    stderr = dict(res.stderr)
+    stderr["L"] = None
     return _replace(
         res,
         reasons=reasons,
         identifiable=ident,
+        ci95=ci95,
+        stderr=stderr,
         warnings=(*res.warnings, "L: " + reason),
         elapsed_s=time.perf_counter() - t_start,
     )

@@ -41,7 +41,7 @@ from pmdc_ident.core.output_error import CLOSURE_KT_KE, FitResult, fit_output_er
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
 from pmdc_ident.core.results import IdentificationResult, ParameterEstimate, estimate_from_fit
 
-__all__ = ["ModelChoice", "identify", "identify_runs"]
+__all__ = ["ModelChoice", "identify", "identify_runs", "merge_runs"]
 
 TABLE_MAX_ROWS = 20
 TC = "coulomb_friction.torque_nm"
@@ -58,7 +58,8 @@ class ModelChoice(enum.StrEnum):
 Progress = Callable[[str], None]
 
 
-def identify_runs(runs: Sequence[Run], **kwargs: Any) -> IdentificationResult:
+def merge_runs(runs: Sequence[Run]) -> list[Segment]:
+    """All segments of several runs, labels made unique (``step_up``, ``step_up_2``...)."""
     segs: list[Segment] = []
     labels: set[str] = set()
     for run in runs:
@@ -70,7 +71,12 @@ def identify_runs(runs: Sequence[Run], **kwargs: Any) -> IdentificationResult:
                 k += 1
             labels.add(label)
             segs.append(s if label == s.label else s.slice(0, s.n, label=label))
-    return identify(segs, sources=tuple(r.source for r in runs), **kwargs)
+    return segs
+
+
+def identify_runs(runs: Sequence[Run], **kwargs: Any) -> IdentificationResult:
+    """:func:`identify` on the merged segments of several runs (files)."""
+    return identify(merge_runs(runs), sources=tuple(r.source for r in runs), **kwargs)
 
 
 def _check_excitation(segs: Sequence[Segment]) -> None:
@@ -243,12 +249,23 @@ def identify(
     if not fits:
         msg = "the output-error fit failed on every model"
         raise DataError(msg)
+    lin, cou = fits.get(ModelChoice.LINEAR), fits.get(ModelChoice.COULOMB)
+    if lin is not None and cou is not None:
+        if minus_two_log_likelihood(cou) > minus_two_log_likelihood(lin) + 1e-6:
+            # The Coulomb model contains the linear one (Tc = 0): a worse fit is a poor
+            # local minimum; restart it from the linear solution.
+            say("output error, coulomb model restarted from the linear fit")
+            m0 = Model(lin.model.params, (CoulombFriction(1e-6 * lin.model.params.Kt),))
+            again = fit_output_error(dyn, m0, fixed=_fixed_for(fixed, m0), closure=closure_used)
+            if minus_two_log_likelihood(again) < minus_two_log_likelihood(cou):
+                fits[ModelChoice.COULOMB] = again
     for kind, f in fits.items():
         methods[f"output_error_{kind}"] = {
             "values": dict(f.values),
             "ci95": {k: list(v) if v else None for k, v in f.ci95.items()},
             "rms": dict(f.rms),
             "cost": f.cost,
+            "minus_2_log_likelihood": minus_two_log_likelihood(f),
             "iterations": f.iterations,
             "converged": f.converged,
         }
@@ -257,7 +274,7 @@ def identify(
     if chosen == ModelChoice.COULOMB:
         assumptions.append(
             "friction is Coulomb plus viscous (Coulomb torque significant: its 95 % interval "
-            "lies above zero)"
+            "lies above zero and the likelihood-ratio test prefers it)"
         )
     elif model == ModelChoice.AUTO and ModelChoice.COULOMB in fits:
         assumptions.append("friction is viscous only (no significant Coulomb torque found)")
@@ -486,16 +503,28 @@ def _start_model(vals: Mapping[str, float], kind: str, current_mode: bool) -> Mo
     return Model(p, tuple(effects))
 
 
+def minus_two_log_likelihood(fit: FitResult) -> float:
+    """-2 log L of Gaussian white residuals with per-signal variances set to their ML value."""
+    n_per = fit.n_samples
+    return float(sum(n_per * math.log(max(r, 1e-300) ** 2) for r in fit.rms.values()))
+
+
 def _choose(fits: Mapping[str, FitResult], model: str) -> str:
+    """Coulomb when its torque's interval lies above zero and the likelihood-ratio test
+    (one added parameter, 95 %: -2 log L falls by more than 3.84) accepts it."""
     if model != ModelChoice.AUTO:
         return model
     c = fits.get(ModelChoice.COULOMB)
+    lin = fits.get(ModelChoice.LINEAR)
     if c is None:
         return ModelChoice.LINEAR
-    ci = c.ci95.get(TC)
-    if ci is not None and ci[0] > 0 and c.identifiable.get(TC, False):
+    if lin is None:
         return ModelChoice.COULOMB
-    return ModelChoice.LINEAR if ModelChoice.LINEAR in fits else ModelChoice.COULOMB
+    ci = c.ci95.get(TC)
+    better = minus_two_log_likelihood(lin) - minus_two_log_likelihood(c) > 3.84
+    if ci is not None and ci[0] > 0 and c.identifiable.get(TC, False) and better:
+        return ModelChoice.COULOMB
+    return ModelChoice.LINEAR
 
 
 def _holdout_segments(dyn: Sequence[Segment]) -> list[Segment]:

@@ -1,0 +1,1 @@
+"""Report plots (matplotlib, Agg backend)."""
