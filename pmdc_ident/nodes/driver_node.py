@@ -44,7 +44,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import rclpy
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -173,11 +172,6 @@ def _descriptor(name: str, p: ParamDef) -> ParameterDescriptor:
     return d
 
 
-def _stamp(ns: int) -> Time:
-    sec, nanosec = divmod(ns, 1_000_000_000)
-    return Time(sec=sec, nanosec=nanosec)
-
-
 class DriverNode(Node):
     """Owns one motor backend; converts between ROS messages and backend calls."""
 
@@ -210,9 +204,9 @@ class DriverNode(Node):
         self._pub_encoder = self.create_publisher(JointState, "encoder", qos)
         self._pub_voltage = self.create_publisher(JointState, "voltage_applied", qos)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
-        self._msg_current = JointState(name=["armature"])
-        self._msg_encoder = JointState(name=["shaft"])
-        self._msg_voltage = JointState(name=["armature"])
+        self._msg_current = JointState(name=["armature"], effort=[0.0])
+        self._msg_encoder = JointState(name=["shaft"], position=[0.0], velocity=[0.0])
+        self._msg_voltage = JointState(name=["armature"], effort=[0.0])
 
         self._backend = self._make_backend(cfg)
         self._backend.start()
@@ -430,22 +424,29 @@ class DriverNode(Node):
             )
 
     def _publish(self, s: Telemetry) -> None:
-        stamp = _stamp(self._t0_ns + round(s.time_s * 1e9))
+        # Fields are set in place on three reused messages (publish serialises at once):
+        # building new lists and Time objects costs more than the rest of the sample.
+        sec, nanosec = divmod(self._t0_ns + round(s.time_s * 1e9), 1_000_000_000)
         cur, enc, vol = self._msg_current, self._msg_encoder, self._msg_voltage
-        cur.header.stamp = stamp
-        cur.effort = [s.current_a]
+        for msg in (cur, enc, vol):
+            msg.header.stamp.sec = sec
+            msg.header.stamp.nanosec = nanosec
+        cur.effort[0] = s.current_a
         self._pub_current.publish(cur)
-        enc.header.stamp = stamp
-        enc.position = [s.position_rad]
-        enc.velocity = [s.speed_rad_s]
+        enc.position[0] = s.position_rad
+        enc.velocity[0] = s.speed_rad_s
         self._pub_encoder.publish(enc)
-        vol.header.stamp = stamp
         if math.isnan(s.terminal_voltage_v):
-            vol.name = ["armature"]
-            vol.effort = [s.voltage_cmd_v]
+            if len(vol.name) != 1:
+                vol.name = ["armature"]
+                vol.effort = [0.0]
+            vol.effort[0] = s.voltage_cmd_v
         else:
-            vol.name = ["armature", "terminal"]
-            vol.effort = [s.voltage_cmd_v, s.terminal_voltage_v]
+            if len(vol.name) != 2:
+                vol.name = ["armature", "terminal"]
+                vol.effort = [0.0, 0.0]
+            vol.effort[0] = s.voltage_cmd_v
+            vol.effort[1] = s.terminal_voltage_v
         self._pub_voltage.publish(vol)
         self._published += 1
 
