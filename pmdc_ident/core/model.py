@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.linalg import expm
 
 from pmdc_ident.core._jit import njit
 from pmdc_ident.core.effects import (
@@ -133,8 +132,50 @@ def discretize_zoh(params: MotorParams, dt_s: float) -> tuple[FloatArray, FloatA
     m[:2, :2] = a2
     m[2, 1] = 1.0
     m[:2, 3:] = b2
-    e = expm(m * dt_s)
+    e = _expm_loops(m * dt_s)
     return np.ascontiguousarray(e[:3, :3]), np.ascontiguousarray(e[:3, 3:])
+
+
+@njit
+def _expm_loops(a):  # pragma: no cover - jitted
+    """exp(a) of a small matrix: scaling and squaring with an 18-term Taylor series.
+
+    Plain loops, no BLAS: scipy's expm calls threaded BLAS, which on a busy
+    machine costs milliseconds per 5x5 matrix (simulate calls this per segment).
+    """
+    n = a.shape[0]
+    norm = 0.0
+    for i in range(n):
+        row = 0.0
+        for j in range(n):
+            row += abs(a[i, j])
+        norm = max(norm, row)
+    s = 0
+    while norm > 0.5:
+        norm *= 0.5
+        s += 1
+    b = a * 0.5**s
+    result = np.eye(n)
+    term = np.eye(n)
+    tmp = np.empty((n, n))
+    for k in range(1, 19):
+        for i in range(n):
+            for j in range(n):
+                acc = 0.0
+                for m in range(n):
+                    acc += term[i, m] * b[m, j]
+                tmp[i, j] = acc / k
+        term[:, :] = tmp
+        result += term
+    for _ in range(s):
+        for i in range(n):
+            for j in range(n):
+                acc = 0.0
+                for m in range(n):
+                    acc += result[i, m] * result[m, j]
+                tmp[i, j] = acc
+        result[:, :] = tmp
+    return result
 
 
 def simulate_linear(
