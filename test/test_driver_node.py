@@ -198,6 +198,55 @@ def test_over_current_trips_latches_and_reset_faults_resumes(client):
     assert volts[-1] == 2.0
 
 
+def _wait(client: DriverClient, fut, timeout_s: float = 10.0):
+    end = time.monotonic() + timeout_s
+    while not fut.done() and time.monotonic() < end:
+        client.spin_once(0.05)
+    assert fut.done(), "no answer from the driver"
+    return fut.result()
+
+
+def test_runtime_parameter_changes_are_validated_with_a_reason(client):
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+
+    params = AsyncParameterClient(client, "driver_node")
+    assert params.wait_for_services(timeout_sec=10.0)
+    too_high = Parameter("voltage_limit_v", Parameter.Type.DOUBLE, 48.0)
+    res = _wait(client, params.set_parameters([too_high])).results[0]
+    assert not res.successful and "above the limit of motor seed000_ebike" in res.reason
+    read_only = Parameter("rate_hz", Parameter.Type.DOUBLE, 2000.0)
+    assert not _wait(client, params.set_parameters([read_only])).results[0].successful
+    lower = Parameter("voltage_limit_v", Parameter.Type.DOUBLE, 6.0)
+    assert _wait(client, params.set_parameters([lower])).results[0].successful
+    try:
+        client.clear()
+        _drive(client, 20.0, 0.2)
+        _, volts, _, _ = _aligned(client)
+        assert volts[-1] == 6.0  # the new limit clamps at once
+    finally:
+        restore = Parameter("voltage_limit_v", Parameter.Type.DOUBLE, 0.0)
+        assert _wait(client, params.set_parameters([restore])).results[0].successful
+
+
+def test_diagnostics_report_backend_rate_faults_and_armature(client):
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    got: list[DiagnosticArray] = []
+    sub = client.create_subscription(DiagnosticArray, "/diagnostics", got.append, 10)
+    try:
+        client.spin_for(2.3, 0.01, lambda: client.send(3.0))
+    finally:
+        client.destroy_subscription(sub)
+    statuses = [st for arr in got for st in arr.status if "motor driver" in st.name]
+    assert 2 <= len(statuses) <= 3  # 1 Hz
+    values = {kv.key: kv.value for kv in statuses[-1].values}
+    assert values["backend"] == "sim" and values["motor"] == "seed000_ebike"
+    assert float(values["sample rate delivered (Hz)"]) == pytest.approx(RATE_HZ, rel=0.1)
+    assert values["armature"] == "3 V applied"
+    assert values["faults"] == "none" and values["watchdog"] == "ok"
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_signal_leaves_the_motor_safe_and_exits_zero(sig):
     driver = DriverProcess({"rate_hz": RATE_HZ}, domain_id=12).start()
