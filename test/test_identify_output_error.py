@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pmdc_ident.core.data import Run, Segment
-from pmdc_ident.core.effects import CoulombFriction
+from pmdc_ident.core.effects import CoulombFriction, LoadTorque, QuadraticDrag
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import SensorSpec, load_motor
@@ -83,3 +83,46 @@ def test_prediction_on_held_out_segment_matches_its_measurement():
     # free-run error on unseen data is at the sensor noise level (0.01 A, 0.05 rad/s)
     assert np.sqrt(np.mean((pred.current - held[0].current) ** 2)) < 0.03
     assert np.sqrt(np.mean((pred.speed - held[0].speed) ** 2)) < 0.15
+
+
+def test_seed000_inductance_within_5_percent_at_20khz():
+    spec = load_motor("seed000_ebike")
+    cfg = SequenceConfig(staircase=False, sweep=False, coast=False, step_hold_tau=2.0)
+    run = synthesize_run(spec.model, plan_for_motor(spec, 5e-5, cfg), spec.sensors, seed=1)
+    init = _perturbed(spec.model.params, (CoulombFriction(0.02),))
+    res = fit_output_error(run.segments, init)
+    assert res.identifiable["L"]
+    assert res.values["L"] == pytest.approx(spec.model.params.L, rel=0.05)
+    lo, hi = res.ci95["L"]
+    assert lo < spec.model.params.L < hi
+
+
+def test_quadratic_drag_is_fitted_on_the_analytic_path():
+    spec = load_motor("seed000_ebike")
+    p = spec.model.params
+    truth = spec.model.with_effects(QuadraticDrag(2e-7))
+    plan = plan_for_motor(spec, 1e-3, SequenceConfig(sweep_duration_tau=10.0))
+    run = synthesize_run(truth, plan, spec.sensors, seed=2)
+    init = _perturbed(p, (CoulombFriction(0.02), QuadraticDrag(1e-7)))
+    res = fit_output_error(run.segments, init, fixed={"L": p.L})
+    assert res.fast_path
+    assert res.values["quadratic_drag.coeff_nm_s2"] == pytest.approx(2e-7, rel=0.05)
+    assert res.rms["speed"] < 1.2 * spec.sensors.speed_noise_rad_s
+
+
+def test_mechanical_only_fit_from_current_and_speed_given_kt():
+    spec = load_motor("seed000_ebike")
+    p = spec.model.params
+    plan = plan_for_motor(spec, 1e-3, SequenceConfig(sweep_duration_tau=10.0, coast=False))
+    run = synthesize_run(spec.model, plan, spec.sensors, seed=2)
+    segs = [Segment(s.label, s.t, None, current=s.current, speed=s.speed) for s in run.segments]
+    start = Model(
+        MotorParams(R=1.0, L=1e-3, Ke=p.Kt, Kt=p.Kt, J=p.J * 0.7, B=p.B * 2),
+        (CoulombFriction(0.01), LoadTorque(0.0)),
+    )
+    res = fit_output_error(segs, start, fixed={"Kt": p.Kt})
+    assert set(res.free) == {"J", "B", "coulomb_friction.torque_nm", "load_torque.torque_nm"}
+    assert res.values["J"] == pytest.approx(p.J, rel=0.01)
+    assert res.values["coulomb_friction.torque_nm"] == pytest.approx(0.0256, rel=0.03)
+    assert abs(res.values["load_torque.torque_nm"]) < 0.002
+    assert "no voltage" in res.reasons["R"]

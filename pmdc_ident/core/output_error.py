@@ -13,7 +13,8 @@ measurement noise. Parameters:
 
 Two simulators share one Levenberg-Marquardt solver:
 
-* the **fast path** (the linear model plus ``coulomb_friction``, ``load_torque``,
+* the **fast path** (the linear model plus ``coulomb_friction``, ``stribeck_friction``,
+  ``quadratic_drag``, ``load_torque``,
   ``current_offset``): one exact zero-order-hold step per sample, with the
   sensitivity equations propagated alongside the state in a numba kernel (the
   sensitivity equations are themselves linear ZOH systems; their matrices come
@@ -54,12 +55,15 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 CLOSURE_KT_KE = "Kt=Ke"
-FAST_EFFECTS = frozenset({"coulomb_friction", "load_torque", "current_offset"})
+FAST_EFFECTS = frozenset(
+    {"coulomb_friction", "stribeck_friction", "quadratic_drag", "load_torque", "current_offset"}
+)
 SIGNALS = ("current", "speed", "position")
 # Sensitivity column layout of the fast kernel.
-_NS = 11
+_NS = 14
 _COL = {"R": 0, "L": 1, "Ke": 2, "Kt": 3, "J": 4, "B": 5}
 _COL_TC, _COL_TL, _COL_I0, _COL_W0, _COL_TH0 = 6, 7, 8, 9, 10
+_COL_TS, _COL_WS, _COL_CQ = 11, 12, 13
 # L is not identifiable from dynamic data when the current settles within a sample.
 _MIN_TAU_E_SAMPLES = 1.0
 _NEEDED_TAU_E_SAMPLES = 5.0
@@ -374,19 +378,25 @@ def _zoh_with_derivatives(
 
 @njit
 def _fast_kernel(
-    v, imeas, cmode, phc, gac, dphc, dgac, pho, gao, dpho, dgao, el, tc, tl, kt, x0, want_s
+    v, imeas, cmode, phc, gac, dphc, dgac, pho, gao, dpho, dgao, el, tc, tl, kt, fx, x0, want_s
 ):  # pragma: no cover - jitted
-    """Simulate one segment; returns states (n,3) and sensitivities (n,3,11).
+    """Simulate one segment; returns states (n,3) and sensitivities (n,3,14).
+
+    Torques opposing +w are held over each sample at their value for w[k]:
+    ``T = T_load + sign(w) (Tc + Ts exp(-(w/ws)^2)) + Cq w|w|`` (``fx`` = [Ts, ws,
+    Cq]); their dependence on w enters the sensitivity recursion.
 
     ``cmode``: current-driven (mechanical only; ``imeas`` is the input).
     ``el``: rotor-held electrical step [a, b, da/dR, da/dL, db/dR, db/dL].
     """
     n = v.shape[0]
     X = np.empty((n, 3))
-    ns = 11 if want_s else 0
-    S = np.zeros((n if want_s else 1, 3, 11))
-    s = np.zeros((3, 11))
-    sn = np.zeros((3, 11))
+    ts, ws, cq = fx[0], fx[1], fx[2]
+    t_static = tc + ts
+    ns = 14 if want_s else 0
+    S = np.zeros((n if want_s else 1, 3, 14))
+    s = np.zeros((3, 14))
+    sn = np.zeros((3, 14))
     x = np.empty(3)
     xn = np.empty(3)
     x[0], x[1], x[2] = x0[0], x0[1], x0[2]
@@ -397,7 +407,7 @@ def _fast_kernel(
     s[2, 10] = 1.0
     if cmode:
         s[0, 8] = 0.0
-    stuck = tc > 0.0 and x[1] == 0.0
+    stuck = t_static > 0.0 and x[1] == 0.0
     for k in range(n):
         X[k, 0] = x[0]
         X[k, 1] = x[1]
@@ -435,7 +445,7 @@ def _fast_kernel(
                     sn[0, 0] += el[2] * x[0] + el[4] * vk
                     sn[0, 1] += el[3] * x[0] + el[5] * vk
                 drive = kt * xn[0] - tl
-            if abs(drive) > tc:
+            if abs(drive) > t_static:
                 stuck = False
             for a in range(3):
                 x[a] = xn[a]
@@ -453,11 +463,15 @@ def _fast_kernel(
             else:
                 drive = kt * x[0] - tl
             sg = 1.0 if drive > 0.0 else -1.0
-        torque = tl + tc * sg
+        w = x[1]
+        ex = math.exp(-((w / ws) ** 2)) if ts > 0.0 else 0.0
+        torque = tl + sg * (tc + ts * ex) + cq * w * abs(w)
+        dt_dw = -2.0 * sg * ts * ex * w / (ws * ws) + 2.0 * cq * abs(w)
+        i_in = 0.5 * (imeas[k] + imeas[k + 1]) if cmode else 0.0
         if is_open:
             ph, ga, dph, dga = pho, gao, dpho, dgao
             u0 = 0.0
-            u1 = torque - kt * x[0] if cmode else torque
+            u1 = torque - kt * i_in if cmode else torque
         else:
             ph, ga, dph, dga = phc, gac, dphc, dgac
             u0 = vk
@@ -479,14 +493,21 @@ def _fast_kernel(
                     )
                 sn[a, 6] += ga[a, 1] * sg
                 sn[a, 7] += ga[a, 1]
+                if ts > 0.0:
+                    sn[a, 11] += ga[a, 1] * sg * ex
+                    sn[a, 12] += ga[a, 1] * sg * ts * ex * 2.0 * w * w / (ws * ws * ws)
+                sn[a, 13] += ga[a, 1] * w * abs(w)
+                if dt_dw != 0.0:
+                    for c in range(ns):
+                        sn[a, c] += ga[a, 1] * dt_dw * s[1, c]
                 if cmode:
-                    sn[a, 3] -= ga[a, 1] * x[0]
+                    sn[a, 3] -= ga[a, 1] * i_in
         if cmode:
             xn[0] = imeas[k + 1]
             if want_s:
                 for c in range(ns):
                     sn[0, c] = 0.0
-        if tc > 0.0 and xn[1] * sg < 0.0:
+        if t_static > 0.0 and xn[1] * sg < 0.0:
             # Crossed zero within the sample: friction holds the rotor if the drive
             # cannot break it away; otherwise it passes through (friction sign flips
             # from the next sample on).
@@ -494,7 +515,7 @@ def _fast_kernel(
                 held = -tl
             else:
                 held = kt * xn[0] - tl
-            if abs(held) <= tc:
+            if abs(held) <= t_static:
                 stuck = True
                 xn[1] = 0.0
                 if want_s:
@@ -517,6 +538,15 @@ class _FastSim:
         tc = model.effect("coulomb_friction")
         tl = model.effect("load_torque")
         off = model.effect("current_offset")
+        st = model.effect("stribeck_friction")
+        qd = model.effect("quadratic_drag")
+        self.fx = np.array(
+            [
+                float(getattr(st, "torque_nm", 0.0)) if st is not None else 0.0,
+                float(getattr(st, "speed_rad_s", 1.0)) if st is not None else 1.0,
+                float(getattr(qd, "coeff_nm_s2", 0.0)) if qd is not None else 0.0,
+            ]
+        )
         self.tc = float(getattr(tc, "torque_nm", 0.0)) if tc is not None else 0.0
         self.tl = float(getattr(tl, "torque_nm", 0.0)) if tl is not None else 0.0
         self.off = float(getattr(off, "offset_a", 0.0)) if off is not None else 0.0
@@ -549,7 +579,16 @@ class _FastSim:
         imeas = seg.current if seg.current is not None else np.zeros(seg.n)
         m = self.mats(dt)
         X, S = _fast_kernel(
-            v, imeas, cmode, *m, self.tc, self.tl, self.p.Kt, np.asarray(x0, float), want_s
+            v,
+            imeas,
+            cmode,
+            *m,
+            self.tc,
+            self.tl,
+            self.p.Kt,
+            self.fx,
+            np.asarray(x0, float),
+            want_s,
         )
         if self.off != 0.0 and not cmode:
             X[:, 0] += self.off
@@ -875,6 +914,12 @@ class _Problem:
                 mx[_COL_TC, j] = dvdz[j]
             elif name == "load_torque.torque_nm":
                 mx[_COL_TL, j] = dvdz[j]
+            elif name == "stribeck_friction.torque_nm":
+                mx[_COL_TS, j] = dvdz[j]
+            elif name == "stribeck_friction.speed_rad_s":
+                mx[_COL_WS, j] = dvdz[j]
+            elif name == "quadratic_drag.coeff_nm_s2":
+                mx[_COL_CQ, j] = dvdz[j]
             elif name == "current_offset.offset_a":
                 off[j] = dvdz[j]
             else:
