@@ -126,6 +126,19 @@ def test_assemble_drops_samples_missing_from_one_topic_and_cuts_at_markers():
     assert run.segments[1].t[0] == pytest.approx(0.5, abs=1e-12)
 
 
+def test_epoch_stamps_survive_the_round_trip_to_the_nanosecond(tmp_path):
+    # driver stamps are ROS time (~1.8e9 s): as float64 seconds they would lose ~0.2 us
+    from pmdc_ident.dataio.bagio import read_driver_arrays
+
+    t0 = 1_795_252_860.840349952
+    t = t0 + np.arange(50) * DT
+    run = Run((Segment("step_up", t, voltage=np.ones(50), position=np.zeros(50)),))
+    bag = write_bag(run, tmp_path / "b")
+    ns = read_driver_arrays(bag).encoder_ns
+    assert ns.dtype == np.int64
+    np.testing.assert_array_equal(ns, np.round(t * 1e9).astype(np.int64))
+
+
 def test_header_stamp_is_read_from_raw_cdr():
     from rosbags.typesys import Stores, get_typestore
 

@@ -158,7 +158,11 @@ def test_short_session_completes_and_the_bag_holds_every_driver_sample(short_ses
         assert np.all(np.abs(np.diff(ns) - 1_000_000) < 1_000)
     run = read_bag(res.bag)
     spec = load_motor("seed001_110v")
-    plan = plan_for_motor(spec, DT, SequenceConfig(**{k[9:]: v for k, v in SHORT.items()}))
+    plan = plan_for_motor(
+        spec,
+        DT,
+        SequenceConfig(**{k[9:]: v for k, v in SHORT.items() if k.startswith("sequence.")}),
+    )
     assert run.labels == tuple(p.label for p in plan.segments)
     assert sum(s.n for s in run.segments) == expected
     # non-staircase segments hold exactly their planned number of driver samples

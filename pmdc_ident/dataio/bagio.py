@@ -263,24 +263,31 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
                     cols["enc"].append((stamp, pos, vel))
                 else:
                     cols["volt"].append((stamp, e0, e1))
-    except (ReaderError, KeyError, struct.error, DataError) as exc:
+    except (ReaderError, KeyError, struct.error, DataError, FileNotFoundError) as exc:
         msg = f"{p}: not a readable rosbag2/MCAP bag ({exc})"
         raise DataError(msg) from None
 
-    def arr(rows: list[Any], n: int) -> NDArray[Any]:
-        return np.array(rows, dtype=float).reshape(-1, n)
+    def arr(rows: list[Any], n: int) -> tuple[IntArray, NDArray[Any]]:
+        # stamps stay integers: as float64 seconds-since-1970 they would lose ~0.2 us
+        stamps = np.array([r[0] for r in rows], dtype=np.int64)
+        values = np.array([r[1:] for r in rows], dtype=float).reshape(-1, n - 1)
+        return stamps, np.column_stack([np.zeros(len(rows)), values])
 
-    cur, enc, volt = arr(cols["cur"], 2), arr(cols["enc"], 3), arr(cols["volt"], 3)
+    (cur_ns, cur), (enc_ns, enc), (volt_ns, volt) = (
+        arr(cols["cur"], 2),
+        arr(cols["enc"], 3),
+        arr(cols["volt"], 3),
+    )
     speed = enc[:, 2] if enc.size and np.isfinite(enc[:, 2]).all() else None
     position = enc[:, 1] if enc.size and np.isfinite(enc[:, 1]).all() else None
     term = volt[:, 2] if volt.size and np.isfinite(volt[:, 2]).any() else None
     return DriverArrays(
-        current_ns=cur[:, 0].astype(np.int64),
+        current_ns=cur_ns,
         current_a=cur[:, 1],
-        encoder_ns=enc[:, 0].astype(np.int64),
+        encoder_ns=enc_ns,
         position_rad=position,
         speed_rad_s=speed,
-        voltage_ns=volt[:, 0].astype(np.int64),
+        voltage_ns=volt_ns,
         voltage_v=volt[:, 1],
         terminal_v=term,
         markers=markers,

@@ -169,7 +169,7 @@ def run_session(
 
     ``during(processes, elapsed_s)`` is called about every 50 ms while the
     session runs (tests use it to break things on purpose). ``nice`` is applied to
-    the driver and the identification node where the system permits it (a negative
+    the three nodes where the system permits it (a negative
     value raises their priority: a motor loop should not wait behind a compiler);
     it is ignored otherwise.
     """
@@ -226,6 +226,7 @@ def run_session(
                 _ros_args(_share_file("config", "recorder.yaml"), rparams),
                 env,
                 files["recorder"],
+                nice,
             )
         procs["identification"] = _Proc(
             "identification",

@@ -735,10 +735,11 @@ class IdentificationNode(Node):
     def _identify(self, arrays: DriverArrays, s: Session) -> None:
         log = self.get_logger()
         try:
-            run = assemble_run(arrays, source=f"session {s.name}", session=s.name)
+            source = self._recorder_paths.get(s.name) or f"session {s.name}"
+            run = assemble_run(arrays, source=source, session=s.name)
             n = sum(seg.n for seg in run.segments)
             out = self._output_dir(s.name)
-            result = identify_session_run(run, self.fixed)
+            result = identify_session_run(run, self.fixed, name=s.name)
             out.mkdir(parents=True, exist_ok=True)
             (out / "parameters.json").write_text(result.json_text)
             (out / "parameters.yaml").write_text(result.yaml_text)

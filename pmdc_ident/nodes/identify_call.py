@@ -1,47 +1,60 @@
 """The one identification call shared by the online node and ``pmdc-ident identify`` (ROS-free).
 
-The node identifies its session with :func:`identify_session_run`; offline
-re-identification of the session's bag goes through the same function with the
-same options (``fixed`` = the ``--fix NAME=VALUE`` list), so both print the
-same parameters. The JSON is the ``pmdc-ident identify --json`` document.
+The node identifies its session with :func:`identify_session_run`, which runs the
+pipeline of ``pmdc-ident identify`` (:func:`pmdc_ident.core.estimators.identify.identify`
+on the run's segments) with that command's default options; ``fixed`` is its
+``--fix NAME=VALUE`` list. So ``pmdc-ident identify <bag> [--fix ...]`` on a laptop
+prints the same parameters as the node published, and the JSON is the same
+document ``pmdc-ident identify --json`` writes.
 """
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from pmdc_ident.core.data import Run
-from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.motors import motor_to_yaml
 
 __all__ = ["IdentifyOutput", "identify_session_run", "parse_fix"]
 
 
 @dataclass(frozen=True)
 class IdentifyOutput:
-    json_text: str
-    yaml_text: str
-    table: str
+    json_text: str  # the document of ``pmdc-ident identify --json``
+    yaml_text: str  # the motor file of ``pmdc-ident identify --yaml``
+    table: str  # the text report the command prints
     values: dict[str, float]
 
 
 def parse_fix(items: Sequence[str]) -> dict[str, float]:
-    """``["L=3e-4", ...]`` -> ``{"L": 3e-4}`` (the ``--fix`` syntax)."""
-    out: dict[str, float] = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        try:
-            if not sep or not name.strip():
-                raise ValueError
-            out[name.strip()] = float(value)
-        except ValueError:
-            msg = f"fix {item!r}: expected NAME=VALUE, e.g. L=0.0003"
-            raise ParameterError(msg) from None
-    return out
+    """``["L=3e-4", ...]`` -> ``{"L": 3e-4}``, exactly as ``--fix`` parses it."""
+    from pmdc_ident.commands.identify import parse_fix as cli_parse_fix
+
+    return cli_parse_fix(list(items))
 
 
-def identify_session_run(run: Run, fixed: Mapping[str, float] | None = None) -> IdentifyOutput:
+def identify_session_run(
+    run: Run, fixed: Mapping[str, float] | None = None, name: str = "identified"
+) -> IdentifyOutput:
     """Identify a session's run exactly as ``pmdc-ident identify DATA --fix ...`` does."""
-    from pmdc_ident.commands.identify import identify_for_output
+    from pmdc_ident.core.estimators.identify import ModelChoice, identify, merge_runs
+    from pmdc_ident.core.output_error import CLOSURE_KT_KE
 
-    return identify_for_output(run, dict(fixed or {}))
+    result = identify(
+        merge_runs([run]),
+        sources=(run.source,),
+        fixed=dict(fixed or {}),
+        closure=CLOSURE_KT_KE,
+        model=ModelChoice.AUTO.value,
+        holdout=True,
+        bootstrap=0,
+    )
+    header = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
+    return IdentifyOutput(
+        json_text=json.dumps(result.to_json_dict(), indent=2, allow_nan=False) + "\n",
+        yaml_text=header + motor_to_yaml(result.motor_spec(name)),
+        table=result.text_report(),
+        values={k: p.value for k, p in result.parameters.items()},
+    )

@@ -68,7 +68,7 @@ class RecorderNode(Node):
             ("rate_hz", 1000.0, "driver sample rate, Hz (sizes the queues and the ring)"),
             ("margin_s", 0.0, "also keep driver samples this long before/after a session, s"),
             ("ring_s", 3.0, "driver samples kept while no bag is open, s"),
-            ("hold_s", 0.25, "samples wait this long before being written (late end marker), s"),
+            ("hold_s", 1.0, "samples wait this long before being written (late end marker), s"),
         ):
             self.declare_parameter(
                 name,
@@ -157,10 +157,19 @@ class RecorderNode(Node):
                     self.samples += 1
 
     def _drain_rest_and_close(self, why: str) -> None:
-        if self.end_ns is not None:
-            self._drain(self.end_ns + self.margin_ns)
-        else:
-            self._drain(None)
+        """Write every held sample inside the window (the ring is in arrival order, not
+        stamp order, across topics), keep the later ones for a next session, close."""
+        w = self.writer
+        if w is not None:
+            keep: deque[tuple[str, int, bytes, int]] = deque(maxlen=self.ring.maxlen)
+            for topic, ns, raw, log_ns in self.ring:
+                if self._in_window(ns):
+                    w.write_raw(self._name[topic], log_ns, raw)
+                    if topic == "encoder":
+                        self.samples += 1
+                elif self.end_ns is not None and ns >= self.end_ns:
+                    keep.append((topic, ns, raw, log_ns))
+            self.ring = keep
         self._close(why)
 
     def _other_cb(self, topic: str) -> Any:
