@@ -155,7 +155,7 @@ class SerialBackend:
         self._safe_mode = SafeMode(safe_mode)
         self._log = logger or (lambda _line: None)
         self._timeout_s = (
-            telemetry_timeout_s if telemetry_timeout_s is not None else max(50 * self._dt_s, 0.25)
+            telemetry_timeout_s if telemetry_timeout_s is not None else max(100 * self._dt_s, 0.5)
         )
         self._board_wd_ms = int(board_watchdog_ms)
         self._handshake_s = float(handshake_timeout_s)
@@ -402,6 +402,7 @@ class SerialBackend:
     def _handshake(self) -> None:
         ser = self._ser
         assert ser is not None
+        self._parser.reset()
         try:
             ser.reset_input_buffer()
         except (serial.SerialException, OSError) as exc:

@@ -88,6 +88,9 @@ def run(args: argparse.Namespace) -> int:
             f"-p rate_hz:={min(1000.0, 1e6 / info.min_period_us):.1f}  (Ctrl-C to stop)",
             flush=True,
         )
+        # Stop on Ctrl-C and SIGTERM even when started in the background by a
+        # shell (which would leave SIGINT ignored).
+        signal.signal(signal.SIGINT, _stop)
         signal.signal(signal.SIGTERM, _stop)
         try:
             board.run_forever()
@@ -96,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"virtual board stopped ({board.frames_sent} frames sent)", file=sys.stderr)
         return 0
     finally:
+        port = board.port
         board.close()
-        if link is not None and link.is_symlink():
+        # Remove the link only if it is still ours (another board may have taken it).
+        if link is not None and link.is_symlink() and os.readlink(link) == port:
             link.unlink()

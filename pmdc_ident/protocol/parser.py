@@ -45,6 +45,11 @@ class FrameParser:
         self._bytes = 0
         self.last_error = ""
 
+    def reset(self) -> None:
+        """Forget a partial frame (after reopening a port); statistics are kept."""
+        self._buf.clear()
+        self._overflow = False
+
     @property
     def buffered_bytes(self) -> int:
         return len(self._buf)
