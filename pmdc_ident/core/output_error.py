@@ -378,9 +378,39 @@ def _zoh_with_derivatives(
 
 @njit
 def _fast_kernel(
-    v, imeas, cmode, phc, gac, dphc, dgac, pho, gao, dpho, dgao, el, tc, tl, kt, fx, x0, want_s
+    v,
+    imeas,
+    cmode,
+    phc,
+    gac,
+    dphc,
+    dgac,
+    pho,
+    gao,
+    dpho,
+    dgao,
+    el,
+    tc,
+    tl,
+    kt,
+    fx,
+    x0,
+    want_s,
+    nc,
+    y,
+    oidx,
+    osc,
+    mx,
+    off,
+    cur_off,
 ):  # pragma: no cover - jitted
-    """Simulate one segment; returns states (n,3) and sensitivities (n,3,14).
+    """Simulate one segment; returns the states (n,3) and, with ``want_s``, the
+    normal-equation blocks ``A = J^T J`` and ``g = J^T r`` of its residuals.
+
+    Sensitivities (14 columns: R..B per log p, Tc, T_load, i0, w0, th0, Ts, ws,
+    Cq) are propagated for the columns ``nc`` only and mapped to the Jacobian
+    columns by ``mx`` (plus ``off`` on current rows, the current-offset
+    column); residuals are ``(x[oidx] (+ cur_off) - y) * osc`` per output.
 
     Torques opposing +w are held over each sample at their value for w[k]:
     ``T = T_load + sign(w) (Tc + Ts exp(-(w/ws)^2)) + Cq w|w|`` (``fx`` = [Ts, ws,
@@ -393,10 +423,17 @@ def _fast_kernel(
     X = np.empty((n, 3))
     ts, ws, cq = fx[0], fx[1], fx[2]
     t_static = tc + ts
-    ns = 14 if want_s else 0
-    S = np.zeros((n if want_s else 1, 3, 14))
+    m = mx.shape[1]
+    no = oidx.shape[0]
+    A = np.zeros((m, m))
+    g = np.zeros(m)
+    jr = np.zeros(m)
     s = np.zeros((3, 14))
     sn = np.zeros((3, 14))
+    need6 = np.zeros(6, dtype=np.bool_)
+    for c in nc:
+        if c < 6:
+            need6[c] = True
     x = np.empty(3)
     xn = np.empty(3)
     x[0], x[1], x[2] = x0[0], x0[1], x0[2]
@@ -413,9 +450,19 @@ def _fast_kernel(
         X[k, 1] = x[1]
         X[k, 2] = x[2]
         if want_s:
-            for a in range(3):
-                for c in range(ns):
-                    S[k, a, c] = s[a, c]
+            for o in range(no):
+                idx = oidx[o]
+                val = x[idx] + (cur_off if idx == 0 else 0.0)
+                r = (val - y[k, o]) * osc[o]
+                for c2 in range(m):
+                    acc = off[c2] if idx == 0 else 0.0
+                    for c in nc:
+                        acc += s[idx, c] * mx[c, c2]
+                    jr[c2] = acc * osc[o]
+                for c2 in range(m):
+                    g[c2] += jr[c2] * r
+                    for c3 in range(c2 + 1):
+                        A[c2, c3] += jr[c2] * jr[c3]
         if k == n - 1:
             break
         vk = v[k]
@@ -428,7 +475,7 @@ def _fast_kernel(
                 xn[1] = 0.0
                 xn[2] = x[2]
                 if want_s:
-                    for c in range(ns):
+                    for c in nc:
                         sn[0, c] = 0.0
                         sn[1, c] = 0.0
                         sn[2, c] = s[2, c]
@@ -438,7 +485,7 @@ def _fast_kernel(
                 xn[1] = 0.0
                 xn[2] = x[2]
                 if want_s:
-                    for c in range(ns):
+                    for c in nc:
                         sn[0, c] = el[0] * s[0, c]
                         sn[1, c] = 0.0
                         sn[2, c] = s[2, c]
@@ -450,7 +497,7 @@ def _fast_kernel(
             for a in range(3):
                 x[a] = xn[a]
                 if want_s:
-                    for c in range(ns):
+                    for c in nc:
                         s[a, c] = sn[a, c]
             continue
         if x[1] > 0.0:
@@ -481,9 +528,11 @@ def _fast_kernel(
             xn[a] += ga[a, 1] * u1
         if want_s:
             for a in range(3):
-                for c in range(ns):
+                for c in nc:
                     sn[a, c] = ph[a, 0] * s[0, c] + ph[a, 1] * s[1, c] + ph[a, 2] * s[2, c]
                 for j in range(6):
+                    if not need6[j]:
+                        continue
                     sn[a, j] += (
                         dph[j, a, 0] * x[0]
                         + dph[j, a, 1] * x[1]
@@ -498,14 +547,14 @@ def _fast_kernel(
                     sn[a, 12] += ga[a, 1] * sg * ts * ex * 2.0 * w * w / (ws * ws * ws)
                 sn[a, 13] += ga[a, 1] * w * abs(w)
                 if dt_dw != 0.0:
-                    for c in range(ns):
+                    for c in nc:
                         sn[a, c] += ga[a, 1] * dt_dw * s[1, c]
                 if cmode:
                     sn[a, 3] -= ga[a, 1] * i_in
         if cmode:
             xn[0] = imeas[k + 1]
             if want_s:
-                for c in range(ns):
+                for c in nc:
                     sn[0, c] = 0.0
         if t_static > 0.0 and xn[1] * sg < 0.0:
             # Crossed zero within the sample: friction holds the rotor if the drive
@@ -519,14 +568,17 @@ def _fast_kernel(
                 stuck = True
                 xn[1] = 0.0
                 if want_s:
-                    for c in range(ns):
+                    for c in nc:
                         sn[1, c] = 0.0
         for a in range(3):
             x[a] = xn[a]
             if want_s:
-                for c in range(ns):
+                for c in nc:
                     s[a, c] = sn[a, c]
-    return X, S
+    for c2 in range(m):
+        for c3 in range(c2):
+            A[c3, c2] = A[c2, c3]
+    return X, A, g
 
 
 class _FastSim:
@@ -571,14 +623,27 @@ class _FastSim:
             self._cache[dt] = got
         return got
 
-    def run(self, ps: _Seg | Segment, x0: FloatArray, want_s: bool):
+    def run(
+        self,
+        ps: _Seg | Segment,
+        x0: FloatArray,
+        acc: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray] | None = None,
+    ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
+        """States (current includes the offset); with ``acc = (y, oidx, osc, mx, off)``
+        also the normal-equation blocks of this segment's residuals."""
         seg = ps.seg if isinstance(ps, _Seg) else ps
         dt = seg.dt_s
         cmode = seg.voltage is None
         v = np.zeros(seg.n) if cmode else seg.voltage
         imeas = seg.current if seg.current is not None else np.zeros(seg.n)
         m = self.mats(dt)
-        X, S = _fast_kernel(
+        if acc is None:
+            y, oidx, osc, mx, off = _NO_ACC
+            nc = _NO_COLS
+        else:
+            y, oidx, osc, mx, off = acc
+            nc = np.nonzero(np.any(mx != 0.0, axis=1))[0].astype(np.int64)
+        X, A, g = _fast_kernel(
             v,
             imeas,
             cmode,
@@ -588,16 +653,35 @@ class _FastSim:
             self.p.Kt,
             self.fx,
             np.asarray(x0, float),
-            want_s,
+            acc is not None,
+            nc,
+            y,
+            oidx,
+            osc,
+            mx,
+            off,
+            0.0 if cmode else self.off,
         )
         if self.off != 0.0 and not cmode:
             X[:, 0] += self.off
-        return X, S
+        if acc is None:
+            return X, None, None
+        return X, A, g
+
+
+_NO_ACC = (
+    np.zeros((1, 1)),
+    np.zeros(1, dtype=np.int64),
+    np.zeros(1),
+    np.zeros((_NS, 1)),
+    np.zeros(1),
+)
+_NO_COLS = np.zeros(0, dtype=np.int64)
 
 
 def _predict(model: Model, seg: Segment, x0: FloatArray, fast: bool) -> FloatArray:
     if fast:
-        X, _ = _FastSim(model).run(seg, x0, False)
+        X, _, _ = _FastSim(model).run(seg, x0)
         return X
     return _general_sim(model, seg, x0)
 
@@ -840,7 +924,9 @@ class _Problem:
     def values_at(self, z: FloatArray) -> dict[str, float]:
         vals = dict(self.values)
         for j, info in enumerate(self.info):
-            vals[info.name] = math.exp(z[j]) if info.log else float(z[j])
+            v = math.exp(min(z[j], 700.0)) if info.log else float(z[j])
+            # exp(log(upper)) can exceed upper by one ulp; effects refuse that
+            vals[info.name] = min(max(v, info.lower), info.upper)
         if self.tie_kt:
             vals["Kt"] = vals["Ke"]
         return vals
@@ -868,6 +954,7 @@ class _Problem:
         """Residual vector and, when asked, normal-equation blocks (A, g)."""
         model = self.model_at(z)
         r_parts: list[FloatArray] = []
+        raw_parts: list[tuple[int, FloatArray]] = []
         A = np.zeros((self.n_total, self.n_total)) if want_jac else None
         g = np.zeros(self.n_total) if want_jac else None
         dvdz = self.dvalue_dz(z) if want_jac else None
@@ -877,26 +964,64 @@ class _Problem:
             fd_cache = self._fd_global(z, model)
         for q, ps in enumerate(self.segs):
             x0 = self.x0_of(z, q)
+            idxs = list(range(self.n_global)) + [self.offsets[q] + k for k in range(len(ps.nuis))]
+            ii = np.array(idxs)
+            A_loc = g_loc = None
             if self.fast:
                 assert sim is not None
-                X, S = sim.run(ps, x0, want_jac)
+                acc = None
+                if want_jac:
+                    mx, off = self._mixing(z, model, ps)
+                    acc = (
+                        np.column_stack([y for _i, y in ps.outputs]),
+                        np.array([i for i, _y in ps.outputs], dtype=np.int64),
+                        np.array([self.scale(i) for i, _y in ps.outputs]),
+                        mx,
+                        off,
+                    )
+                X, A_loc, g_loc = sim.run(ps, x0, acc)
             else:
                 X = _general_sim(model, ps.seg, x0)
-                S = None
             r_seg = []
             for idx, y in ps.outputs:
-                r_seg.append((X[:, idx] - y) * self.scale(idx))
+                raw_parts.append((idx, X[:, idx] - y))
+                r_seg.append(raw_parts[-1][1] * self.scale(idx))
             r_q = np.concatenate(r_seg)
             r_parts.append(r_q)
             if not want_jac:
                 continue
-            cols = self._local_jac(q, ps, X, S, z, model, dvdz, fd_cache)
-            idxs = list(range(self.n_global)) + [self.offsets[q] + k for k in range(len(ps.nuis))]
-            ii = np.array(idxs)
-            A[np.ix_(ii, ii)] += cols.T @ cols  # type: ignore[index]
-            g[ii] += cols.T @ r_q  # type: ignore[index]
+            if A_loc is None:
+                cols = self._local_jac(q, ps, X, None, z, model, dvdz, fd_cache)
+                A_loc = cols.T @ cols
+                g_loc = cols.T @ r_q
+            A[np.ix_(ii, ii)] += A_loc  # type: ignore[index]
+            g[ii] += g_loc  # type: ignore[index]
         r = np.concatenate(r_parts)
+        self._last = (z.copy(), raw_parts, r, A, g, dict(self.noise))
         return r, A, g
+
+    def cached(self, z: FloatArray, want_jac: bool):
+        """The last evaluation if it was at ``z`` with the current weights, else a new one."""
+        last = getattr(self, "_last", None)
+        if (
+            last is not None
+            and np.array_equal(last[0], z)
+            and (last[3] is not None or not want_jac)
+            and last[5] == self.noise
+        ):
+            return last[2], last[3], last[4]
+        return self.evaluate(z, want_jac)
+
+    def raw_residuals(self, z: FloatArray) -> dict[str, FloatArray]:
+        """Unscaled residuals per signal at ``z``."""
+        last = getattr(self, "_last", None)
+        if last is None or not np.array_equal(last[0], z):
+            self.evaluate(z, False)
+            last = self._last
+        acc: dict[str, list[FloatArray]] = {}
+        for idx, res in last[1]:
+            acc.setdefault(SIGNALS[idx], []).append(res)
+        return {k: np.concatenate(v) for k, v in acc.items()}
 
     def _mixing(self, z: FloatArray, model: Model, ps: _Seg) -> tuple[FloatArray, FloatArray]:
         """Kernel sensitivities (11 columns) -> local Jacobian columns; offset column mask."""
@@ -978,15 +1103,9 @@ class _Problem:
         return out
 
     def residual_noise(self, z: FloatArray) -> dict[str, float]:
-        model = self.model_at(z)
-        acc: dict[str, list[FloatArray]] = {}
-        for q, ps in enumerate(self.segs):
-            X = _predict(model, ps.seg, self.x0_of(z, q), self.fast)
-            for idx, y in ps.outputs:
-                acc.setdefault(SIGNALS[idx], []).append(X[:, idx] - y)
         out = {}
-        for k, parts in acc.items():
-            rms = float(np.sqrt(np.mean(np.concatenate(parts) ** 2)))
+        for k, res in self.raw_residuals(z).items():
+            rms = float(np.sqrt(np.mean(res**2)))
             out[k] = max(rms, 1e-3 * self.noise[k], 1e-12)
         return out
 
@@ -1019,6 +1138,7 @@ def _levenberg_marquardt(
     nfev = 1
     lam = 1e-3
     it = 0
+    last_ok = True
     converged = False
     message = "maximum number of evaluations reached"
     lo = np.array([b[0] for b in prob.bounds] + [-np.inf] * (prob.n_total - prob.n_global))
@@ -1043,7 +1163,9 @@ def _levenberg_marquardt(
                     break
                 active &= ~out
             z_new = prob.clip(z + prob.limit_step(step))
-            r_new, _, _ = prob.evaluate(z_new, False)
+            # After an accepted step the next trial is usually accepted too: compute
+            # its Jacobian at once; after a rejection, try residuals only.
+            r_new, A_new, g_new = prob.evaluate(z_new, last_ok)
             nfev += 1
             cost_new = 0.5 * float(r_new @ r_new)
             if math.isfinite(cost_new) and cost_new <= cost:
@@ -1053,14 +1175,18 @@ def _levenberg_marquardt(
                 z, cost = z_new, cost_new
                 lam = max(lam / 5.0, 1e-12)
                 improved = True
+                last_ok = True
                 # residuals are noise-normalised: a decrease below 0.01 moves no
                 # parameter combination by more than 0.15 of its standard error
                 if rel < 1e-12 or decrease < 1e-2 or small_step:
                     converged = True
                     message = "cost no longer decreases"
+                elif A_new is not None:
+                    r, A, g = r_new, A_new, g_new
                 else:
                     r, A, g = prob.evaluate(z, True)
                 break
+            last_ok = False
             lam *= 6.0
             if lam > 1e12:
                 converged = True
@@ -1083,7 +1209,7 @@ def _finish(
     warnings: list[str],
     t_start: float,
 ) -> FitResult:
-    r, A, _g = prob.evaluate(z, True)
+    r, A, _g = prob.cached(z, True)
     assert A is not None
     n_rows = r.size
     dof = max(n_rows - prob.n_total, 1)
@@ -1116,7 +1242,10 @@ def _finish(
             continue
         stderr[name] = math.sqrt(max(cov[j, j], 0.0))
         if info.log:
-            ci95[name] = (math.exp(z[j] - 1.96 * sz), math.exp(z[j] + 1.96 * sz))
+            ci95[name] = (
+                math.exp(max(min(z[j] - 1.96 * sz, 700.0), -700.0)),
+                math.exp(max(min(z[j] + 1.96 * sz, 700.0), -700.0)),
+            )
         else:
             ci95[name] = (vals[name] - 1.96 * sz, vals[name] + 1.96 * sz)
         if rel > 0.5:
@@ -1143,17 +1272,13 @@ def _finish(
             reasons.setdefault(name, "not fitted (held at its initial value)")
     model = prob.model_at(z)
     # Free-run RMS per signal in physical units.
-    acc: dict[str, list[FloatArray]] = {}
     x0s: dict[str, tuple[float, float, float]] = {}
     nseg: dict[str, int] = {}
     for q, ps in enumerate(prob.segs):
         x0 = prob.x0_of(z, q)
         x0s[ps.seg.label] = (float(x0[0]), float(x0[1]), float(x0[2]))
         nseg[ps.seg.label] = ps.seg.n
-        X = _predict(model, ps.seg, x0, prob.fast)
-        for idx, y in ps.outputs:
-            acc.setdefault(SIGNALS[idx], []).append(X[:, idx] - y)
-    rms = {k: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for k, v in acc.items()}
+    rms = {k: float(np.sqrt(np.mean(v**2))) for k, v in prob.raw_residuals(z).items()}
     return FitResult(
         model=model,
         values=vals,
