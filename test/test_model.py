@@ -427,6 +427,13 @@ def test_unknown_effect_is_a_parameter_error_naming_the_known_ones():
         Model(MotorParams(**GOOD), (Delay(0.001), Delay(0.002)))
 
 
+def test_model_refuses_effects_that_are_not_effect_objects():
+    with pytest.raises(ParameterError, match=r"model effects must be Effect objects .* got .fan."):
+        Model(MotorParams(**GOOD), ("fan",))
+    with pytest.raises(ParameterError, match="a model needs MotorParams, got dict"):
+        Model(GOOD)
+
+
 def test_bad_time_step_and_infinite_voltage_are_refused():
     with pytest.raises(ParameterError, match="dt_s must be a positive"):
         simulate_linear(P0, [1.0, 2.0], 0.0)

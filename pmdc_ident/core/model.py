@@ -69,6 +69,13 @@ class Model:
     effects: tuple[Effect, ...] = ()
 
     def __post_init__(self) -> None:
+        if not isinstance(self.params, MotorParams):
+            msg = f"a model needs MotorParams, got {type(self.params).__name__}"
+            raise ParameterError(msg)
+        bad = [repr(e) for e in self.effects if not isinstance(e, Effect)]
+        if bad:
+            msg = f"model effects must be Effect objects (see core.effects), got {', '.join(bad)}"
+            raise ParameterError(msg)
         names = [e.NAME for e in self.effects]
         dupes = sorted({n for n in names if names.count(n) > 1})
         if dupes:
@@ -489,7 +496,7 @@ class Plant:
     """The motor model advanced one sample at a time on an exact grid.
 
     ``step(v)`` holds ``v`` (volts, or ``None``/NaN for an open armature) over
-    one sample period and returns the state at the end of it. Dead zone and
+    one sample period; the properties then read the state at the end of it. Dead zone and
     delay act on the command stream exactly as in :func:`simulate`, so a
     sequence of ``step`` calls reproduces :func:`simulate` sample by sample.
     """
