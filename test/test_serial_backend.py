@@ -299,7 +299,7 @@ def test_board_watchdog_opens_the_armature_when_the_host_goes_quiet(
     board: VirtualBoard,
 ) -> None:
     lines: list[str] = []
-    be = _backend(board, lines, board_watchdog_ms=100)
+    be = _backend(board, lines, board_watchdog_ms=100, max_catch_up_s=1.0)
     try:
         be.command_voltage(6.0)
         time.sleep(0.3)  # no poll: no keep-alive, as if the driver hung
@@ -339,3 +339,18 @@ def test_zero_safe_mode_holds_zero_volts(board: VirtualBoard) -> None:
         assert c.until(lambda: c.samples[-1].voltage_cmd_v == 0.0, 1.0)
     finally:
         be.close()
+
+
+def test_a_host_that_polls_late_gets_only_the_newest_samples_flagged(board: VirtualBoard) -> None:
+    be = _backend(board, max_catch_up_s=0.1)
+    try:
+        be.poll()
+        time.sleep(0.4)  # ~200 samples wait; keep 50 (0.1 s)
+        late = be.poll()
+    finally:
+        be.close()
+    assert len(late) == 50
+    assert late[0].faults & Fault.LINK and not late[1].faults & Fault.LINK
+    assert be.skipped_samples >= 140
+    idx = [x.sample_index for x in late]
+    assert idx == list(range(idx[0], idx[0] + 50))

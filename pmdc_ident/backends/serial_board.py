@@ -20,6 +20,11 @@ reopens the port and re-handshakes every ``reconnect_interval_s`` in the
 background; commands are refused until it streams again. A protocol version
 mismatch or a refused stream rate is fatal (no reconnect).
 
+Host stalls: if the caller polls so late that more than ``max_catch_up_s`` of
+samples wait, only the newest are returned; the first carries
+:attr:`Fault.LINK` and :attr:`skipped_samples` counts the rest (the policy of
+the simulated backend), so published samples never lag far behind the board.
+
 Host-side keep-alive: :meth:`poll` sends a PING when nothing was written for a
 quarter of the board watchdog, so the board watchdog fires when the driver
 stops polling (a hung node), not only when the process dies.
@@ -33,7 +38,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import serial
 
@@ -136,7 +141,7 @@ class SerialBackend:
         handshake_timeout_s: float = 2.5,
         reconnect: bool = True,
         reconnect_interval_s: float = 0.5,
-        max_buffered_s: float = 10.0,
+        max_catch_up_s: float = 0.25,
     ) -> None:
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             msg = f"sample period dt_s must be a positive number of seconds, got {dt_s}"
@@ -165,8 +170,9 @@ class SerialBackend:
         self._ser: serial.Serial | None = None
         self._write_lock = threading.Lock()
         self._lock = threading.Lock()
-        maxlen = max(1000, int(max_buffered_s / self._dt_s))
-        self._samples: collections.deque[Telemetry] = collections.deque(maxlen=maxlen)
+        self._max_catch_up = max(1, int(max_catch_up_s / self._dt_s))
+        self._samples: collections.deque[Telemetry] = collections.deque()
+        self.skipped_samples = 0  # left out because the host fell behind (see poll)
         self._pending_error: str | None = None
         self._state = LinkState.CLOSED
         self._thread: threading.Thread | None = None
@@ -283,6 +289,13 @@ class SerialBackend:
         with self._lock:
             out = list(self._samples)
             self._samples.clear()
+            if len(out) > self._max_catch_up:
+                # The host fell behind: deliver only the newest max_catch_up_s, as the
+                # simulated backend does, so published samples never lag far behind.
+                skip = len(out) - self._max_catch_up
+                out = out[skip:]
+                self.skipped_samples += skip
+                out[0] = replace(out[0], faults=out[0].faults | Fault.LINK)
             error = self._pending_error
             if error is not None and not out:
                 self._pending_error = None
