@@ -92,6 +92,7 @@ def _session(
     recorder: dict[str, Any] | None = None,
     during: Any = None,
     timeout_s: float = 120.0,
+    short: bool = True,
 ) -> tuple[BringupResult, dict[str, Any]]:
     env = node_env(domain)
     probe = subprocess.Popen(
@@ -107,7 +108,7 @@ def _session(
             output_dir=tmp_path / "out",
             motor=motor,
             domain_id=domain,
-            identification_params={**SHORT, **(ident or {})},
+            identification_params={**(SHORT if short else {}), **(ident or {})},
             driver_params=driver,
             recorder_params={"margin_s": 0.0, **(recorder or {})},
             log_dir=tmp_path / "logs",
@@ -396,3 +397,43 @@ def test_lost_driver_data_aborts_and_the_driver_applies_the_safe_command(tmp_pat
     assert resumed.sum() > 50  # the probe saw the driver run again
     tail = v[-50:]
     assert np.all((tail == 0.0) | np.isnan(tail)), tail
+
+
+def test_full_default_sequence_recovers_the_seed000_motor(tmp_path):
+    """The whole default session (staircase, steps both ways, chirp, coast-down) on the
+    seed-000 e-bike motor, which carries Coulomb friction; about 40 s of driver time."""
+    pytest.importorskip("pmdc_ident.commands.identify")
+    res, probe = _session(
+        tmp_path,
+        68,
+        motor="seed000_ebike",
+        ident={"safety.data_timeout_s": 1.5},
+        timeout_s=240,
+        short=False,
+    )
+    assert res.identification_rc == 0, _logs(res)
+    run = read_bag(res.bag)
+    assert run.labels == (
+        *(f"staircase_{k:02d}" for k in range(1, 7)),
+        "step_up",
+        "step_down",
+        "sweep",
+        "coast",
+    )
+    arrays = read_driver_arrays(res.bag)
+    expected = round((arrays.markers[-1].t_s - arrays.markers[0].t_s) / DT)
+    assert arrays.encoder_ns.size == arrays.current_ns.size == arrays.voltage_ns.size == expected
+    truth = load_motor("seed000_ebike").model
+    p = truth.params
+    got = {k: v["value"] for k, v in res.result["parameters"].items()}
+    # Kt = Ke closure: the mechanical side comes out scaled by Ke/Kt (0.982 here)
+    scale = p.Ke / p.Kt
+    assert got["R"] == pytest.approx(p.R, rel=0.01)
+    assert got["Ke"] == pytest.approx(p.Ke, rel=0.01)
+    assert got["J"] == pytest.approx(p.J * scale, rel=0.03)
+    assert got["B"] == pytest.approx(p.B * scale, rel=0.10)
+    tc = truth.effect("coulomb_friction").torque_nm
+    assert got["coulomb_friction.torque_nm"] == pytest.approx(tc * scale, rel=0.03)
+    # L/R = 0.22 ms at 1 kHz: reported as not identifiable, as DESIGN.md requires
+    assert res.result["parameters"]["L"]["identifiable"] is False
+    assert json.loads(probe["result"])["parameters"] == res.result["parameters"]

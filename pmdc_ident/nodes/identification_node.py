@@ -704,7 +704,9 @@ class IdentificationNode(Node):
         lag_ms = self._lag.ns[: self._lag.n] * 1e-6
         self.get_logger().info(
             f"session {s.name} complete: {s.progress().samples} samples; driver-to-node "
-            f"latency median {np.median(lag_ms):.1f} ms, max {lag_ms.max():.1f} ms"
+            f"latency median {np.median(lag_ms):.1f} ms, 99th percentile "
+            f"{np.percentile(lag_ms, 99):.1f} ms, max {lag_ms.max():.1f} ms at sample "
+            f"{int(np.argmax(lag_ms))}"
         )
 
     def _maybe_identify(self, now: float) -> None:

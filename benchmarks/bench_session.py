@@ -1,0 +1,139 @@
+"""Identification session figures: wall time against the nominal sequence, samples recorded
+against samples expected, CPU use of each node at 1 kHz, and the decoding speed-up.
+
+    .venv/bin/python benchmarks/bench_session.py [--full] [--domain-id 79]
+
+Runs the whole session (driver, recorder, identification in separate processes over
+DDS on loopback) on the simulated motor: the short seed-001 sequence, and with
+``--full`` also the full default sequence on the seed-000 motor. CPU time is each
+process's user+system time over its whole life (start-up included), divided by
+the bring-up's wall time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor  # noqa: E402
+from pmdc_ident.core.motors import load_motor  # noqa: E402
+from pmdc_ident.dataio.bagio import (  # noqa: E402
+    _joint_state,
+    parse_joint_state,
+    read_driver_arrays,
+)
+from pmdc_ident.nodes.bringup import run_session  # noqa: E402
+
+SHORT = {
+    "sequence.staircase_levels": 3,
+    "sequence.staircase_hold_tau": 5.0,
+    "sequence.step_hold_tau": 5.0,
+    "sequence.sweep_duration_tau": 20.0,
+    "sequence.coast_spinup_tau": 4.0,
+    "sequence.coast_open_s": 1.0,
+}
+
+
+def session(name: str, motor: str, params: dict, domain: int) -> None:
+    spec = load_motor(motor)
+    cfg = SequenceConfig(**{k[9:]: v for k, v in params.items() if k.startswith("sequence.")})
+    plan = plan_for_motor(spec, 1e-3, cfg)
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.time()
+        res = run_session(
+            output_dir=Path(tmp) / "out",
+            motor=motor,
+            domain_id=domain,
+            identification_params=params,
+            log_dir=Path(tmp) / "logs",
+            timeout_s=600,
+        )
+        t1 = time.time()
+        if res.bag is None:
+            print(f"{name}: no bag (identification exit {res.identification_rc})")
+            for k, p in res.logs.items():
+                print(f"--- {k}\n{p.read_text()[-2000:]}")
+            return
+        a = read_driver_arrays(res.bag)
+        ms = a.markers
+        t_start, t_end = ms[0].t_s, ms[-1].t_s
+        expected = round((t_end - t_start) * 1000)
+        recorded = a.encoder_ns.size
+        gaps = int(np.sum(np.diff(a.encoder_ns) > 1_500_000))
+    session_s = t_end - t_start
+    print(f"== {name}: motor {motor}, {len(plan.segments)} segments")
+    print(f"  nominal sequence            {plan.duration_s:8.2f} s ({plan.n_samples} samples)")
+    print(
+        f"  session on the driver clock {session_s:8.2f} s "
+        f"(staircase held to steady state: x{session_s / plan.duration_s:.2f} of nominal)"
+    )
+    print(
+        f"  bring-up wall time          {t1 - t0:8.2f} s: start-up {t_start - t0:.2f} s, "
+        f"session {session_s:.2f} s, identify + shut-down {t1 - t_end:.2f} s"
+    )
+    print(f"  overhead vs nominal         {(t1 - t0) / plan.duration_s:8.2f} x")
+    print(
+        f"  samples recorded / expected {recorded} / {expected} "
+        f"({100.0 * recorded / expected:.2f} %, {gaps} gaps); "
+        f"current {a.current_ns.size}, voltage_applied {a.voltage_ns.size}"
+    )
+    wall = t1 - t0
+    for node, cpu in res.cpu_s.items():
+        if cpu is not None:
+            print(f"  CPU {node:<15}          {cpu:8.2f} s = {100 * cpu / wall:5.1f} % of a core")
+    print(f"  identification exit status  {res.identification_rc}")
+
+
+def decoding() -> None:
+    """Raw JointState decoding (node and bag reader) against the rosbags decoder."""
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    raws = [
+        bytes(
+            ts.serialize_cdr(
+                _joint_state(
+                    ts, 1_700_000_000_000_000_000 + k, ["shaft"], position=[k], velocity=[1.0]
+                ),
+                "sensor_msgs/msg/JointState",
+            )
+        )
+        for k in range(20000)
+    ]
+    t = time.perf_counter()
+    for r in raws:
+        parse_joint_state(r)
+    fast = time.perf_counter() - t
+    t = time.perf_counter()
+    for r in raws:
+        m = ts.deserialize_cdr(r, "sensor_msgs/msg/JointState")
+        _ = (m.header.stamp.sec, m.position[0], m.velocity[0])
+    naive = time.perf_counter() - t
+    n = len(raws)
+    print("== JointState decoding (per message)")
+    print(f"  parse_joint_state           {1e6 * fast / n:8.2f} us")
+    print(f"  rosbags deserialize_cdr     {1e6 * naive / n:8.2f} us (naive reference)")
+    print(f"  speed-up                    {naive / fast:8.1f} x")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--full", action="store_true", help="also the full default sequence")
+    ap.add_argument("--domain-id", type=int, default=79)
+    args = ap.parse_args()
+    decoding()
+    session("short sequence", "seed001_110v", SHORT, args.domain_id)
+    if args.full:
+        session("full default sequence", "seed000_ebike", {}, args.domain_id)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,93 @@
+"""Launch one identification session: driver, recorder and identification nodes.
+
+    ros2 launch pmdc_ident session.launch.py motor:=seed000_ebike backend:=sim
+    ros2 launch pmdc_ident session.launch.py backend:=serial port:=/dev/ttyACM0 \
+        motor:=/path/to/nominal.yaml output_dir:=$HOME/pmdc_sessions
+
+The same graph as the ``bringup`` command (which needs no ``ros2 launch``): the
+parameters files in ``share/pmdc_ident/config/`` give the defaults, the launch
+arguments override the most used ones. With ``exit_when_done:=true`` (default)
+the launch ends when the session is over; the driver makes the motor safe and the
+recorder closes its bag on the way out. For a larger stack that asks for runs on
+demand, use ``exit_when_done:=false autostart:=false`` and call the
+``run_session`` service; the result stays latched on ``identified_parameters``.
+"""
+
+from __future__ import annotations
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandler
+from launch.event_handlers import OnProcessExit
+from launch.events import Shutdown
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
+
+from launch import LaunchDescription
+
+
+def generate_launch_description() -> LaunchDescription:
+    share = get_package_share_directory("pmdc_ident")
+    config = os.path.join(share, "config")
+    arg = LaunchConfiguration
+    args = [
+        DeclareLaunchArgument("backend", default_value="sim", description="'sim' or 'serial'"),
+        DeclareLaunchArgument("port", default_value="/dev/ttyACM0", description="serial port"),
+        DeclareLaunchArgument(
+            "motor", default_value="seed000_ebike", description="motor (driver) / nominal motor"
+        ),
+        DeclareLaunchArgument("output_dir", default_value="pmdc_sessions", description="bags"),
+        DeclareLaunchArgument("safe_mode", default_value="zero", description="'zero' or 'open'"),
+        DeclareLaunchArgument("autostart", default_value="true", description="run at once"),
+        DeclareLaunchArgument(
+            "exit_when_done", default_value="true", description="end the launch after one run"
+        ),
+        DeclareLaunchArgument("namespace", default_value="", description="node namespace"),
+    ]
+    driver = Node(
+        package="pmdc_ident",
+        executable="driver_node",
+        name="driver_node",
+        namespace=arg("namespace"),
+        output="screen",
+        emulate_tty=True,
+        parameters=[
+            os.path.join(config, "driver.yaml"),
+            {"backend": arg("backend"), "port": arg("port"), "motor": arg("motor")},
+        ],
+    )
+    recorder = Node(
+        package="pmdc_ident",
+        executable="recorder_node",
+        name="recorder_node",
+        namespace=arg("namespace"),
+        output="screen",
+        emulate_tty=True,
+        parameters=[os.path.join(config, "recorder.yaml"), {"output_dir": arg("output_dir")}],
+    )
+    identification = Node(
+        package="pmdc_ident",
+        executable="identification_node",
+        name="identification_node",
+        namespace=arg("namespace"),
+        output="screen",
+        emulate_tty=True,
+        parameters=[
+            os.path.join(config, "identification.yaml"),
+            {
+                "motor": arg("motor"),
+                "output_dir": arg("output_dir"),
+                "safe_mode": arg("safe_mode"),
+                "autostart": ParameterValue(arg("autostart"), value_type=bool),
+                "exit_when_done": ParameterValue(arg("exit_when_done"), value_type=bool),
+            },
+        ],
+    )
+    # identification ends (session over, or aborted): stop the others, which makes the
+    # motor safe (driver) and closes the bag (recorder)
+    stop_all = RegisterEventHandler(
+        OnProcessExit(target_action=identification, on_exit=[EmitEvent(event=Shutdown())])
+    )
+    return LaunchDescription([*args, driver, recorder, identification, stop_all])
