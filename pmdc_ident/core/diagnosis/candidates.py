@@ -1,0 +1,176 @@
+"""Candidate models: the baseline plus one or more effects of the vocabulary.
+
+Each candidate effect is first placed by a coarse scan (a few starting values
+sized from the data, simulated with the baseline parameters held), then the
+best start is refined by the identification core's output-error fit with the
+baseline parameters free as well, on the fit segments only.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from pmdc_ident.core.data import Segment
+from pmdc_ident.core.diagnosis.scoring import NoiseModel, residuals
+from pmdc_ident.core.effects import (
+    EFFECT_NAMES,
+    BrushDrop,
+    Cogging,
+    CoulombFriction,
+    CurrentOffset,
+    DeadZone,
+    Delay,
+    Effect,
+    InductanceSaturation,
+    LoadTorque,
+    QuadraticDrag,
+    ResistanceDrift,
+    StribeckFriction,
+)
+from pmdc_ident.core.model import Model, simulate
+from pmdc_ident.core.output_error import FitResult, fit_output_error
+
+__all__ = [
+    "BASE_FREE",
+    "DataScales",
+    "data_scales",
+    "fit_model",
+    "predict",
+    "starting_effects",
+]
+
+BASE_FREE: tuple[str, ...] = ("R", "L", "Ke", "J", "B")
+REFINE_BELOW_SAMPLES = 20_000
+
+
+@dataclass(frozen=True)
+class DataScales:
+    """Sizes read off the data, used to place starting values of effects."""
+
+    torque_nm: float  # Kt * RMS current
+    voltage_v: float  # largest |command|
+    speed_rad_s: float  # largest |speed|
+    current_a: float  # largest |current|
+    dt_s: float  # median sample period
+    charge_a2s: float  # int i^2 dt over all segments
+    periods_per_rev: tuple[int, ...]  # shaft-angle harmonics to try for cogging
+
+
+def data_scales(segments: Sequence[Segment], kt: float, periods: Sequence[int] = ()) -> DataScales:
+    cur = [s.current for s in segments if s.current is not None]
+    i_all = np.concatenate(cur) if cur else np.zeros(1)
+    v_all = np.concatenate([s.voltage for s in segments if s.voltage is not None] or [[1.0]])
+    w_all = np.concatenate([s.speed_or_derivative() for s in segments])
+    charge = sum(
+        float(np.sum(s.current[:-1] ** 2 * np.diff(s.t)))
+        for s in segments
+        if s.current is not None
+    )
+    return DataScales(
+        torque_nm=max(kt * float(np.sqrt(np.mean(i_all**2))), 1e-9),
+        voltage_v=max(float(np.nanmax(np.abs(v_all))) if np.isfinite(v_all).any() else 1.0, 1e-6),
+        speed_rad_s=max(float(np.max(np.abs(w_all))), 1e-6),
+        current_a=max(float(np.max(np.abs(i_all))), 1e-6),
+        dt_s=float(np.median([s.dt_s for s in segments])),
+        charge_a2s=max(charge, 1e-9),
+        periods_per_rev=tuple(periods) or (1,),
+    )
+
+
+def starting_effects(name: str, sc: DataScales) -> list[Effect]:
+    """Starting values to scan for one effect, sized from the data."""
+    t, v, w = sc.torque_nm, sc.voltage_v, sc.speed_rad_s
+    if name == "coulomb_friction":
+        return [CoulombFriction(t * f) for f in (0.03, 0.1, 0.3)]
+    if name == "stribeck_friction":
+        return [StribeckFriction(t * f, max(w * g, 1e-3)) for f in (0.1, 0.4) for g in (0.02, 0.1)]
+    if name == "quadratic_drag":
+        return [QuadraticDrag(t * f / w**2) for f in (0.1, 0.3, 1.0)]
+    if name == "load_torque":
+        return [LoadTorque(t * f) for f in (-0.2, -0.05, 0.05, 0.2)]
+    if name == "brush_drop":
+        return [BrushDrop(v * f) for f in (0.02, 0.05, 0.1)]
+    if name == "dead_zone":
+        return [DeadZone(v * f) for f in (0.02, 0.05, 0.1)]
+    if name == "cogging":
+        return [
+            Cogging(t * 0.1, float(n), ph)
+            for n in sc.periods_per_rev
+            for ph in (-2.5, -1.0, 0.5, 2.0)
+        ]
+    if name == "resistance_drift":
+        return [ResistanceDrift(min(f / sc.charge_a2s, 10.0)) for f in (0.05, 0.2)]
+    if name == "delay":
+        return [Delay(min(k * sc.dt_s, 1.0)) for k in (1.0, 3.0, 8.0, 20.0)]
+    if name == "current_offset":
+        return [CurrentOffset(sc.current_a * f) for f in (-0.05, -0.01, 0.01, 0.05)]
+    if name == "inductance_saturation":
+        return [InductanceSaturation(max(sc.current_a * f, 1e-3)) for f in (0.5, 1.0, 2.0)]
+    msg = f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}"
+    raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class _Pred:
+    current: np.ndarray
+    speed: np.ndarray
+    position: np.ndarray
+
+
+def _x0(seg: Segment) -> list[float]:
+    i0 = 0.0 if seg.current is None or seg.open_mask[0] else float(seg.current[0])
+    th0 = float(seg.position[0]) if seg.position is not None else 0.0
+    return [i0, float(seg.speed_or_derivative()[0]), th0]
+
+
+def predict(model: Model, segments: Sequence[Segment], substeps: int = 4) -> list[_Pred]:
+    """Free-run simulation of each segment from its measured initial state."""
+    out = []
+    for s in segments:
+        v = s.voltage if s.voltage is not None else np.full(s.n, math.nan)
+        sim = simulate(model, v, s.dt_s, x0=_x0(s), substeps=substeps)
+        out.append(_Pred(sim.current, sim.speed, sim.position))
+    return out
+
+
+def scan_start(
+    base: Model, name: str, sc: DataScales, segments: Sequence[Segment], noise: NoiseModel
+) -> Effect:
+    """The starting effect whose simulation (baseline held) best matches the data."""
+    best, best_gap = None, math.inf
+    for eff in starting_effects(name, sc):
+        g = residuals(segments, predict(base.with_effects(eff), segments), noise).gap()
+        if g < best_gap:
+            best, best_gap = eff, g
+    assert best is not None
+    return best
+
+
+def fit_model(
+    segments: Sequence[Segment],
+    model: Model,
+    *,
+    max_nfev: int,
+    fixed: dict[str, float] | None = None,
+) -> FitResult:
+    """Output-error fit of the baseline parameters and every fitted effect parameter."""
+    free = list(BASE_FREE)
+    if fixed:
+        free = [n for n in free if n not in fixed]
+    for e in model.effects:
+        free += [f"{e.NAME}.{f}" for f in e.fitted_names()]
+    # Large data: the engine's noise estimate is good, one pass is enough. Few samples
+    # per segment (tables): the estimate degenerates, the residual re-weighting fixes it.
+    small = sum(s.n for s in segments) < REFINE_BELOW_SAMPLES
+    extra = {"refine_noise": small} if _ACCEPTS_REFINE else {}
+    return fit_output_error(
+        segments, model, free=free, fixed=fixed, closure="Kt=Ke", max_nfev=max_nfev, **extra
+    )
+
+
+_ACCEPTS_REFINE = "refine_noise" in inspect.signature(fit_output_error).parameters

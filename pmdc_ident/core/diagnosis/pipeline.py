@@ -1,0 +1,522 @@
+"""``diagnose``: baseline, localization, candidate search, verdict (ROS-free)."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from pmdc_ident.core.data import Run, Segment
+from pmdc_ident.core.diagnosis.candidates import (
+    DataScales,
+    data_scales,
+    fit_model,
+    predict,
+    scan_start,
+)
+from pmdc_ident.core.diagnosis.holdout import HoldoutSplit, split_segments
+from pmdc_ident.core.diagnosis.localization import localize, regime_masks
+from pmdc_ident.core.diagnosis.results import (
+    CandidateScore,
+    DiagnosisResult,
+    ParameterEstimate,
+    RegimeShrink,
+    Tie,
+    Verdict,
+    VerdictStatus,
+)
+from pmdc_ident.core.diagnosis.scoring import NoiseModel, Residuals, estimate_noise, residuals
+from pmdc_ident.core.diagnosis.verdict import (
+    Thresholds,
+    order_tie,
+    separating_test,
+)
+from pmdc_ident.core.effects import EFFECT_NAMES
+from pmdc_ident.core.errors import DataError, ParameterError
+from pmdc_ident.core.model import Model
+from pmdc_ident.core.output_error import FitResult
+from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
+
+__all__ = ["DiagnosisConfig", "diagnose"]
+
+Progress = Callable[[str], None]
+SLOW_SAMPLE_S = 0.01  # median sample period from which data count as steady-state tables
+
+
+@dataclass(frozen=True)
+class DiagnosisConfig:
+    """What the diagnosis tries and how it decides.
+
+    ``holdout``: segment labels to hold out (default: the split of
+    :mod:`~pmdc_ident.core.diagnosis.holdout`). ``effects``: the vocabulary to
+    try. ``fixed``: parameters held at known values (e.g. ``{"L": 3e-4}`` from an
+    LCR meter). ``initial``: starting parameters (e.g. from ``identify``).
+    """
+
+    holdout: tuple[str, ...] = ()
+    effects: tuple[str, ...] = EFFECT_NAMES
+    max_effects: int = 3
+    fixed: Mapping[str, float] = field(default_factory=dict)
+    initial: MotorParams | None = None
+    max_nfev: int = 40
+    workers: int = 2
+    thresholds: Thresholds = field(default_factory=Thresholds)
+
+    def __post_init__(self) -> None:
+        unknown = [e for e in self.effects if e not in EFFECT_NAMES]
+        if unknown:
+            msg = f"unknown effect(s) {', '.join(unknown)}; known: {', '.join(EFFECT_NAMES)}"
+            raise ParameterError(msg)
+        bad = [k for k in self.fixed if k not in PARAMETER_NAMES]
+        if bad:
+            msg = f"only motor parameters {PARAMETER_NAMES} can be fixed, not {', '.join(bad)}"
+            raise ParameterError(msg)
+        if self.max_effects < 1 or self.workers < 1 or self.max_nfev < 1:
+            msg = "max_effects, workers and max_nfev must be >= 1"
+            raise ParameterError(msg)
+        object.__setattr__(self, "holdout", tuple(self.holdout))
+        object.__setattr__(self, "effects", tuple(self.effects))
+
+
+# ---------------------------------------------------------------------------
+def _flatten(runs_or_segments: object) -> list[Segment]:
+    items: list[object]
+    if isinstance(runs_or_segments, (Run, Segment)):
+        items = [runs_or_segments]
+    else:
+        try:
+            items = list(runs_or_segments)  # type: ignore[call-overload]
+        except TypeError:
+            msg = "diagnose needs a Run, a Segment or a sequence of them"
+            raise DataError(msg) from None
+    segs: list[Segment] = []
+    for it in items:
+        if isinstance(it, Run):
+            segs += list(it.segments)
+        elif isinstance(it, Segment):
+            segs.append(it)
+        else:
+            msg = f"diagnose needs Runs or Segments, got {type(it).__name__}"
+            raise DataError(msg)
+    if not segs:
+        msg = "no segments to diagnose"
+        raise DataError(msg)
+    seen: dict[str, int] = {}
+    out = []
+    for s in segs:
+        k = seen.get(s.label, 0)
+        seen[s.label] = k + 1
+        out.append(s if k == 0 else replace(s, label=f"{s.label}#{k + 1}"))
+    if not any(s.current is not None for s in out):
+        msg = "the diagnosis needs a current column in at least one segment"
+        raise DataError(msg)
+    if not any(s.voltage is not None and np.isfinite(s.voltage).any() for s in out):
+        msg = "the diagnosis needs a voltage column with driven samples"
+        raise DataError(msg)
+    return out
+
+
+def _smooth(x: np.ndarray, width: int) -> np.ndarray:
+    if width <= 1 or x.size <= width:
+        return x
+    return np.convolve(x, np.ones(width) / width, mode="same")
+
+
+def initial_guess(segments: Sequence[Segment], fixed: Mapping[str, float]) -> MotorParams:
+    """Equation-error starting values (biased by unmodelled effects, refined later)."""
+    rows_e, ys_e, rows_m, ys_m = [], [], [], []
+    for s in segments:
+        w = s.speed_or_derivative()
+        width = max(1, s.n // 50)
+        ws = _smooth(w, width)
+        dw = np.gradient(ws, s.t)
+        is_open = s.open_mask
+        if s.current is not None and s.voltage is not None:
+            drive = ~is_open
+            rows_e.append(np.column_stack([s.current[drive], w[drive]]))
+            ys_e.append(s.voltage[drive])
+        i = np.zeros(s.n) if s.current is None else np.where(is_open, 0.0, s.current)
+        if s.current is not None or is_open.all():
+            rows_m.append(np.column_stack([dw, ws, i]))
+            ys_m.append(np.zeros(s.n))
+    r_guess, ke_guess = 1.0, 0.05
+    if rows_e:
+        a = np.concatenate(rows_e)
+        y = np.concatenate(ys_e)
+        ok = np.isfinite(y)
+        if ok.sum() >= 2:
+            (r_guess, ke_guess), *_ = np.linalg.lstsq(a[ok], y[ok], rcond=None)
+    r = float(fixed.get("R", r_guess if r_guess > 0 else 1.0))
+    ke = float(fixed.get("Ke", ke_guess if ke_guess > 0 else 0.05))
+    kt = float(fixed.get("Kt", ke))
+    j, b = math.nan, math.nan
+    if rows_m:
+        m = np.concatenate(rows_m)
+        # J dw/dt + B w = Kt i
+        sol, *_ = np.linalg.lstsq(m[:, :2], kt * m[:, 2], rcond=None)
+        j, b = float(sol[0]), float(sol[1])
+    if not (math.isfinite(j) and j > 0):
+        j = ke * kt * 0.1 / r  # tau_m = 0.1 s
+    if not (math.isfinite(b) and b >= 0):
+        b = 0.0
+    dt = float(np.median([s.dt_s for s in segments]))
+    values = {"R": r, "L": r * dt, "Ke": ke, "Kt": kt, "J": j, "B": b}
+    values.update({k: float(v) for k, v in fixed.items()})
+    return MotorParams(**values)
+
+
+def _scan_inductance(
+    p: MotorParams, segments: Sequence[Segment], noise: NoiseModel, fixed: Mapping[str, float]
+) -> MotorParams:
+    """Place L by simulation: the output-error fit holds L at its start when the data
+    cannot resolve L/R, so the start must already match the first samples of steps."""
+    if "L" in fixed:
+        return p
+    dt = float(np.median([s.dt_s for s in segments]))
+
+    def gap_at(log_k: float) -> float:
+        trial = p.replace(L=p.R * dt * math.exp(log_k))
+        return residuals(segments, predict(Model(trial), segments), noise).gap()
+
+    grid = np.log([0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0])
+    gaps = [gap_at(x) for x in grid]
+    k = int(np.argmin(gaps))
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
+    golden = (math.sqrt(5.0) - 1.0) / 2.0
+    a, b = hi - golden * (hi - lo), lo + golden * (hi - lo)
+    ga, gb = gap_at(a), gap_at(b)
+    for _ in range(8):  # golden-section refinement in log(L)
+        if ga < gb:
+            hi, b, gb = b, a, ga
+            a = hi - golden * (hi - lo)
+            ga = gap_at(a)
+        else:
+            lo, a, ga = a, b, gb
+            b = lo + golden * (hi - lo)
+            gb = gap_at(b)
+    best_x = min([(gaps[k], grid[k]), (ga, a), (gb, b)])[1]
+    return p.replace(L=p.R * dt * math.exp(best_x))
+
+
+def _fit_gap(f: _Fitted, segments: Sequence[Segment], noise: NoiseModel) -> float:
+    return residuals(segments, _predictions(f.fit, segments), noise).gap()
+
+
+def _predictions(fit: FitResult, segments: Sequence[Segment]) -> list[object]:
+    return list(fit.simulate_segments(list(segments)))
+
+
+def _estimates(fit: FitResult) -> tuple[ParameterEstimate, ...]:
+    ci = getattr(fit, "ci95", None) or {}
+    ident = getattr(fit, "identifiable", None) or {}
+    p = fit.model.params.as_dict()
+    out = [
+        ParameterEstimate(n, p[n], _ci(ci.get(n)), bool(ident.get(n, True)))
+        for n in PARAMETER_NAMES
+    ]
+    for e in fit.model.effects:
+        for f, val in e.as_dict().items():
+            key = f"{e.NAME}.{f}"
+            out.append(
+                ParameterEstimate(key, float(val), _ci(ci.get(key)), bool(ident.get(key, True)))
+            )
+    return tuple(out)
+
+
+def _ci(x: object) -> tuple[float, float] | None:
+    if x is None:
+        return None
+    try:
+        lo, hi = x  # type: ignore[misc]
+        return float(lo), float(hi)
+    except (TypeError, ValueError):
+        return None
+
+
+@dataclass
+class _Fitted:
+    effects: tuple[str, ...]
+    fit: FitResult
+    res: Residuals
+    gap: float
+    seconds: float
+    failed: bool = False
+
+
+class _Search:
+    """Fits candidates on the fit segments and scores them on the held-out ones."""
+
+    def __init__(
+        self,
+        split: HoldoutSplit,
+        noise: NoiseModel,
+        cfg: DiagnosisConfig,
+        progress: Progress | None,
+    ) -> None:
+        self.split = split
+        self.noise = noise
+        self.cfg = cfg
+        self.progress = progress
+        self.fixed = dict(cfg.fixed)
+
+    def say(self, text: str) -> None:
+        if self.progress is not None:
+            self.progress(text)
+
+    def evaluate(self, effects: tuple[str, ...], model: Model) -> _Fitted:
+        t0 = time.perf_counter()
+        fit = fit_model(
+            self.split.fit, model, max_nfev=self.cfg.max_nfev, fixed=self.fixed or None
+        )
+        res = residuals(self.split.held_out, _predictions(fit, self.split.held_out), self.noise)
+        return _Fitted(effects, fit, res, res.gap(), time.perf_counter() - t0)
+
+    def try_evaluate(self, effects: tuple[str, ...], model: Model, fallback: _Fitted) -> _Fitted:
+        """Like :meth:`evaluate`, but a fit that fails numerically scores as no better
+        than ``fallback`` (the candidate is then simply not chosen)."""
+        try:
+            return self.evaluate(effects, model)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            self.say(f"candidate {'+'.join(effects)}: fit failed ({exc})")
+            return _Fitted(effects, fallback.fit, fallback.res, fallback.gap, 0.0, failed=True)
+
+    def single(self, base: _Fitted, name: str, sc: DataScales) -> _Fitted:
+        start = scan_start(base.fit.model, name, sc, self.split.fit, self.noise)
+        out = self.try_evaluate((name,), base.fit.model.with_effects(start), base)
+        self.say(f"candidate {name}: held-out gap {out.gap:.3g} ({out.seconds:.1f} s)")
+        return out
+
+
+def _n_added(model: Model, names: Sequence[str]) -> int:
+    return sum(len(e.fitted_names()) for e in model.effects if e.NAME in names)
+
+
+def diagnose(
+    runs_or_segments: object,
+    *,
+    config: DiagnosisConfig | None = None,
+    progress: Progress | None = None,
+) -> DiagnosisResult:
+    """Diagnose the sim-to-real gap of recorded runs (see the package notes)."""
+    cfg = config or DiagnosisConfig()
+    th = cfg.thresholds
+    t_start = time.perf_counter()
+    segments = _flatten(runs_or_segments)
+    split = split_segments(segments, cfg.holdout or None)
+    noise = estimate_noise(segments)
+    search = _Search(split, noise, cfg, progress)
+    dt_med = float(np.median([s.dt_s for s in segments]))
+    slow_note = ""
+    if "L" not in search.fixed and dt_med >= SLOW_SAMPLE_S:
+        # Tables of steady states (seconds apart) show no electrical dynamics; a free L
+        # would run off to freeze the current at its measured start value.
+        p_tmp = cfg.initial or initial_guess(split.fit, cfg.fixed)
+        search.fixed["L"] = p_tmp.R * dt_med * 0.01
+        slow_note = (
+            f"L held at {search.fixed['L']:.3g} H: samples {dt_med:.3g} s apart cannot show "
+            "the electrical time constant"
+        )
+    search.say(
+        f"{len(split.fit)} fit / {len(split.held_out)} held-out segments ({split.rule} split)"
+    )
+
+    p0 = cfg.initial or initial_guess(split.fit, search.fixed)
+    try:
+        base = search.evaluate((), Model(p0))
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        msg = f"the baseline linear model could not be fitted to these data ({exc})"
+        raise DataError(msg) from None
+    if cfg.initial is None and "L" not in search.fixed:
+        # When L/R is below the sample period the engine holds L at its start value,
+        # so place that start by simulation on the fit segments and refit.
+        p_l = _scan_inductance(base.fit.model.params, split.fit, noise, cfg.fixed)
+        if p_l.L != base.fit.model.params.L:
+            try:
+                again = search.evaluate((), Model(p_l))
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+                again = base
+            if _fit_gap(again, split.fit, noise) < _fit_gap(base, split.fit, noise):
+                base = again
+    g0 = base.gap
+    if "L" not in search.fixed and not base.fit.identifiable.get("L", True):
+        # L/R below the sample period: hold L for the candidates (one fit, not two)
+        search.fixed["L"] = float(base.fit.model.params.L)
+    search.say(f"baseline (linear model): held-out gap {g0:.3g}")
+
+    masks = regime_masks(split.held_out, base.fit.model.params.mechanical_time_constant_s)
+    loc = localize(split.held_out, base.res, masks)
+    noise_rel = float(np.mean([noise.noise_rel(s) for s in noise.signals]))
+    penalty = max(th.penalty_rel_per_param * max(g0, 0.0), th.penalty_noise_per_param * noise_rel)
+
+    periods = [loc.angle_periods_per_rev] if loc.angle_periods_per_rev else []
+    sc = data_scales(split.fit, base.fit.model.params.Kt, periods)
+    names = [n for n in cfg.effects if not (n == "cogging" and not periods)]
+    with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
+        singles = list(pool.map(lambda n: search.single(base, n, sc), names))
+
+    def score(f: _Fitted) -> CandidateScore:
+        k = _n_added(f.fit.model, f.effects)
+        gain = g0 - f.gap
+        eff_params = {
+            f"{e.NAME}.{fld}": float(v)
+            for e in f.fit.model.effects
+            for fld, v in e.as_dict().items()
+        }
+        return CandidateScore(
+            effects=f.effects,
+            gap=f.gap,
+            shrink=(gain / g0) if g0 > 0 else 0.0,
+            added_parameters=k,
+            penalized_gap=f.gap + k * penalty,
+            significant=bool(gain > k * penalty),
+            parameters=eff_params,
+            fit_seconds=f.seconds,
+        )
+
+    scored = sorted(((score(f), f) for f in singles), key=lambda sf: sf[0].penalized_gap)
+    helping = [(s, f) for s, f in scored if s.significant]
+    gap_significant = g0 > th.no_gap_noise * noise_rel
+
+    by_name = {f.effects[0]: f for f in singles}
+    chosen: _Fitted = base
+    ties: list[Tie] = []
+    combos: list[CandidateScore] = []
+    if helping and gap_significant:
+        best_s, best_f = helping[0]
+        gain_best = g0 - best_s.gap
+        tied = [
+            (s, f)
+            for s, f in helping[1:]
+            if (g0 - s.gap) >= (1.0 - th.tie_fraction) * gain_best
+            and s.added_parameters == best_s.added_parameters
+        ]
+        if tied:
+            group = order_tie([best_s.effects[0]] + [s.effects[0] for s, _ in tied])
+            lookup = {s.effects[0]: (s, f) for s, f in [(best_s, best_f), *tied]}
+            best_s, best_f = lookup[group[0]]
+            for other in group[1:]:
+                ties.append(Tie((group[0], other), separating_test(group[0], other)))
+        chosen = best_f
+        tied_names = {n for t in ties for n in t.effects}
+        # combinations: greedy forward selection while most of the gap remains
+        while (
+            len(chosen.effects) < cfg.max_effects
+            and g0 > 0
+            and (g0 - chosen.gap) / g0 < th.combine_below_shrink
+        ):
+            pool_names = [
+                s.effects[0]
+                for s, _ in scored
+                if s.effects[0] not in chosen.effects
+                and s.effects[0] not in tied_names
+                and not by_name[s.effects[0]].failed
+            ][:4]
+            if not pool_names:
+                break
+
+            def combo(n: str, base_fit: _Fitted = chosen) -> _Fitted:
+                e = by_name[n].fit.model.effect(n)
+                assert e is not None
+                m = base_fit.fit.model.with_effects(e)
+                out = search.try_evaluate((*base_fit.effects, n), m, base_fit)
+                search.say(f"combination {'+'.join(out.effects)}: held-out gap {out.gap:.3g}")
+                return out
+
+            with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
+                trials = list(pool.map(combo, pool_names))
+            best_trial = min(
+                trials, key=lambda f: f.gap + _n_added(f.fit.model, f.effects) * penalty
+            )
+            for f in trials:
+                combos.append(score(f))
+            k_new = _n_added(best_trial.fit.model, best_trial.effects[-1:])
+            if chosen.gap - best_trial.gap > k_new * penalty:
+                chosen = best_trial
+            else:
+                break
+
+    shrink = (g0 - chosen.gap) / g0 if g0 > 0 else 0.0
+    if not chosen.effects:
+        if gap_significant and g0 > 0:
+            status = VerdictStatus.UNEXPLAINED
+            message = (
+                f"the linear model leaves a held-out gap of {g0:.3g} (noise {noise_rel:.2g}) "
+                "and no candidate effect closes it beyond its penalty"
+            )
+        else:
+            status = VerdictStatus.NO_GAP
+            message = (
+                f"the linear model matches held-out data to the noise (gap {g0:.3g}, "
+                f"noise {noise_rel:.2g}); no effect is needed"
+            )
+    elif shrink >= th.explained_shrink:
+        status = VerdictStatus.EXPLAINED
+        message = (
+            f"{' + '.join(chosen.effects)} closes {shrink:.0%} of the held-out gap "
+            f"({g0:.3g} -> {chosen.gap:.3g})"
+        )
+    else:
+        status = VerdictStatus.UNEXPLAINED
+        message = (
+            f"best candidate {' + '.join(chosen.effects)} closes only {shrink:.0%} of the "
+            "held-out gap; the rest has no name in the vocabulary"
+        )
+    verdict_effects = chosen.effects if status is VerdictStatus.EXPLAINED else ()
+    if status is not VerdictStatus.EXPLAINED:
+        ties = []
+    verdict = Verdict(status, verdict_effects, tuple(ties), message)
+    final = chosen if status is VerdictStatus.EXPLAINED else base
+
+    regimes = []
+    for cat, groups in masks.items():
+        for lab, mk in groups.items():
+            if mk.any():
+                regimes.append(
+                    RegimeShrink(
+                        cat,
+                        lab,
+                        float(mk.mean()),
+                        base.res.gap(mk),
+                        final.res.gap(mk),
+                    )
+                )
+    ranked = tuple(sorted([s for s, _ in scored] + combos, key=lambda s: s.penalized_gap))
+    assumptions = ["closure Kt = Ke (SI units)"]
+    if slow_note:
+        assumptions.append(slow_note)
+    elif "L" in search.fixed and "L" not in cfg.fixed:
+        assumptions.append(
+            f"L held at {search.fixed['L']:.3g} H: L/R is below the sample period, so the "
+            "data cannot resolve it"
+        )
+    if cfg.fixed:
+        assumptions.append(
+            "held fixed: " + ", ".join(f"{k} = {v:g}" for k, v in cfg.fixed.items())
+        )
+    assumptions.append(f"penalty per added parameter: {penalty:.3g} (gap units)")
+    return DiagnosisResult(
+        verdict=verdict,
+        split=split,
+        gap_before=g0,
+        gap_after=final.gap,
+        gap_by_signal_before=base.res.gap_by_signal(),
+        gap_by_signal_after=final.res.gap_by_signal(),
+        rms_before=base.res.rms_by_signal(),
+        rms_after=final.res.rms_by_signal(),
+        noise_sigma=dict(noise.sigma),
+        localization=loc,
+        candidates=ranked,
+        baseline=_estimates(base.fit),
+        augmented=_estimates(final.fit),
+        regimes=tuple(regimes),
+        assumptions=tuple(assumptions),
+        elapsed_s=time.perf_counter() - t_start,
+        n_samples=sum(s.n for s in segments),
+        held_out=split.held_out,
+        predictions_before=tuple(_predictions(base.fit, split.held_out)),
+        predictions_after=tuple(_predictions(final.fit, split.held_out)),
+    )

@@ -1,0 +1,227 @@
+"""Result objects of the diagnosis and their JSON form (keys of DESIGN.md §4)."""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+from pmdc_ident.core.data import Segment
+from pmdc_ident.core.diagnosis.holdout import HoldoutSplit
+from pmdc_ident.core.diagnosis.localization import Localization
+from pmdc_ident.core.effects import EFFECT_TYPES
+from pmdc_ident.core.params import PARAMETER_NAMES, PARAMETER_UNITS
+
+__all__ = [
+    "CandidateScore",
+    "DiagnosisResult",
+    "ParameterEstimate",
+    "RegimeShrink",
+    "Tie",
+    "Verdict",
+    "VerdictStatus",
+]
+
+
+class VerdictStatus(enum.Enum):
+    NO_GAP = "no_gap"
+    EXPLAINED = "explained"
+    UNEXPLAINED = "unexplained"
+
+
+def _num(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def unit_of(name: str) -> str:
+    if name in PARAMETER_UNITS:
+        return PARAMETER_UNITS[name]
+    eff, _, fld = name.partition(".")
+    cls = EFFECT_TYPES.get(eff)
+    return cls.SPECS[fld].unit if cls is not None and fld in cls.SPECS else ""
+
+
+@dataclass(frozen=True)
+class ParameterEstimate:
+    name: str
+    value: float
+    ci95: tuple[float, float] | None
+    identifiable: bool = True
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "value": self.value,
+            "ci95": list(self.ci95) if self.ci95 is not None else None,
+            "unit": unit_of(self.name),
+            "identifiable": self.identifiable,
+        }
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    """One candidate model (baseline + effects) scored on the held-out segments."""
+
+    effects: tuple[str, ...]
+    gap: float  # held-out gap of the candidate
+    shrink: float  # 1 - gap / baseline gap
+    added_parameters: int
+    penalized_gap: float  # gap + penalty per added parameter
+    significant: bool  # improvement beats the penalty
+    parameters: dict[str, float] = field(default_factory=dict)  # effect parameters
+    fit_seconds: float = 0.0
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "effects": list(self.effects),
+            "gap": _num(self.gap),
+            "shrink": _num(self.shrink),
+            "added_parameters": self.added_parameters,
+            "penalized_gap": _num(self.penalized_gap),
+            "significant": self.significant,
+            "parameters": self.parameters,
+        }
+
+
+@dataclass(frozen=True)
+class Tie:
+    """Effects the data cannot tell apart, and the test that would."""
+
+    effects: tuple[str, ...]
+    separating_test: str
+
+    def to_json(self) -> dict[str, object]:
+        return {"effects": list(self.effects), "separating_test": self.separating_test}
+
+
+@dataclass(frozen=True)
+class Verdict:
+    status: VerdictStatus
+    effects: tuple[str, ...]
+    ties: tuple[Tie, ...]
+    message: str
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "status": self.status.value,
+            "effects": list(self.effects),
+            "ties": [t.to_json() for t in self.ties],
+            "message": self.message,
+        }
+
+
+@dataclass(frozen=True)
+class RegimeShrink:
+    category: str
+    label: str
+    sample_share: float
+    gap_before: float
+    gap_after: float
+
+    @property
+    def shrink(self) -> float:
+        return 1.0 - self.gap_after / self.gap_before if self.gap_before > 0 else math.nan
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "category": self.category,
+            "label": self.label,
+            "sample_share": round(self.sample_share, 4),
+            "gap_before": _num(self.gap_before),
+            "gap_after": _num(self.gap_after),
+            "shrink": _num(self.shrink),
+        }
+
+
+@dataclass(frozen=True)
+class DiagnosisResult:
+    """Everything the diagnosis found; ``to_json`` gives the DESIGN.md keys."""
+
+    verdict: Verdict
+    split: HoldoutSplit
+    gap_before: float
+    gap_after: float
+    gap_by_signal_before: dict[str, float]
+    gap_by_signal_after: dict[str, float]
+    rms_before: dict[str, float]
+    rms_after: dict[str, float]
+    noise_sigma: dict[str, float]
+    localization: Localization
+    candidates: tuple[CandidateScore, ...]  # ranked, best first
+    baseline: tuple[ParameterEstimate, ...]
+    augmented: tuple[ParameterEstimate, ...]  # baseline + verdict effects
+    regimes: tuple[RegimeShrink, ...]
+    assumptions: tuple[str, ...]
+    elapsed_s: float
+    n_samples: int
+    # For plots (not in the JSON): held-out segments, and the baseline's and the
+    # augmented model's free-run predictions on them (objects with current, speed).
+    held_out: tuple[Segment, ...] = field(default=(), repr=False, compare=False)
+    predictions_before: tuple[object, ...] = field(default=(), repr=False, compare=False)
+    predictions_after: tuple[object, ...] = field(default=(), repr=False, compare=False)
+
+    @property
+    def shrink(self) -> float:
+        if self.gap_before <= 0:
+            return 0.0
+        return min(1.0, 1.0 - max(self.gap_after, 0.0) / self.gap_before)
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "verdict": self.verdict.to_json(),
+            "holdout": {
+                **self.split.to_json(),
+                "gap_before": _num(max(self.gap_before, 0.0)),
+                "gap_after": _num(max(self.gap_after, 0.0)),
+                "shrink": _num(self.shrink),
+                "gap_by_signal_before": self.gap_by_signal_before,
+                "gap_by_signal_after": self.gap_by_signal_after,
+                "rms_error_before": self.rms_before,
+                "rms_error_after": self.rms_after,
+                "noise_sigma": self.noise_sigma,
+                "gap_definition": (
+                    "held-out mean squared simulation error minus the noise variance, "
+                    "relative to the signal's mean square, averaged over current and speed"
+                ),
+                "regimes": [r.to_json() for r in self.regimes],
+            },
+            "localization": self.localization.to_json(),
+            "candidates": [c.to_json() for c in self.candidates],
+            "baseline": {p.name: p.to_json() for p in self.baseline},
+            "parameters": {p.name: p.to_json() for p in self.augmented},
+            "assumptions": list(self.assumptions),
+            "elapsed_s": round(self.elapsed_s, 3),
+            "n_samples": self.n_samples,
+        }
+
+    def summary_lines(self) -> list[str]:
+        """A short human summary (published by the node, printed by ``make demo``)."""
+        v = self.verdict
+        lines = [
+            f"verdict: {v.status.value}" + (f" ({', '.join(v.effects)})" if v.effects else "")
+        ]
+        lines.append(v.message)
+        lines.append(
+            f"held-out gap {max(self.gap_before, 0):.3g} before, "
+            f"{max(self.gap_after, 0):.3g} after "
+            f"({self.shrink:.0%} shrink); split: {self.split.rule}"
+        )
+        for sig in self.rms_before:
+            after = self.rms_after.get(sig, math.nan)
+            unit = "A" if sig == "current" else "rad/s"
+            lines.append(
+                f"  {sig}: RMS error {self.rms_before[sig]:.3g} -> {after:.3g} {unit} "
+                f"(noise {self.noise_sigma.get(sig, math.nan):.2g})"
+            )
+        lines += [f"  {s}" for s in self.localization.sentences[:4]]
+        for t in v.ties:
+            lines.append(f"tie: {' / '.join(t.effects)}; to separate: {t.separating_test}")
+        top = [c for c in self.candidates if c.significant][:3]
+        if top:
+            lines.append(
+                "candidates: " + "; ".join(f"{'+'.join(c.effects)} {c.shrink:.0%}" for c in top)
+            )
+        names = [p for p in self.augmented if p.name not in PARAMETER_NAMES]
+        for p in names:
+            ci = f" [{p.ci95[0]:.3g}, {p.ci95[1]:.3g}]" if p.ci95 else ""
+            lines.append(f"  {p.name} = {p.value:.4g}{ci} {unit_of(p.name)}")
+        return lines
