@@ -42,7 +42,7 @@ from pmdc_ident.core._jit import njit
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.effects import EFFECT_TYPES, Effect
 from pmdc_ident.core.errors import DataError, ParameterError
-from pmdc_ident.core.model import Model, simulate
+from pmdc_ident.core.model import Model, _coefficients, _effects_kernel, discretize_zoh, simulate
 from pmdc_ident.core.params import PARAMETER_NAMES, PARAMETER_UNITS, MotorParams
 
 __all__ = [
@@ -64,6 +64,8 @@ _NS = 14
 _COL = {"R": 0, "L": 1, "Ke": 2, "Kt": 3, "J": 4, "B": 5}
 _COL_TC, _COL_TL, _COL_I0, _COL_W0, _COL_TH0 = 6, 7, 8, 9, 10
 _COL_TS, _COL_WS, _COL_CQ = 11, 12, 13
+# sub-steps for samples where friction acts at zero speed (as core.model.simulate)
+_SUBSTEPS = 8
 # L is not identifiable from dynamic data when the current settles within a sample.
 _MIN_TAU_E_SAMPLES = 1.0
 _NEEDED_TAU_E_SAMPLES = 5.0
@@ -403,6 +405,11 @@ def _fast_kernel(
     mx,
     off,
     cur_off,
+    coef,
+    phs,
+    gas,
+    nsub,
+    hs,
 ):  # pragma: no cover - jitted
     """Simulate one segment; returns the states (n,3) and, with ``want_s``, the
     normal-equation blocks ``A = J^T J`` and ``g = J^T r`` of its residuals.
@@ -411,6 +418,12 @@ def _fast_kernel(
     Cq) are propagated for the columns ``nc`` only and mapped to the Jacobian
     columns by ``mx`` (plus ``off`` on current rows, the current-offset
     column); residuals are ``(x[oidx] (+ cur_off) - y) * osc`` per output.
+
+    Samples where friction acts at zero speed (a stuck rotor, a start from rest, a
+    zero crossing) are re-simulated with ``nsub`` sub-steps by the effects kernel of
+    :mod:`pmdc_ident.core.model` (coefficients ``coef``, sub-step matrices ``phs``,
+    ``gas``), so breakaway and stopping are timed as in ``simulate``; the
+    sensitivities there keep the one-step approximation.
 
     Torques opposing +w are held over each sample at their value for w[k]:
     ``T = T_load + sign(w) (Tc + Ts exp(-(w/ws)^2)) + Cq w|w|`` (``fx`` = [Ts, ws,
@@ -436,6 +449,9 @@ def _fast_kernel(
             need6[c] = True
     x = np.empty(3)
     xn = np.empty(3)
+    st5 = np.zeros(5)
+    vbuf = np.zeros(1)
+    refine = nsub > 1 and not cmode and t_static > 0.0
     x[0], x[1], x[2] = x0[0], x0[1], x0[2]
     if cmode:
         x[0] = imeas[0]
@@ -494,6 +510,12 @@ def _fast_kernel(
                 drive = kt * xn[0] - tl
             if abs(drive) > t_static:
                 stuck = False
+            if refine:
+                st5[0], st5[1], st5[2], st5[3], st5[4] = x[0], x[1], x[2], 0.0, 1.0
+                vbuf[0] = vk
+                _effects_kernel(vbuf, coef, phs, gas, hs, nsub, False, st5)
+                xn[0], xn[1], xn[2] = st5[0], st5[1], st5[2]
+                stuck = st5[4] > 0.5
             for a in range(3):
                 x[a] = xn[a]
                 if want_s:
@@ -556,7 +578,16 @@ def _fast_kernel(
             if want_s:
                 for c in nc:
                     sn[0, c] = 0.0
-        if t_static > 0.0 and xn[1] * sg < 0.0:
+        if refine and (xn[1] * sg < 0.0 or x[1] == 0.0):
+            st5[0], st5[1], st5[2], st5[3], st5[4] = x[0], x[1], x[2], 0.0, 0.0
+            vbuf[0] = vk
+            _effects_kernel(vbuf, coef, phs, gas, hs, nsub, False, st5)
+            xn[0], xn[1], xn[2] = st5[0], st5[1], st5[2]
+            stuck = st5[4] > 0.5
+            if stuck and want_s:
+                for c in nc:
+                    sn[1, c] = 0.0
+        elif t_static > 0.0 and xn[1] * sg < 0.0:
             # Crossed zero within the sample: friction holds the rotor if the drive
             # cannot break it away; otherwise it passes through (friction sign flips
             # from the next sample on).
@@ -603,6 +634,7 @@ class _FastSim:
         self.tl = float(getattr(tl, "torque_nm", 0.0)) if tl is not None else 0.0
         self.off = float(getattr(off, "offset_a", 0.0)) if off is not None else 0.0
         self._cache: dict[float, tuple[FloatArray, ...]] = {}
+        self.coef = _coefficients(model)
 
     def mats(self, dt: float) -> tuple[FloatArray, ...]:
         dt = float(f"{dt:.9g}")  # segments of one run share one period
@@ -619,7 +651,8 @@ class _FastSim:
             db_dL = -da_dL / R
             # per log(R), log(L), as the other motor-parameter sensitivities
             el = np.array([a, b, R * da_dR, L * da_dL, R * db_dR, L * db_dL])
-            got = (phc, gac, dphc, dgac, pho, gao, dpho, dgao, el)
+            phs, gas = discretize_zoh(self.p, dt / _SUBSTEPS)
+            got = (phc, gac, dphc, dgac, pho, gao, dpho, dgao, el, phs, gas)
             self._cache[dt] = got
         return got
 
@@ -636,7 +669,8 @@ class _FastSim:
         cmode = seg.voltage is None
         v = np.zeros(seg.n) if cmode else seg.voltage
         imeas = seg.current if seg.current is not None else np.zeros(seg.n)
-        m = self.mats(dt)
+        mats = self.mats(dt)
+        m, phs, gas = mats[:9], mats[9], mats[10]
         if acc is None:
             y, oidx, osc, mx, off = _NO_ACC
             nc = _NO_COLS
@@ -661,6 +695,11 @@ class _FastSim:
             mx,
             off,
             0.0 if cmode else self.off,
+            self.coef,
+            phs,
+            gas,
+            _SUBSTEPS,
+            dt / _SUBSTEPS,
         )
         if self.off != 0.0 and not cmode:
             X[:, 0] += self.off
