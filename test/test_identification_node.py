@@ -109,7 +109,7 @@ def _session(
             motor=motor,
             domain_id=domain,
             identification_params={**(SHORT if short else {}), **(ident or {})},
-            driver_params=driver,
+            driver_params={"watchdog_s": 1.5, **(driver or {})},
             recorder_params={"margin_s": 0.0, **(recorder or {})},
             log_dir=tmp_path / "logs",
             timeout_s=timeout_s,
