@@ -210,13 +210,22 @@ class DriverClient(Node):
             timeout = max(0.0, min(end, next_action if action else end) - time.monotonic())
             self.spin_once(min(timeout, 0.05))
 
-    def wait_for_driver(self, timeout_s: float = 15.0) -> None:
-        """Until the driver's samples arrive and it sees our command publisher."""
+    def wait_for_driver(
+        self, timeout_s: float = 15.0, alive: Callable[[], bool] | None = None
+    ) -> None:
+        """Until the driver's samples arrive and it sees our command publisher.
+
+        ``alive`` (e.g. :meth:`DriverProcess.alive`) ends the wait early when the
+        driver process has exited.
+        """
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
             self.spin_once(0.05)
             if self.encoder.stamps_ns and self._pub.get_subscription_count() > 0:
                 return
+            if alive is not None and not alive():
+                msg = "the driver process exited before publishing"
+                raise DemoError(msg)
         msg = f"no samples from the driver within {timeout_s:g} s (is it running?)"
         raise DemoError(msg)
 
@@ -298,9 +307,18 @@ def run_step_demo(
     rclpy.init()
     client = DriverClient(rate_hz)
     try:
-        client.wait_for_driver()
+        try:
+            client.wait_for_driver(alive=driver.alive)
+        except DemoError:
+            if not driver.alive():
+                driver.stop()
+                lines = driver.stderr.strip().splitlines() or ["(no output)"]
+                msg = f"the driver exited at start (status {driver.returncode}): {lines[-1]}"
+                raise DemoError(msg) from None
+            raise
         client.clear()
         client.spin_for(step_s, 1.0 / command_hz, lambda: client.send(volts))
+        client.catch_up()  # every sample up to now (the command holds: watchdog 0.5 s)
         stamps_step, v_step, i_step, w_step = _aligned(client)
         client.open_armature()
         client.spin_for(0.3)
