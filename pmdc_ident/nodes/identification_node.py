@@ -243,11 +243,15 @@ class IdentificationNode(Node):
         self.nominal: MotorSpec = self._load_nominal(p("motor"))
         self.seq_config = self._dataclass_from_params(SequenceConfig, "sequence.")
         self.steady_config = self._dataclass_from_params(SteadyStateConfig, "steady_state.")
+        modes = tuple(m.value for m in SafeMode)
+        if p("safe_mode") not in modes:
+            msg = f"parameter safe_mode must be one of {', '.join(modes)}, got {p('safe_mode')!r}"
+            raise PmdcError(msg)
+        self.safe_mode = SafeMode(p("safe_mode"))
         try:
-            self.safe_mode = SafeMode(p("safe_mode"))
             self.fixed = parse_fix([s for s in p("fix") if s])
-        except ValueError as exc:
-            raise PmdcError(f"parameter: {exc}") from None
+        except PmdcError as exc:
+            raise PmdcError(f"parameter fix: {exc}") from None
         self.finished = False
         self.exit_code = 0
         self.stop_requested: AbortReason | None = None
