@@ -194,7 +194,7 @@ def test_fuzzed_valid_crc_payloads_decode_or_raise_protocol_error(payload: bytes
 @given(
     st.integers(0, 2**32 - 1),
     st.integers(-(2**31), 2**31 - 1),
-    st.integers(-32768, 32767),
+    st.integers(-32767, 32767),
     st.integers(0, 255),
 )
 def test_telemetry_fields_round_trip_exactly(

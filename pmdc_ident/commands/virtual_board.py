@@ -99,8 +99,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"virtual board stopped ({board.frames_sent} frames sent)", file=sys.stderr)
         return 0
     finally:
-        port = board.port
-        board.close()
-        # Remove the link only if it is still ours (another board may have taken it).
-        if link is not None and link.is_symlink() and os.readlink(link) == port:
+        # Remove the link only if it is still ours (another board may have taken it),
+        # and before closing: a board started next may reuse the pty's number.
+        if link is not None and link.is_symlink() and os.readlink(link) == board.port:
             link.unlink()
+        board.close()
