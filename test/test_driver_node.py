@@ -249,9 +249,17 @@ def test_diagnostics_report_backend_rate_faults_and_armature(client):
     assert values["faults"] == "none" and values["watchdog"] == "ok"
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-def test_signal_leaves_the_motor_safe_and_exits_zero(sig):
-    driver = DriverProcess({"rate_hz": RATE_HZ}, domain_id=12).start()
+@pytest.mark.parametrize(
+    ("sig", "safe_mode", "state"),
+    [
+        (signal.SIGINT, "open", "motor safe (armature open, safe mode open)"),
+        (signal.SIGTERM, "open", "motor safe (armature open, safe mode open)"),
+        (signal.SIGINT, "zero", "motor safe (0 V applied, safe mode zero)"),
+    ],
+    ids=["SIGINT", "SIGTERM", "SIGINT_zero_volts"],
+)
+def test_signal_leaves_the_motor_safe_and_exits_zero(sig, safe_mode, state):
+    driver = DriverProcess({"rate_hz": RATE_HZ, "safe_mode": safe_mode}, domain_id=12).start()
     try:
         deadline = time.monotonic() + 15.0
         while time.monotonic() < deadline and "driver started" not in _peek(driver):
@@ -261,7 +269,7 @@ def test_signal_leaves_the_motor_safe_and_exits_zero(sig):
         rc = driver.stop(sig)
     assert rc == 0, driver.stderr
     final = [ln for ln in driver.stderr.splitlines() if "driver stopped" in ln]
-    assert final and "motor safe (armature open" in final[-1]
+    assert final and state in final[-1]
 
 
 def _peek(driver: DriverProcess) -> str:

@@ -197,6 +197,7 @@ class DriverNode(Node):
         self._diag_count = 0
         self._diag_t = self._clock_s()
         self._last_rate_hz = 0.0
+        self._stalls_seen = 0
         self._link_error = ""
 
         qos = sample_qos(self._rate_hz)
@@ -411,6 +412,14 @@ class DriverNode(Node):
             self.get_logger().error(f"backend: {exc}")
             self._on_diagnostics()
             return
+        stalls = getattr(self.backend, "stalls", 0)  # sim backend: host stalls so far
+        if stalls != self._stalls_seen:
+            self._stalls_seen = stalls
+            skipped = getattr(self.backend, "skipped_samples", 0)
+            self.get_logger().warning(
+                f"host stall: samples skipped (not published), {skipped} so far; "
+                "the simulated motor kept running and stamps stay on the grid"
+            )
         for s in samples:
             if self._safety.check_sample(s):
                 self._make_safe()
