@@ -35,7 +35,7 @@ from pmdc_ident.core.estimators.equation_error import (
 )
 from pmdc_ident.core.estimators.frequency import estimate_frequency_response
 from pmdc_ident.core.estimators.validation import holdout_score, residual_tests
-from pmdc_ident.core.model import Model
+from pmdc_ident.core.model import Model, simulate_linear
 from pmdc_ident.core.motors import Limits
 from pmdc_ident.core.output_error import CLOSURE_KT_KE, FitResult, fit_output_error, parameter_unit
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
@@ -341,7 +341,10 @@ def identify(
     sweeps = [s for s in dyn if s.kind is TestKind.SWEEP]
     if frequency and sweeps and not current_mode:
         try:
-            freq = estimate_frequency_response(sweeps[0])
+            sw = sweeps[0]
+            x0 = np.array(fit.initial_states.get(sw.label, (0.0, 0.0, 0.0)))
+            free = simulate_linear(fit.model.params, np.zeros(sw.n), sw.dt_s, x0=x0)
+            freq = estimate_frequency_response(sw, free_response=(free.current, free.speed))
             mism = freq.mismatch_db(fit.model.params)
             methods["frequency"] = {
                 "segment": freq.label,
