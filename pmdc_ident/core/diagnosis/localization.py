@@ -35,6 +35,7 @@ BoolArray = NDArray[np.bool_]
 
 NEAR_ZERO_FRACTION = 0.05  # |w| below this fraction of the largest |w|
 MAX_HARMONIC = 64
+MIN_ANGLE_SHARE = 0.03  # weaker shaft-angle periodicity is not reported
 
 
 @dataclass(frozen=True)
@@ -212,7 +213,8 @@ def angle_harmonics(
         energy /= max(len(res.error), 1)
         if energy > best_e:
             best_n, best_e = n_h, energy
-    return best_n, min(best_e / total, 1.0)
+    share = min(best_e / total, 1.0)
+    return (best_n, share) if share >= MIN_ANGLE_SHARE else (None, share)
 
 
 def _smooth(y: FloatArray, width: int = 201) -> FloatArray:

@@ -62,7 +62,7 @@ class DiagnosisConfig:
     max_effects: int = 3
     fixed: Mapping[str, float] = field(default_factory=dict)
     initial: MotorParams | None = None
-    max_nfev: int = 40
+    max_nfev: int = 30
     workers: int = 2
     thresholds: Thresholds = field(default_factory=Thresholds)
 
@@ -354,7 +354,12 @@ def diagnose(
 
     periods = [loc.angle_periods_per_rev] if loc.angle_periods_per_rev else []
     sc = data_scales(split.fit, base.fit.model.params.Kt, periods)
-    names = [n for n in cfg.effects if not (n == "cogging" and not periods)]
+    untestable: dict[str, str] = {}
+    if not periods:
+        untestable["cogging"] = "no shaft-angle periodicity in the residuals"
+    if "L" in search.fixed:
+        untestable["inductance_saturation"] = "L is held (the data do not resolve L/R)"
+    names = [n for n in cfg.effects if n not in untestable]
     with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
         singles = list(pool.map(lambda n: search.single(base, n, sc), names))
 
@@ -498,6 +503,9 @@ def diagnose(
             "held fixed: " + ", ".join(f"{k} = {v:g}" for k, v in cfg.fixed.items())
         )
     assumptions.append(f"penalty per added parameter: {penalty:.3g} (gap units)")
+    for n, why in untestable.items():
+        if n in cfg.effects:
+            assumptions.append(f"{n} not tried: {why}")
     return DiagnosisResult(
         verdict=verdict,
         split=split,
