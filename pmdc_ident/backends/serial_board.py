@@ -371,9 +371,10 @@ class SerialBackend:
 
     def _ping(self) -> None:
         token = int(time.monotonic_ns() // 1000) & 0xFFFFFFFF
-        self._ping_sent[token] = time.monotonic()
-        if len(self._ping_sent) > 16:
-            self._ping_sent.pop(next(iter(self._ping_sent)))
+        with self._lock:  # the reader thread pops answered pings
+            self._ping_sent[token] = time.monotonic()
+            if len(self._ping_sent) > 16:
+                self._ping_sent.pop(next(iter(self._ping_sent)))
         self._send(Ping(token))
 
     # -- connecting --------------------------------------------------------------------------
@@ -560,7 +561,8 @@ class SerialBackend:
         if isinstance(item, WireTelemetry):
             self._on_telemetry(item)
         elif isinstance(item, Pong):
-            sent = self._ping_sent.pop(item.token, None)
+            with self._lock:
+                sent = self._ping_sent.pop(item.token, None)
             if sent is not None:
                 self._ping_rtt_s = time.monotonic() - sent
         elif isinstance(item, Boot):

@@ -45,6 +45,7 @@ __all__ = ["VIRTUAL_MIN_PERIOD_US", "VirtualBoard"]
 
 # The Python timer loop cannot hold a finer grid reliably on a loaded host.
 VIRTUAL_MIN_PERIOD_US = 250
+_MAX_LAG_S = 0.05  # behind the grid by more than this (and 20 periods): skip frames
 _TX_QUEUE_FRAMES = 64  # like a UART ring buffer: older telemetry is dropped beyond it
 
 
@@ -119,6 +120,7 @@ class VirtualBoard:
         self.frames_sent = 0
         self.telemetry_dropped = 0
         self.bytes_lost = 0
+        self.samples_skipped = 0  # grid instants without a frame (process starved)
         self._tx: collections.deque[tuple[float, bytes, bool]] = collections.deque()
         self._tx_busy = 0.0
         self._rx: collections.deque[tuple[float, bytes]] = collections.deque()
@@ -237,10 +239,14 @@ class VirtualBoard:
                 reply = self.core.receive(data, self._now_us(now))
                 self._queue(reply, now, telemetry=False)
                 self._sync_stream(now)
-        # Timer ISR: every due sample on the exact grid.
+        # Timer ISR: every due sample on the exact grid. A real MCU never lags; when
+        # the host OS starved this process, the missed instants are stepped without
+        # frames (the host sees a counter gap), so board time stays wall-clock time.
+        period_s = self.core.period_us * 1e-6
         while self._next_tick <= now:
-            self._tick(self._next_tick)
-            self._next_tick += self.core.period_us * 1e-6
+            late = now - self._next_tick > max(_MAX_LAG_S, 20 * period_s)
+            self._tick(self._next_tick, report=not late)
+            self._next_tick += period_s
             if not self.core.streaming:
                 self._next_tick = math.inf
         self._transmit(now)
@@ -279,7 +285,7 @@ class VirtualBoard:
         elif not core.streaming:
             self._next_tick = math.inf
 
-    def _tick(self, t: float) -> None:
+    def _tick(self, t: float, report: bool = True) -> None:
         core = self.core
         plant = self._plant
         assert plant is not None
@@ -299,9 +305,13 @@ class VirtualBoard:
         count = math.floor(plant.position_rad / (2.0 * math.pi) * cpr)
         # Open armature: the terminals show the back-EMF.
         terminal = self.motor.model.params.Ke * w if math.isnan(v) else v
-        frame = core.telemetry(now_us, count, i, terminal, self.supply_v)
-        if not self._stalled:
-            self._queue(frame, t, telemetry=True)
+        if report:
+            frame = core.telemetry(now_us, count, i, terminal, self.supply_v)
+            if not self._stalled:
+                self._queue(frame, t, telemetry=True)
+        else:
+            core.skip_sample()
+            self.samples_skipped += 1
         plant.step(None if math.isnan(v) else v)
 
     def _tx_due(self) -> float:

@@ -96,7 +96,11 @@ def run(args: argparse.Namespace) -> int:
             board.run_forever()
         except KeyboardInterrupt:
             pass
-        print(f"virtual board stopped ({board.frames_sent} frames sent)", file=sys.stderr)
+        print(
+            f"virtual board stopped ({board.frames_sent} frames sent, "
+            f"{board.samples_skipped} sample instants skipped while this process was starved)",
+            file=sys.stderr,
+        )
         return 0
     finally:
         # Remove the link only if it is still ours (another board may have taken it),

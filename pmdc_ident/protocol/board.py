@@ -196,6 +196,10 @@ class BoardCore:
         if self.setpoint_mv is not None and silent_us > self.watchdog_ms * 1000:
             self.trip(FaultBit.WATCHDOG)
 
+    def skip_sample(self) -> None:
+        """A sample instant passed without a frame (the counter still advances)."""
+        self.counter += 1
+
     def telemetry(
         self,
         now_us: int,
