@@ -350,6 +350,13 @@ def classical_chain(
                 f"classical: coast-down fitted with Coulomb + viscous deceleration: "
                 f"J = {coast.J:.4g} kg*m^2 (95 % [{coast.J_ci95[0]:.3g}, {coast.J_ci95[1]:.3g}])"
             )
+            if coast.average_slope_rad_s2 > 0:
+                j_avg = (coast.Tc + coast.B * coast.w0_rad_s) / coast.average_slope_rad_s2
+                notes.append(
+                    f"classical: one average slope ({coast.average_slope_rad_s2:.4g} rad/s^2) "
+                    f"with the friction torque at the initial speed would give J = {j_avg:.3g}; "
+                    "the deceleration is not uniform, so the curve fit is the estimate"
+                )
             if coast.J_from_Tc is not None and coast.J_from_B is not None:
                 notes.append(
                     "classical: the coast curve alone implies J = "
