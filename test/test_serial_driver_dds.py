@@ -1,8 +1,9 @@
 """The driver node with backend:=serial against the virtual board, over DDS.
 
 The board runs in this process on a pty; the driver node is a child process.
-Checks: samples arrive stamped on the board's grid and follow the command; when
-the port is closed mid-run the driver logs one clear line, publishes an ERROR
+Checks: samples arrive stamped on the board's grid and follow the command; a
+board reset is reported once and the driver re-handshakes; when the port is
+closed mid-run the driver logs one clear line, publishes an ERROR
 diagnostic, keeps running (no crash, no hang) and exits cleanly on SIGINT.
 """
 
@@ -58,6 +59,12 @@ def test_driver_over_serial_streams_then_survives_the_port_closing() -> None:
         stamps = np.array(client.encoder.stamps_ns, dtype=np.int64)
         volts = np.array([v[0] for v in client.voltage.values])
         speeds = client.encoder.array()[:, 1]
+        # The board resets: one line, safe, re-handshake, samples flow again.
+        n_before = len(client.encoder.stamps_ns)
+        board.reset()
+        client.spin_for(2.0)
+        resumed = len(client.encoder.stamps_ns) - n_before
+        after_reset = np.array(client.encoder.stamps_ns[n_before:], dtype=np.int64)
         board.unplug()
         client.spin_for(2.0)
         alive_after_unplug = driver.alive()
@@ -74,6 +81,12 @@ def test_driver_over_serial_streams_then_survives_the_port_closing() -> None:
     assert np.all(gaps % 2_000_000 == 0) and np.median(gaps) == 2_000_000
     assert np.nanmax(volts) == pytest.approx(6.0, abs=1e-3)
     assert speeds.max() > 20.0
+    # Board reset: reported once, reconnected, stamps still on the 2 ms grid and increasing.
+    reset_lines = [ln for ln in driver.stderr.splitlines() if "reset (it sent BOOT)" in ln]
+    assert len(reset_lines) == 1, driver.stderr
+    assert "reconnected" in driver.stderr
+    assert resumed > 0.3 * RATE_HZ
+    assert np.all(np.diff(after_reset) > 0) and np.all((after_reset - stamps[0]) % 2_000_000 == 0)
     # Port closed: one clear line, an ERROR diagnostic, no crash, clean exit.
     assert alive_after_unplug, driver.stderr
     lines = [ln for ln in driver.stderr.splitlines() if "unplugged?" in ln]
