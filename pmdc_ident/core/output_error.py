@@ -825,9 +825,15 @@ def fit_output_error(
     prob = _Problem(segs, base, values, free_names, tie_kt, fast, noise, weights or {})
     z, lm = _levenberg_marquardt(prob, prob.z0(), max_nfev, progress)
     if refine_noise:
-        prob.noise = prob.residual_noise(z)
-        z, lm2 = _levenberg_marquardt(prob, z, max_nfev, progress)
-        lm = _LMState(lm2.cost, lm.nfev + lm2.nfev, lm.it + lm2.it, lm2.converged, lm2.message)
+        # Maximum likelihood with unknown noise levels: reweight by the residual RMS
+        # and refit, unless the weights barely change (then the optimum does not move
+        # beyond a small fraction of its standard error).
+        new_noise = prob.residual_noise(z)
+        moved = any(not 0.9 < new_noise[k] / prob.noise[k] < 1.1 for k in new_noise)
+        prob.noise = new_noise
+        if moved:
+            z, lm2 = _levenberg_marquardt(prob, z, max_nfev, progress)
+            lm = _LMState(lm2.cost, lm.nfev + lm2.nfev, lm.it + lm2.it, lm2.converged, lm2.message)
 
     result = _finish(prob, z, lm, reasons, fixed, closure if tie_kt else None, warnings, t_start)
     if check_inductance and not current_mode and "L" in result.free:
