@@ -363,9 +363,12 @@ def diagnose(
     with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
         singles = list(pool.map(lambda n: search.single(base, n, sc), names))
 
-    def score(f: _Fitted) -> CandidateScore:
+    def score(f: _Fitted, parent: _Fitted | None = None) -> CandidateScore:
         k = _n_added(f.fit.model, f.effects)
         gain = g0 - f.gap
+        # a combination must beat its parent by the penalty of what it adds
+        k_new = k if parent is None else k - _n_added(parent.fit.model, parent.effects)
+        gain_new = gain if parent is None else parent.gap - f.gap
         eff_params = {
             f"{e.NAME}.{fld}": float(v)
             for e in f.fit.model.effects
@@ -377,7 +380,7 @@ def diagnose(
             shrink=(gain / g0) if g0 > 0 else 0.0,
             added_parameters=k,
             penalized_gap=f.gap + k * penalty,
-            significant=bool(gain > k * penalty),
+            significant=bool(gain_new > k_new * penalty and not f.failed),
             parameters=eff_params,
             fit_seconds=f.seconds,
         )
@@ -437,7 +440,7 @@ def diagnose(
                 trials, key=lambda f: f.gap + _n_added(f.fit.model, f.effects) * penalty
             )
             for f in trials:
-                combos.append(score(f))
+                combos.append(score(f, chosen))
             k_new = _n_added(best_trial.fit.model, best_trial.effects[-1:])
             if chosen.gap - best_trial.gap > k_new * penalty:
                 chosen = best_trial
