@@ -547,3 +547,44 @@ def test_a_bad_parameter_is_one_line_and_exit_status_2(tmp_path):
     assert proc.returncode == 2
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "safe_mode" in lines[0] and "Traceback" not in proc.stderr, lines
+
+
+def test_the_session_runs_against_the_virtual_serial_board_as_against_the_sim(tmp_path):
+    """Driver with backend serial on `pmdc-ident virtual-board` (a pty), same session."""
+    pytest.importorskip("pmdc_ident.commands.identify")
+    board = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "pmdc_ident.cli",
+            "virtual-board",
+            "--motor",
+            "seed001_110v",
+            "--baud",
+            "1000000",
+        ],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        first = board.stdout.readline().strip()
+        assert first.startswith("virtual board on /dev/"), first
+        port = first.split()[3]
+        res, probe = _session(
+            tmp_path,
+            73,
+            driver={"backend": "serial", "port": port, "baud": 1000000},
+        )
+    finally:
+        board.send_signal(signal.SIGINT)
+        board.communicate(timeout=20)
+    assert res.identification_rc == 0, _logs(res)
+    arrays = read_driver_arrays(res.bag)
+    expected = round((arrays.markers[-1].t_s - arrays.markers[0].t_s) / DT)
+    assert arrays.encoder_ns.size == arrays.current_ns.size == expected
+    got = {k: v["value"] for k, v in res.result["parameters"].items()}
+    truth = load_motor("seed001_110v").model.params
+    assert got["R"] == pytest.approx(truth.R, rel=0.03)
+    assert got["Ke"] == pytest.approx(truth.Ke, rel=0.03)

@@ -276,6 +276,7 @@ class IdentificationNode(Node):
         self._last_current = 0.0
         self._last_sample_wall = -math.inf
         self._last_lag_ns = 0
+        self._lag_base_ns = 2**62
         self._settled_since = math.inf
         self._last_tick = time.monotonic()
         self._confirm_after_ns: int | None = None
@@ -381,7 +382,12 @@ class IdentificationNode(Node):
         wall = time.monotonic()
         self._last_sample_wall = wall
         self._last_enc_ns_seen = ns
-        lag_ns = time.time_ns() - ns
+        # Latency = arrival - stamp, less the smallest such difference seen: a board's
+        # clock may be offset from this host's (a serial driver stamps on the board's
+        # clock), and the transport delay is never negative.
+        raw_lag = time.time_ns() - ns
+        self._lag_base_ns = min(self._lag_base_ns, raw_lag)
+        lag_ns = raw_lag - self._lag_base_ns
         self._last_lag_ns = lag_ns
         if not self._recording():
             return

@@ -68,7 +68,7 @@ class RecorderNode(Node):
             ("rate_hz", 1000.0, "driver sample rate, Hz (sizes the queues and the ring)"),
             ("margin_s", 0.0, "also keep driver samples this long before/after a session, s"),
             ("ring_s", 3.0, "driver samples kept while no bag is open, s"),
-            ("hold_s", 1.0, "samples wait this long before being written (late end marker), s"),
+            ("hold_s", 2.0, "samples wait this long before being written (late end marker), s"),
         ):
             self.declare_parameter(
                 name,
@@ -86,7 +86,8 @@ class RecorderNode(Node):
         self.margin_ns = int(float(self.get_parameter("margin_s").value) * 1e9)
         self.half_dt_ns = int(0.5e9 / rate)
         self.hold_ns = int(float(self.get_parameter("hold_s").value) * 1e9)
-        ring_n = int(3 * rate * max(float(self.get_parameter("ring_s").value), 0.5))
+        hold_s = float(self.get_parameter("hold_s").value)
+        ring_n = int(3 * rate * max(float(self.get_parameter("ring_s").value), 2 * hold_s, 0.5))
         self.ring: deque[tuple[str, int, bytes, int]] = deque(maxlen=ring_n)
         self.writer: BagWriter | None = None
         self.session = ""
@@ -233,7 +234,7 @@ class RecorderNode(Node):
 
     def _heartbeat(self, closed: str = "") -> None:
         if self.end_ns is not None and self.writer is not None:
-            if time.monotonic() - self._end_wall > 3.0:  # the driver stopped sending
+            if time.monotonic() - self._end_wall > self.hold_ns * 1e-9 + 2.0:  # driver stopped
                 self._drain_rest_and_close("session ended (driver samples stopped)")
                 return
         d = {
