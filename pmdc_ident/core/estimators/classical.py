@@ -332,6 +332,11 @@ def classical_chain(
             f"classical: friction Kt*i = Tc + B*w with Kt = {stair.Kt:.4g}: "
             f"Tc = {stair.Tc:.4g} N*m, B = {stair.B:.3g} N*m*s/rad"
         )
+        if stair.Tc_ci95[1] < 0:
+            notes.append(
+                "classical: the friction intercept is negative: the levels may not have "
+                "reached steady state (hold each one several mechanical time constants)"
+            )
     coasts = [s for s in segments if s.kind is TestKind.COAST]
     coast = None
     if coasts and stair is not None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -44,6 +45,15 @@ from pmdc_ident.core.results import IdentificationResult, ParameterEstimate, est
 __all__ = ["ModelChoice", "identify", "identify_runs", "merge_runs"]
 
 TABLE_MAX_ROWS = 20
+
+
+class _Skip(Exception):  # noqa: N818 - control flow, never leaves this module
+    """Internal: no time series for the dynamic methods."""
+
+
+_SKIP = _Skip()
+
+
 TC = "coulomb_friction.torque_nm"
 
 
@@ -170,12 +180,54 @@ def identify(
         "an empty cell is an open armature"
     )
 
-    # 1. classical chain on staircase / coast-down (tables or time series)
+    dyn = [s for s in segs if _is_dynamic(s)]
+    skipped = [s.label for s in segs if not _is_dynamic(s) and s.n > TABLE_MAX_ROWS]
+    if skipped:
+        warnings.append(
+            f"segments not uniformly sampled, left out of the dynamic fit: {', '.join(skipped)}"
+        )
+    limits = _limits(segs)
+
+    # 1. equation error (a fast start; also gives the classical chain an R)
+    ee: EquationErrorResult | None = None
+    try:
+        if not dyn:
+            raise _SKIP
+        say("equation error (discretised equations)")
+        if current_mode:
+            ee = fit_mechanical_equation_error(dyn, Kt=fixed["Kt"])
+        else:
+            ee = fit_equation_error(
+                dyn, Kt=fixed.get("Kt"), J=fixed.get("J") if closure_used is None else None
+            )
+        methods["equation_error"] = {"values": dict(ee.values), "method": ee.method}
+        warnings.extend(ee.notes)
+    except _Skip:
+        pass
+    except DataError as exc:
+        if "no excitation" in str(exc):
+            raise
+        warnings.append(f"equation error skipped: {exc}")
+
+    # 2. classical chain on staircase / coast-down (tables or time series)
     classical: ClassicalResult | None = None
     if any(s.kind in (TestKind.STAIRCASE, TestKind.COAST) for s in segs) and not current_mode:
         try:
             say("classical chain (staircase, coast-down)")
-            classical = classical_chain(segs, fixed=fixed)
+            cfix = dict(fixed)
+            if "R" not in cfix and ee is not None and "R" in ee.values:
+                # no multimeter value: the staircase alone pins R poorly
+                cfix["R"] = ee.values["R"]
+            classical = classical_chain(segs, fixed=cfix)
+            if "R" not in fixed and "R" in cfix:
+                classical = replace(
+                    classical,
+                    notes=(
+                        f"classical: R = {cfix['R']:.4g} ohm taken from the equation-error "
+                        "fit (no multimeter value given)",
+                        *classical.notes,
+                    ),
+                )
             methods["classical"] = {
                 "values": dict(classical.values),
                 "ci95": {k: list(v) if v else None for k, v in classical.ci95.items()},
@@ -197,36 +249,11 @@ def identify(
         except DataError as exc:
             warnings.append(f"classical chain skipped: {exc}")
 
-    dyn = [s for s in segs if _is_dynamic(s)]
-    skipped = [s.label for s in segs if not _is_dynamic(s) and s.n > TABLE_MAX_ROWS]
-    if skipped:
-        warnings.append(
-            f"segments not uniformly sampled, left out of the dynamic fit: {', '.join(skipped)}"
-        )
-    limits = _limits(segs)
-
     if not dyn:
         if classical is None or not classical.values:
             msg = "no segment long enough for a dynamic fit and no staircase/coast-down table"
             raise DataError(msg)
         return _classical_only(classical, fixed, assumptions, warnings, methods, sources, limits)
-
-    # 2. equation error
-    ee: EquationErrorResult | None = None
-    try:
-        say("equation error (discretised equations)")
-        if current_mode:
-            ee = fit_mechanical_equation_error(dyn, Kt=fixed["Kt"])
-        else:
-            ee = fit_equation_error(
-                dyn, Kt=fixed.get("Kt"), J=fixed.get("J") if closure_used is None else None
-            )
-        methods["equation_error"] = {"values": dict(ee.values), "method": ee.method}
-        warnings.extend(ee.notes)
-    except DataError as exc:
-        if "no excitation" in str(exc):
-            raise
-        warnings.append(f"equation error skipped: {exc}")
 
     start = _initial_values(ee, classical, dyn, fixed, current_mode)
 
