@@ -157,10 +157,15 @@ def test_unreachable_port_is_one_plain_line() -> None:
     with pytest.raises(BackendError) as info:
         be.start()
     text = str(info.value)
-    assert "cannot open serial port '/dev/does-not-exist-pmdc'" in text
+    assert text == "cannot open serial port '/dev/does-not-exist-pmdc': No such file or directory"
     assert "\n" not in text
     be.make_safe()  # still callable, never raises
     be.close()
+
+
+def test_a_file_that_is_not_a_tty_is_refused_in_one_line() -> None:
+    with pytest.raises(BackendError, match=r"^cannot open serial port '/dev/null': not a serial"):
+        SerialBackend("/dev/null", 115200, dt_s=0.004).start()
 
 
 def test_a_silent_port_times_out_the_handshake(motor: MotorSpec) -> None:
@@ -210,7 +215,9 @@ def test_garbage_bad_crc_and_truncated_frames_are_counted_and_the_stream_survive
     )  # two cut frames and the next one make one bad run
     assert stats.oversize_frames >= 1
     # 3 corrupted + 2 truncated (each also spoils the next frame) are missing samples.
-    assert 5 <= stats.dropped_samples <= 10
+    # (minus instants the in-process board skipped if this loaded host starved it)
+    lost_in_board = board.samples_skipped + board.telemetry_dropped
+    assert 5 <= stats.dropped_samples - lost_in_board <= 10
     assert any(x.faults & Fault.LINK for x in c.samples)
     assert any("link errors" in line for line in lines)
     idx = [x.sample_index for x in c.samples]

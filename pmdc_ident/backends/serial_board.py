@@ -35,6 +35,7 @@ from __future__ import annotations
 import collections
 import enum
 import math
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -118,9 +119,16 @@ class _LinkLostError(Exception):
 
 
 def _reason(exc: BaseException) -> str:
+    """A short reason for a pyserial/OS error, without pyserial's repeated port name."""
+    code = getattr(exc, "errno", None)
+    if isinstance(code, int) and code > 0:
+        return os.strerror(code)
     text = str(getattr(exc, "strerror", None) or str(exc) or type(exc).__name__)
     if "returned no data" in text:  # pyserial's wording when the device vanished
         return "device disconnected"
+    if "Could not configure port" in text:
+        detail = text.split("'")[1] if text.count("'") >= 2 else text
+        return f"not a serial port ({detail})"
     return text.splitlines()[0]
 
 

@@ -45,7 +45,6 @@ __all__ = ["VIRTUAL_MIN_PERIOD_US", "VirtualBoard"]
 
 # The Python timer loop cannot hold a finer grid reliably on a loaded host.
 VIRTUAL_MIN_PERIOD_US = 250
-_MAX_LAG_S = 0.05  # behind the grid by more than this (and 20 periods): skip frames
 _TX_QUEUE_FRAMES = 64  # like a UART ring buffer: older telemetry is dropped beyond it
 
 
@@ -71,6 +70,7 @@ class VirtualBoard:
         seed: int = 0,
         protocol_version: int = PROTOCOL_VERSION,
         pace: bool = True,
+        max_lag_s: float = 0.2,
     ) -> None:
         if baud < 1200:
             msg = f"baud must be >= 1200, got {baud}"
@@ -78,6 +78,7 @@ class VirtualBoard:
         self.motor = motor
         self.baud = int(baud)
         self.pace = pace
+        self.max_lag_s = float(max_lag_s)  # behind the grid by more: skip frames
         lim = motor.limits
         self.supply_v = float(supply_v if supply_v is not None else lim.voltage_max_v)
         cpr = int(motor.sensors.encoder_counts_per_rev) or 65536
@@ -244,7 +245,7 @@ class VirtualBoard:
         # frames (the host sees a counter gap), so board time stays wall-clock time.
         period_s = self.core.period_us * 1e-6
         while self._next_tick <= now:
-            late = now - self._next_tick > max(_MAX_LAG_S, 20 * period_s)
+            late = now - self._next_tick > max(self.max_lag_s, 20 * period_s)
             self._tick(self._next_tick, report=not late)
             self._next_tick += period_s
             if not self.core.streaming:
