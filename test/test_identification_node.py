@@ -588,3 +588,71 @@ def test_the_session_runs_against_the_virtual_serial_board_as_against_the_sim(tm
     truth = load_motor("seed001_110v").model.params
     assert got["R"] == pytest.approx(truth.R, rel=0.03)
     assert got["Ke"] == pytest.approx(truth.Ke, rel=0.03)
+
+
+def test_sigterm_to_the_recorder_mid_session_closes_a_readable_bag(tmp_path):
+    state: dict[str, Any] = {}
+
+    def term(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
+        log = (tmp_path / "logs" / "identification.log").read_text()
+        if "segments, nominal" in log and "sent" not in state:
+            state.setdefault("seen", elapsed)
+            if elapsed - state["seen"] > 1.0:
+                procs["recorder"].send_signal(signal.SIGTERM)
+                state["sent"] = True
+
+    res, probe = _session(tmp_path, 74, during=term)
+    assert state.get("sent"), _logs(res)
+    assert res.recorder_rc == 0, _logs(res)
+    # the session lost its recorder: aborted, motor safe
+    assert probe["status"][-1]["reason"] == "peer_crashed", probe["status"]
+    assert res.bag is not None and (res.bag / "metadata.yaml").is_file()
+    arrays = read_driver_arrays(res.bag)  # rosbags reads it ...
+    assert arrays.encoder_ns.size > 500
+    assert np.all(np.diff(arrays.encoder_ns) < 1_500_000)
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with next(res.bag.glob("*.mcap")).open("rb") as f:  # ... and so does mcap_ros2
+        n = sum(
+            1
+            for _, ch, _, _ in make_reader(
+                f, decoder_factories=[DecoderFactory()]
+            ).iter_decoded_messages()
+            if ch.topic == "/encoder"
+        )
+    assert n == arrays.encoder_ns.size
+
+
+def test_ctrl_c_on_bringup_is_forwarded_and_everything_stops_safe(tmp_path):
+    cmd = [
+        sys.executable,
+        "-m",
+        "pmdc_ident.nodes.bringup",
+        "--motor",
+        "seed001_110v",
+        "--output-dir",
+        str(tmp_path / "out"),
+        "--domain-id",
+        "75",
+    ]
+    for k, v in SHORT.items():
+        cmd += ["-p", f"identification:{k}={v}"]
+    proc = subprocess.Popen(
+        cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    lines: list[str] = []
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        lines.append(line)
+        if "segments, nominal" in line:
+            time.sleep(1.0)
+            proc.send_signal(signal.SIGINT)  # what Ctrl-C in the terminal does
+            break
+    rest, _ = proc.communicate(timeout=60)
+    text = "".join(lines) + rest
+    assert proc.returncode != 0, text
+    assert "ABORTED (interrupted)" in text, text
+    assert "motor confirmed safe by the driver" in text, text
+    assert "driver stopped: motor safe" in text, text
+    assert "Traceback" not in text, text
