@@ -31,7 +31,7 @@ def test_driver_over_serial_streams_then_survives_the_port_closing() -> None:
     from pmdc_ident.nodes.driver_harness import DriverClient, DriverProcess, apply_ros_env
 
     apply_ros_env(DOMAIN_ID)
-    board = VirtualBoard(load_motor("seed000_ebike"), baud=BAUD).start()
+    board = VirtualBoard(load_motor("seed000_ebike"), baud=BAUD, max_lag_s=5.0).start()
     params = {
         "backend": "serial",
         "port": board.port,
