@@ -158,3 +158,17 @@ def test_missing_file_is_one_line(capsys):
     rc = main(["identify", "/nonexistent/run.csv"])
     assert rc == EXIT_USER_ERROR
     assert "no such file" in capsys.readouterr().err
+
+
+def test_identify_reads_a_bag_like_the_csv(seed001_csv, tmp_path, capsys):
+    bag = tmp_path / "bag"
+    assert main(["export", str(seed001_csv), "--bag", str(bag)]) == 0
+    js_bag, js_csv = tmp_path / "b.json", tmp_path / "c.json"
+    common = ["--quiet", "--no-holdout", "--model", "linear"]
+    assert main(["identify", str(bag), "--json", str(js_bag), *common]) == 0
+    assert main(["identify", str(seed001_csv), "--json", str(js_csv), *common]) == 0
+    capsys.readouterr()
+    a = json.loads(js_bag.read_text())["parameters"]
+    b = json.loads(js_csv.read_text())["parameters"]
+    for name in ("R", "L", "Ke", "J", "B"):
+        assert a[name]["value"] == pytest.approx(b[name]["value"], rel=1e-6)
