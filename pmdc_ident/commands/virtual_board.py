@@ -40,6 +40,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also make PATH a symlink to the pty (a stable name for launch files)",
     )
     parser.add_argument(
+        "--nice",
+        type=int,
+        default=-10,
+        help="scheduling niceness to ask for (a real board has a CPU of its own; "
+        "ignored where not permitted)",
+    )
+    parser.add_argument(
         "--protocol-version",
         type=int,
         default=None,
@@ -68,6 +75,10 @@ def run(args: argparse.Namespace) -> int:
         protocol_version=args.protocol_version or PROTOCOL_VERSION,
     )
     link: Path | None = args.link
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, args.nice)
+    except (OSError, ValueError):
+        pass  # not permitted: run at the normal priority
     try:
         if link is not None:
             if link.is_symlink():
