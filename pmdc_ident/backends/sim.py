@@ -18,6 +18,12 @@ the gap carries :attr:`Fault.LINK`, and :attr:`SimBackend.skipped_samples`
 counts what was left out. A gap longer than ``max_silent_s`` freezes the
 simulated motor instead (its clock origin moves), which bounds the work.
 
+Trips: a sample whose true current or speed exceeds ``limits.current_max_a`` /
+``limits.speed_max_rad_s`` puts the motor in its safe state from that sample on
+(as board firmware would, independent of host timing) and flags
+:attr:`Fault.OVER_CURRENT` / :attr:`Fault.OVER_SPEED` until the next valid
+command; latching and refusing commands is the driver node's job.
+
 Sensors follow :func:`pmdc_ident.core.excitation.apply_sensors`: Gaussian noise
 from a seeded generator on current and speed (speed reading = true speed +
 noise), encoder angle quantised down to whole counts.
@@ -171,6 +177,10 @@ class SimBackend:
         self.make_safe()
         self._t0 = None
 
+    def _is_safe(self) -> bool:
+        v = self._command_v
+        return math.isnan(v) if self._safe_mode is SafeMode.OPEN else v == 0.0
+
     # -- the grid -----------------------------------------------------------------------
     def _due(self) -> int:
         """Number of samples whose time k*dt has been reached and not yet produced."""
@@ -215,18 +225,26 @@ class SimBackend:
 
     def _produce(self, n: int) -> None:
         plant = self._plant
-        v = self._command_v
-        v_step = None if math.isnan(v) else v
+        ilim, wlim = self._limits.current_max_a, self._limits.speed_max_rad_s
         cur = np.empty(n)
         spd = np.empty(n)
         pos = np.empty(n)
+        volts = np.empty(n)
+        flags = [self._flags] * n
         for j in range(n):
-            cur[j] = plant.current_a
-            spd[j] = plant.speed_rad_s
-            pos[j] = plant.position_rad
-            plant.step(v_step)
+            i, w = plant.current_a, plant.speed_rad_s
+            cur[j], spd[j], pos[j] = i, w, plant.position_rad
+            trip = Fault.OVER_CURRENT if abs(i) > ilim else Fault.NONE
+            if abs(w) > wlim:
+                trip |= Fault.OVER_SPEED
+            if trip and not self._is_safe():
+                # like board firmware: safe from this very sample, whatever the host does
+                self._command_v = math.nan if self._safe_mode is SafeMode.OPEN else 0.0
+                self._flags |= trip
+            flags[j] = self._flags
+            volts[j] = v = self._command_v
+            plant.step(None if math.isnan(v) else v)
         i_m, w_m, th_m = apply_sensors(cur, spd, pos, self._sensors, self._rng)
-        flags = self._flags
         first = self._next_index
         dt = self._dt_s
         batch = [
@@ -236,8 +254,8 @@ class SimBackend:
                 current_a=float(i_m[j]),
                 position_rad=float(th_m[j]),
                 speed_rad_s=float(w_m[j]),
-                voltage_cmd_v=v,
-                faults=flags,
+                voltage_cmd_v=float(volts[j]),
+                faults=flags[j],
             )
             for j in range(n)
         ]

@@ -158,6 +158,7 @@ class DriverClient(Node):
         self.current = Recording()
         self.encoder = Recording()
         self.voltage = Recording()
+        self.last_send_ns = 0  # ROS time of the last voltage_cmd sent
         self._pub = self.create_publisher(Float64, "voltage_cmd", COMMAND_QOS)
         self.create_subscription(JointState, "current", self._rec(self.current, "c"), qos)
         self.create_subscription(JointState, "encoder", self._rec(self.encoder, "e"), qos)
@@ -196,6 +197,7 @@ class DriverClient(Node):
 
     def send(self, volts: float) -> None:
         self._pub.publish(Float64(data=float(volts)))
+        self.last_send_ns = self.get_clock().now().nanoseconds
 
     def spin_for(
         self, seconds: float, every_s: float = 0.0, action: Callable[[], None] | None = None

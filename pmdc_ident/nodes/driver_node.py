@@ -209,8 +209,19 @@ class DriverNode(Node):
         self._msg_encoder = JointState(name=["shaft"], position=[0.0], velocity=[0.0])
         self._msg_voltage = JointState(name=["armature"], effort=[0.0])
 
-        self._backend = self._make_backend(cfg)
-        self._backend.start()
+        backend = self._make_backend(cfg)
+        try:
+            backend.start()
+        except BaseException as exc:
+            try:
+                backend.close()  # leave a half-opened port released and the motor safe
+            except Exception:  # noqa: BLE001 - the start error is the one to report
+                pass
+            if isinstance(exc, PmdcError | OSError):
+                msg = f"cannot start the {cfg['backend']} backend: {exc}"
+                raise DriverConfigError(msg) from None
+            raise
+        self._backend = backend
         self._t0_ns = self.get_clock().now().nanoseconds  # ROS time of backend sample 0
         try:
             self._wire(cfg)
@@ -280,10 +291,12 @@ class DriverNode(Node):
     def _make_backend(self, cfg: dict[str, Any]) -> Backend:
         dt_s = 1.0 / float(cfg["rate_hz"])
         safe_mode = SafeMode(cfg["safe_mode"])
+        # The backend trips at these itself (per sample, like board firmware); the
+        # node's SafetyMonitor latches the trip and applies runtime changes.
         limits = Limits(
             voltage_max_v=self._spec.limits.voltage_max_v,
-            current_max_a=self._spec.limits.current_max_a,
-            speed_max_rad_s=self._spec.limits.speed_max_rad_s,
+            current_max_a=self._safety.current_limit_a,
+            speed_max_rad_s=self._safety.speed_limit_rad_s,
         )
         if cfg["backend"] == "sim":
             from pmdc_ident.backends.sim import SimBackend
