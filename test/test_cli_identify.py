@@ -10,7 +10,7 @@ import pytest
 
 from pmdc_ident.cli import EXIT_USER_ERROR, main
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
-from pmdc_ident.core.model import simulate
+from pmdc_ident.core.model import Model, simulate
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.dataio.csvio import write_csv
 
@@ -172,3 +172,24 @@ def test_identify_reads_a_bag_like_the_csv(seed001_csv, tmp_path, capsys):
     b = json.loads(js_csv.read_text())["parameters"]
     for name in ("R", "L", "Ke", "J", "B"):
         assert a[name]["value"] == pytest.approx(b[name]["value"], rel=1e-6)
+
+
+def test_known_added_inertia_replaces_the_kt_ke_closure(tmp_path, capsys):
+    """Two runs, the second with 0.03 kg*m^2 added: Kt (5 % above Ke here) is measured."""
+    spec = load_motor("seed001_110v")
+    p = spec.model.params
+    truth = Model(p.replace(Kt=1.05 * p.Ke))
+    cfg = SequenceConfig(staircase=False, coast=False, sweep_duration_tau=20.0)
+    plan = plan_for_motor(spec, 2e-3, cfg)
+    a = write_csv(synthesize_run(truth, plan, spec.sensors, seed=1), tmp_path / "a.csv")
+    loaded = Model(truth.params.replace(J=p.J + 0.03))
+    b = write_csv(synthesize_run(loaded, plan, spec.sensors, seed=2), tmp_path / "b.csv")
+    js = tmp_path / "r.json"
+    args = ["identify", str(a), str(b), "--added-inertia", f"{b}=0.03", "--json", str(js)]
+    assert main([*args, "--quiet", "--no-holdout", "--model", "linear"]) == 0
+    d = json.loads(js.read_text())
+    assert d["parameters"]["Kt"]["value"] == pytest.approx(1.05 * p.Ke, rel=0.002)
+    assert d["parameters"]["J"]["value"] == pytest.approx(p.J, rel=0.002)
+    assert any("added inertia" in s for s in d["assumptions"])
+    assert not any(s.startswith("Kt = Ke") for s in d["assumptions"])
+    capsys.readouterr()

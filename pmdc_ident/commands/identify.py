@@ -34,6 +34,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="hold a parameter at a known value in SI units (e.g. L=3e-4 from an LCR meter, "
         "R=1.375 from a multimeter, Kt=0.067 to replace the Kt = Ke closure); repeatable",
     )
+    parser.add_argument(
+        "--added-inertia",
+        action="append",
+        default=[],
+        metavar="DATA=KG_M2",
+        help="this DATA file was recorded with a known inertia added to the shaft: with "
+        "runs with and without it, Kt is estimated instead of assumed equal to Ke",
+    )
     parser.add_argument("--json", metavar="PATH", help="write the results as JSON")
     parser.add_argument(
         "--yaml", metavar="PATH", help="write a motor file that load_motor()/the sim driver reads"
@@ -88,6 +96,39 @@ def parse_fix(items: list[str]) -> dict[str, float]:
     return out
 
 
+def _added_inertia(items: list[str], data: list[str], runs, segments) -> dict[str, float]:
+    """``DATA=KG_M2`` items to segment labels (segments keep the order of the files)."""
+    per_file: dict[str, float] = {}
+    for item in items:
+        path, sep, value = item.rpartition("=")
+        try:
+            per_file[path] = float(value)
+        except ValueError:
+            per_file[path] = math.nan
+        if not sep or not path or not math.isfinite(per_file[path]):
+            msg = f"--added-inertia expects DATA=KG_M2 (e.g. run2.csv=0.002), got {item!r}"
+            raise ParameterError(msg)
+    out: dict[str, float] = {}
+    start = 0
+    spans = []
+    for path, r in zip(data, runs, strict=True):
+        spans.append((path, segments[start : start + len(r)]))
+        start += len(r)
+    for path, value in per_file.items():
+        if value < 0:
+            msg = f"--added-inertia {path}: must be >= 0 kg*m^2, got {value:g}"
+            raise ParameterError(msg)
+        match = [
+            segs for p, segs in spans if p == path or Path(p).resolve() == Path(path).resolve()
+        ]
+        if not match:
+            msg = f"--added-inertia {path}: not one of the DATA arguments"
+            raise ParameterError(msg)
+        for s in match[0]:
+            out[s.label] = value
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     fixed = parse_fix(args.fix)
     if args.bootstrap is not None and args.bootstrap < 0:
@@ -102,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
     runs = [load_data(p) for p in args.data]
     n_boot = args.bootstrap if args.bootstrap is not None else (10 if args.report else 0)
     segments = merge_runs(runs)
+    added = _added_inertia(args.added_inertia, args.data, runs, segments)
     result = identify(
         segments,
         sources=tuple(r.source for r in runs),
@@ -111,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
         holdout=not args.no_holdout,
         bootstrap=n_boot,
         progress=progress,
+        added_inertia=added,
     )
     print(result.text_report())
     written = []

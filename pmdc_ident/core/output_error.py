@@ -131,15 +131,22 @@ class FitResult:
     elapsed_s: float
     fast_path: bool
     warnings: tuple[str, ...] = ()
+    added_inertia: dict[str, float] = field(default_factory=dict)
     _fitted_segments: dict[str, int] = field(default_factory=dict, repr=False)
 
     def simulate_segments(
-        self, segments: Sequence[Segment], *, use_fitted_initial_states: bool = True
+        self,
+        segments: Sequence[Segment],
+        *,
+        use_fitted_initial_states: bool = True,
+        added_inertia: Mapping[str, float] | None = None,
     ) -> list[Prediction]:
         """Free-run predictions of the fitted model on (possibly held-out) segments.
 
         The initial state is the fitted one for a segment of the fit (same label
-        and length) and otherwise taken from the segment's first samples.
+        and length) and otherwise taken from the segment's first samples. A
+        segment recorded with a known added inertia (``added_inertia``, by label;
+        default: the fit's) is simulated with it.
         """
         out: list[Prediction] = []
         for seg in segments:
@@ -151,7 +158,8 @@ class FitResult:
                 and self._fitted_segments.get(key) == seg.n
             ):
                 x0 = np.array(self.initial_states[key], dtype=float)
-            x = _predict(self.model, seg, x0, self.fast_path)
+            added = self.added_inertia if added_inertia is None else added_inertia
+            x = _predict(self.model, seg, x0, self.fast_path, float(added.get(key, 0.0)))
             out.append(Prediction(seg.label, seg.t.copy(), x[:, 0], x[:, 1], x[:, 2]))
         return out
 
@@ -219,6 +227,7 @@ class _Seg:
     outputs: list[tuple[int, FloatArray]]  # (state index 0/1/2, measured)
     nuis: list[int]  # state indices of the free initial states
     x0: FloatArray
+    dJ: float = 0.0  # known inertia added for this segment (kg*m^2)
 
 
 def _x0_from_data(seg: Segment) -> FloatArray:
@@ -237,7 +246,20 @@ def _x0_from_data(seg: Segment) -> FloatArray:
     return np.array([i0, w0, th0])
 
 
-def _prepare(segments: Sequence[Segment], warnings: list[str]) -> list[_Seg]:
+def _prepare(
+    segments: Sequence[Segment],
+    warnings: list[str],
+    added_inertia: Mapping[str, float] | None = None,
+) -> list[_Seg]:
+    added = dict(added_inertia or {})
+    unknown = sorted(set(added) - {s.label for s in segments})
+    if unknown:
+        msg = f"added inertia given for unknown segment(s): {', '.join(unknown)}"
+        raise ParameterError(msg)
+    for label, dj in added.items():
+        if not (math.isfinite(dj) and dj >= 0.0):
+            msg = f"added inertia of segment {label!r} must be >= 0 kg*m^2, got {dj}"
+            raise ParameterError(msg)
     if not segments:
         msg = "no segments to fit"
         raise DataError(msg)
@@ -270,7 +292,18 @@ def _prepare(segments: Sequence[Segment], warnings: list[str]) -> list[_Seg]:
             outputs.append((2, s.position))
             nuis.append(2)
         cur = s.current if s.current is not None else np.zeros(s.n)
-        out.append(_Seg(s, s.dt_s, s.voltage, cur, outputs, nuis, _x0_from_data(s)))
+        out.append(
+            _Seg(
+                s,
+                s.dt_s,
+                s.voltage,
+                cur,
+                outputs,
+                nuis,
+                _x0_from_data(s),
+                float(added.get(s.label, 0.0)),
+            )
+        )
     return out
 
 
@@ -636,13 +669,15 @@ class _FastSim:
         self._cache: dict[float, tuple[FloatArray, ...]] = {}
         self.coef = _coefficients(model)
 
-    def mats(self, dt: float) -> tuple[FloatArray, ...]:
-        dt = float(f"{dt:.9g}")  # segments of one run share one period
-        got = self._cache.get(dt)
+    def mats(self, dt: float, dJ: float = 0.0) -> tuple[FloatArray, ...]:
+        key = (float(f"{dt:.9g}"), dJ)  # segments of one run share one period
+        dt = key[0]
+        got = self._cache.get(key)
         if got is None:
-            phc, gac, dphc, dgac = _zoh_with_derivatives(self.p, dt, True)
-            pho, gao, dpho, dgao = _zoh_with_derivatives(self.p, dt, False)
-            R, L = self.p.R, self.p.L
+            p = self.p if dJ == 0.0 else self.p.replace(J=self.p.J + dJ)
+            phc, gac, dphc, dgac = _zoh_with_derivatives(p, dt, True)
+            pho, gao, dpho, dgao = _zoh_with_derivatives(p, dt, False)
+            R, L = p.R, p.L
             a = math.exp(-R * dt / L)
             b = (1.0 - a) / R
             da_dR = -dt / L * a
@@ -651,9 +686,11 @@ class _FastSim:
             db_dL = -da_dL / R
             # per log(R), log(L), as the other motor-parameter sensitivities
             el = np.array([a, b, R * da_dR, L * da_dL, R * db_dR, L * db_dL])
-            phs, gas = discretize_zoh(self.p, dt / _SUBSTEPS)
-            got = (phc, gac, dphc, dgac, pho, gao, dpho, dgao, el, phs, gas)
-            self._cache[dt] = got
+            phs, gas = discretize_zoh(p, dt / _SUBSTEPS)
+            coef = self.coef.copy()
+            coef[4] = p.J
+            got = (phc, gac, dphc, dgac, pho, gao, dpho, dgao, el, phs, gas, coef)
+            self._cache[key] = got
         return got
 
     def run(
@@ -661,6 +698,7 @@ class _FastSim:
         ps: _Seg | Segment,
         x0: FloatArray,
         acc: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray] | None = None,
+        dJ: float = 0.0,
     ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
         """States (current includes the offset); with ``acc = (y, oidx, osc, mx, off)``
         also the normal-equation blocks of this segment's residuals."""
@@ -669,8 +707,8 @@ class _FastSim:
         cmode = seg.voltage is None
         v = np.zeros(seg.n) if cmode else seg.voltage
         imeas = seg.current if seg.current is not None else np.zeros(seg.n)
-        mats = self.mats(dt)
-        m, phs, gas = mats[:9], mats[9], mats[10]
+        mats = self.mats(dt, dJ)
+        m, phs, gas, coef = mats[:9], mats[9], mats[10], mats[11]
         if acc is None:
             y, oidx, osc, mx, off = _NO_ACC
             nc = _NO_COLS
@@ -695,7 +733,7 @@ class _FastSim:
             mx,
             off,
             0.0 if cmode else self.off,
-            self.coef,
+            coef,
             phs,
             gas,
             _SUBSTEPS,
@@ -718,14 +756,23 @@ _NO_ACC = (
 _NO_COLS = np.zeros(0, dtype=np.int64)
 
 
-def _predict(model: Model, seg: Segment, x0: FloatArray, fast: bool) -> FloatArray:
+def _predict(
+    model: Model, seg: Segment, x0: FloatArray, fast: bool, dJ: float = 0.0
+) -> FloatArray:
     if fast:
-        X, _, _ = _FastSim(model).run(seg, x0)
+        X, _, _ = _FastSim(model).run(seg, x0, dJ=dJ)
         return X
-    return _general_sim(model, seg, x0)
+    return _general_sim(model, seg, x0, dJ)
 
 
-def _general_sim(model: Model, seg: Segment, x0: FloatArray) -> FloatArray:
+def _with_inertia(model: Model, dJ: float) -> Model:
+    if dJ == 0.0:
+        return model
+    return Model(model.params.replace(J=model.params.J + dJ), model.effects)
+
+
+def _general_sim(model: Model, seg: Segment, x0: FloatArray, dJ: float = 0.0) -> FloatArray:
+    model = _with_inertia(model, dJ)
     if seg.voltage is None:
         msg = "current-driven (no voltage) fits support only coulomb_friction and load_torque"
         raise ParameterError(msg)
@@ -748,6 +795,7 @@ def fit_output_error(
     progress: Callable[[int, float], None] | None = None,
     refine_noise: bool = True,
     check_inductance: bool = True,
+    added_inertia: Mapping[str, float] | None = None,
 ) -> FitResult:
     """Fit ``model`` to ``segments`` by output error (see the module docs).
 
@@ -755,11 +803,14 @@ def fit_output_error(
     ``fixed`` pins values (``{"L": 3e-4}``); ``closure`` ``"Kt=Ke"`` ties Kt to
     Ke unless Kt or J is fixed (``None``: no closure). ``weights`` multiplies
     the per-signal residual weights (``{"current": 0.5}``). ``progress(it,
-    cost)`` is called after every iteration.
+    cost)`` is called after every iteration. ``added_inertia`` maps segment
+    labels to a known inertia added for them (kg*m^2): runs with and without it
+    fix the (Kt, J, B) scale, so the Kt = Ke closure is dropped.
     """
     t_start = time.perf_counter()
     warnings: list[str] = []
-    segs = _prepare(segments, warnings)
+    segs = _prepare(segments, warnings, added_inertia)
+    has_added = any(ps.dJ > 0 for ps in segs)
     current_mode = segs[0].voltage is None
     fixed = {str(k): float(v) for k, v in (fixed or {}).items()}
     if closure not in (None, CLOSURE_KT_KE):
@@ -778,6 +829,9 @@ def fit_output_error(
 
     reasons: dict[str, str] = {}
     tie_kt = closure == CLOSURE_KT_KE and "Kt" not in fixed and "J" not in fixed
+    if has_added:
+        # a known added inertia on some segments fixes the (Kt, J, B) scale
+        tie_kt = False
     if current_mode:
         tie_kt = False
         for n in ("R", "L", "Ke"):
@@ -1024,9 +1078,9 @@ class _Problem:
                         mx,
                         off,
                     )
-                X, A_loc, g_loc = sim.run(ps, x0, acc)
+                X, A_loc, g_loc = sim.run(ps, x0, acc, ps.dJ)
             else:
-                X = _general_sim(model, ps.seg, x0)
+                X = _general_sim(model, ps.seg, x0, ps.dJ)
             r_seg = []
             for idx, y in ps.outputs:
                 raw_parts.append((idx, X[:, idx] - y))
@@ -1077,7 +1131,9 @@ class _Problem:
         off = np.zeros(m_loc)
         for j, name in enumerate(self.free):
             if name in _COL:
-                mx[_COL[name], j] = dvdz[j] / vals[name]
+                # kernel columns are per log of the value the segment sees (J + dJ)
+                seen = vals[name] + (ps.dJ if name == "J" else 0.0)
+                mx[_COL[name], j] = dvdz[j] / seen
                 if name == "Ke" and self.tie_kt:
                     mx[_COL["Kt"], j] = dvdz[j] / vals[name]
             elif name == "coulomb_friction.torque_nm":
@@ -1122,7 +1178,7 @@ class _Problem:
                 h = 1e-6 * max(1.0, abs(z[self.offsets[q] + k]))
                 x0 = self.x0_of(z, q)
                 x0[sidx] += h
-                Xp = _general_sim(model, ps.seg, x0)
+                Xp = _general_sim(model, ps.seg, x0, ps.dJ)
                 for o, (idx, _y) in enumerate(ps.outputs):
                     rows = slice(o * n, (o + 1) * n)
                     cols[rows, self.n_global + k] = (
@@ -1132,7 +1188,9 @@ class _Problem:
 
     def _fd_global(self, z: FloatArray, model: Model) -> list[list[FloatArray]]:
         """Forward differences of every segment's states w.r.t. each global z."""
-        base = [_general_sim(model, ps.seg, self.x0_of(z, q)) for q, ps in enumerate(self.segs)]
+        base = [
+            _general_sim(model, ps.seg, self.x0_of(z, q), ps.dJ) for q, ps in enumerate(self.segs)
+        ]
         out: list[list[FloatArray]] = []
         for j in range(self.n_global):
             h = 1e-6 * max(1.0, abs(z[j]))
@@ -1141,7 +1199,7 @@ class _Problem:
             mp = self.model_at(zp)
             out.append(
                 [
-                    (_general_sim(mp, ps.seg, self.x0_of(z, q)) - base[q]) / h
+                    (_general_sim(mp, ps.seg, self.x0_of(z, q), ps.dJ) - base[q]) / h
                     for q, ps in enumerate(self.segs)
                 ]
             )
@@ -1348,5 +1406,6 @@ def _finish(
         elapsed_s=time.perf_counter() - t_start,
         fast_path=prob.fast,
         warnings=tuple(warnings),
+        added_inertia={ps.seg.label: ps.dJ for ps in prob.segs if ps.dJ > 0},
         _fitted_segments=nseg,
     )

@@ -124,8 +124,14 @@ def identify(
     progress: Progress | None = None,
     sources: tuple[str, ...] = (),
     seed: int = 0,
+    added_inertia: Mapping[str, float] | None = None,
 ) -> IdentificationResult:
-    """Identify the motor from ``segments`` (see module docs)."""
+    """Identify the motor from ``segments`` (see module docs).
+
+    ``added_inertia`` maps segment labels to a known inertia added for them
+    (kg*m^2); with runs with and without it, Kt is estimated instead of assumed
+    equal to Ke.
+    """
     say = progress or (lambda _msg: None)
     fixed = {str(k): float(v) for k, v in (fixed or {}).items()}
     known = set(PARAMETER_NAMES) | {TC, "load_torque.torque_nm"}
@@ -153,7 +159,10 @@ def identify(
         msg = "some inputs have a voltage column and some do not; identify them separately"
         raise DataError(msg)
 
+    added = {k: float(v) for k, v in (added_inertia or {}).items() if float(v) > 0.0}
     closure_used = closure if ("Kt" not in fixed and "J" not in fixed) else None
+    if added and not current_mode:
+        closure_used = None
     if current_mode:
         if "Kt" not in fixed:
             msg = "current-driven data (no voltage column) need the torque constant: --fix Kt=..."
@@ -163,6 +172,12 @@ def identify(
             f"given Kt = {fixed['Kt']:g} N*m/A"
         )
         closure_used = None
+    elif added:
+        amounts = ", ".join(sorted({f"{v:g}" for v in added.values()}))
+        assumptions.append(
+            f"a known added inertia ({amounts} kg*m^2 on {len(added)} segment(s)) fixes the "
+            "(Kt, J, B) scale: Kt is estimated, not assumed equal to Ke"
+        )
     elif closure_used == CLOSURE_KT_KE:
         assumptions.append(
             "Kt = Ke (SI units, power balance): closes the scale ambiguity of (Kt, J, B); "
@@ -270,6 +285,7 @@ def identify(
                 fixed=_fixed_for(fixed, m0),
                 closure=closure_used,
                 progress=lambda it, cost, k=kind: say(f"  {k}: iteration {it}, cost {cost:.6g}"),
+                added_inertia=_added_for(added, dyn),
             )
         except DataError as exc:
             warnings.append(f"output error ({kind}) failed: {exc}")
@@ -283,7 +299,13 @@ def identify(
             # local minimum; restart it from the linear solution.
             say("output error, coulomb model restarted from the linear fit")
             m0 = Model(lin.model.params, (CoulombFriction(1e-6 * lin.model.params.Kt),))
-            again = fit_output_error(dyn, m0, fixed=_fixed_for(fixed, m0), closure=closure_used)
+            again = fit_output_error(
+                dyn,
+                m0,
+                fixed=_fixed_for(fixed, m0),
+                closure=closure_used,
+                added_inertia=_added_for(added, dyn),
+            )
             if minus_two_log_likelihood(again) < minus_two_log_likelihood(cou):
                 fits[ModelChoice.COULOMB] = again
     for kind, f in fits.items():
@@ -324,6 +346,7 @@ def identify(
                         f.model,
                         fixed=_fixed_for(fixed, f.model),
                         closure=closure_used,
+                        added_inertia=_added_for(added, rest),
                     )
                 except DataError as exc:
                     warnings.append(f"hold-out refit ({kind}) failed: {exc}")
@@ -426,6 +449,11 @@ def identify(
         fit_info=fit_info,
         limits=limits,
     )
+
+
+def _added_for(added: Mapping[str, float], segs: Sequence[Segment]) -> dict[str, float]:
+    labels = {s.label for s in segs}
+    return {k: v for k, v in added.items() if k in labels}
 
 
 def _replace_est(p: ParameterEstimate, **kw: Any) -> ParameterEstimate:

@@ -47,6 +47,8 @@ def parametric_bootstrap(
     seed: int = 0,
     closure: str | None = CLOSURE_KT_KE,
 ) -> dict[str, Any]:
+    if fit.closure is None:
+        closure = None
     """Refit ``n`` simulated copies; per parameter: bootstrap std and its ratio to the stderr."""
     rng = np.random.default_rng(seed)
     names = [k for k in fit.covariance_names if fit.stderr.get(k)]
@@ -60,6 +62,7 @@ def parametric_bootstrap(
             fixed=fit.fixed,
             closure=closure,
             check_inductance=False,
+            added_inertia=fit.added_inertia,
         )
         for k in names:
             samples[k].append(f.values[k])
