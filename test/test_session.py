@@ -263,3 +263,31 @@ def test_lost_samples_do_not_stretch_segments_on_the_driver_clock():
         if not seg.label.startswith("staircase"):
             span = (ends[seg.label] - starts[seg.label]) / DT
             assert span == pytest.approx(seg.voltage.size, abs=1e-6), seg.label
+
+
+def test_progress_names_the_running_test_and_grows_to_one():
+    spec = load_motor("seed001_110v")
+    plan = plan_for_motor(spec, DT, SHORT)
+    tau = spec.model.params.mechanical_time_constant_s
+    s = Session(plan, SafetyConfig.for_limits(spec.limits, tau), tau_m_s=tau)
+    assert s.progress().state is SessionState.IDLE
+    plant = Plant(spec.model, DT, substeps=4)
+    s.start()
+    seen: list[tuple[str, float]] = []
+    v = 0.0
+    while s.active:
+        step = s.on_sample(plant.time_s, plant.current_a, plant.speed_rad_s)
+        v = step.command.voltage_v if step.command else v
+        plant.step(v)
+        p = s.progress()
+        if p.state is SessionState.RUNNING:
+            seen.append((p.test, p.total_fraction))
+            assert p.test == plan.segments[p.segment_index].label
+            assert 0.0 <= p.segment_fraction <= 1.0
+    fractions = [f for _, f in seen]
+    assert fractions == sorted(fractions)  # never goes back
+    assert [t for t, _ in seen][0] == "staircase_01"
+    assert {t for t, _ in seen} == {seg.label for seg in plan.segments}
+    final = s.progress()
+    assert final.state is SessionState.DONE and final.total_fraction == 1.0
+    assert '"state":"done"' in final.to_json()
