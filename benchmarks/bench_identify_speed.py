@@ -144,7 +144,8 @@ def main(argv: list[str]) -> None:
     err = max(abs(vals[k] / getattr(true, k) - 1) for k in vals)
     err_fast = max(abs(small.values[k] / getattr(true, k) - 1) for k in vals)
     print(
-        f"naive: {naive:.1f} s wall, {naive_cpu:.1f} s CPU ({nfev} residual evaluations + finite-difference Jacobians), "
+        f"naive: {naive:.1f} s wall, {naive_cpu:.1f} s CPU ({nfev} residual evaluations "
+        "plus finite-difference Jacobians), "
         f"max |rel err| {err:.2e}; fast fit on the same data {fw:.3f} s wall / {fc:.3f} s CPU "
         f"(max |rel err| {err_fast:.2e}) -> speed-up x{naive / fw:.0f} (wall), "
         f"x{naive_cpu / fc:.0f} (CPU)"
