@@ -198,6 +198,7 @@ class DriverNode(Node):
         self._diag_t = self._clock_s()
         self._last_rate_hz = 0.0
         self._stalls_seen = 0
+        self._last_sample_v = math.nan  # command of the last published sample
         self._link_error = ""
 
         qos = sample_qos(self._rate_hz)
@@ -470,6 +471,7 @@ class DriverNode(Node):
             vol.effort[0] = s.voltage_cmd_v
             vol.effort[1] = s.terminal_voltage_v
         self._pub_voltage.publish(vol)
+        self._last_sample_v = s.voltage_cmd_v
         self._published += 1
 
     # -- diagnostics -----------------------------------------------------------------------
@@ -480,11 +482,10 @@ class DriverNode(Node):
         return f
 
     def state_text(self) -> str:
-        be = self.backend
-        cmd = getattr(be, "command_v", math.nan)
-        if math.isnan(cmd):
-            return "armature open"
-        return f"{cmd:g} V applied"
+        """The armature state: the backend's current command where it exposes one
+        (sim), else the command of the last published sample (serial)."""
+        cmd = getattr(self.backend, "command_v", self._last_sample_v)
+        return _armature_text(cmd)
 
     def _on_diagnostics(self) -> None:
         now = self._clock_s()
@@ -534,11 +535,19 @@ class DriverNode(Node):
             return "driver stopped: no backend was started (motor untouched, safe)"
         try:
             self._backend.make_safe()
-            state = self.state_text()
+            if hasattr(self._backend, "command_v"):
+                state = self.state_text()
+            else:  # what make_safe commanded (no sample of it may arrive any more)
+                safe = self._backend_safe_mode() is SafeMode.OPEN
+                state = _armature_text(math.nan if safe else 0.0)
             self._backend.close()
         except Exception as exc:  # noqa: BLE001 - report, never raise on the way out
             return f"driver stopped: backend error while making safe ({exc})"
         return f"driver stopped: motor safe ({state}, safe mode {self._backend_safe_mode().value})"
+
+
+def _armature_text(command_v: float) -> str:
+    return "armature open" if math.isnan(command_v) else f"{command_v:g} V applied"
 
 
 def _override(value: float, default: float) -> float:
