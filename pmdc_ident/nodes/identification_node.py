@@ -229,10 +229,6 @@ def _descriptor(
     return d
 
 
-def _stamp_ns(msg: JointState) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-
-
 class IdentificationNode(Node):
     """Thin ROS layer over :class:`Session`; see the module docs for the graph."""
 
@@ -267,7 +263,6 @@ class IdentificationNode(Node):
         self._recorder_seen = -math.inf
         self._recorder_paths: dict[str, str] = {}
         self._session_count = 0
-        self._lock = threading.Lock()
         self._worker: threading.Thread | None = None
 
         self._cur = _Columns(1)
