@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pmdc_ident.core.data import Run, Segment
-from pmdc_ident.core.effects import CoulombFriction, LoadTorque, QuadraticDrag
+from pmdc_ident.core.effects import BrushDrop, CoulombFriction, LoadTorque, QuadraticDrag
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import SensorSpec, load_motor
@@ -126,3 +126,15 @@ def test_mechanical_only_fit_from_current_and_speed_given_kt():
     assert res.values["coulomb_friction.torque_nm"] == pytest.approx(0.0256, rel=0.03)
     assert abs(res.values["load_torque.torque_nm"]) < 0.002
     assert "no voltage" in res.reasons["R"]
+
+
+def test_brush_drop_is_fitted_on_the_finite_difference_path():
+    spec = load_motor("seed001_110v")
+    truth = spec.model.with_effects(BrushDrop(1.5))
+    cfg = SequenceConfig(staircase=False, coast=False, sweep_duration_tau=20.0)
+    run = synthesize_run(truth, plan_for_motor(spec, 2e-3, cfg), spec.sensors, seed=2)
+    res = fit_output_error(run.segments, spec.model.with_effects(BrushDrop(0.5)))
+    assert not res.fast_path
+    lo, hi = res.ci95["brush_drop.voltage_v"]
+    assert lo < 1.5 < hi and hi - lo < 0.05  # V
+    assert res.values["R"] == pytest.approx(spec.model.params.R, rel=0.01)

@@ -1056,7 +1056,6 @@ class _Problem:
         raw_parts: list[tuple[int, FloatArray]] = []
         A = np.zeros((self.n_total, self.n_total)) if want_jac else None
         g = np.zeros(self.n_total) if want_jac else None
-        dvdz = self.dvalue_dz(z) if want_jac else None
         sim = _FastSim(model) if self.fast else None
         fd_cache: list[FloatArray] = []
         if want_jac and not self.fast:
@@ -1090,7 +1089,7 @@ class _Problem:
             if not want_jac:
                 continue
             if A_loc is None:
-                cols = self._local_jac(q, ps, X, None, z, model, dvdz, fd_cache)
+                cols = self._local_jac(q, ps, X, z, model, fd_cache)
                 A_loc = cols.T @ cols
                 g_loc = cols.T @ r_q
             A[np.ix_(ii, ii)] += A_loc  # type: ignore[index]
@@ -1155,35 +1154,24 @@ class _Problem:
             mx[_COL_I0 + sidx, self.n_global + k] = 1.0
         return mx, off
 
-    def _local_jac(self, q, ps, X, S, z, model, dvdz, fd_cache) -> FloatArray:
+    def _local_jac(self, q, ps, X, z, model, fd_cache) -> FloatArray:
+        """Forward-difference Jacobian block of one segment (general path)."""
         n = ps.seg.n
         m_loc = self.n_global + len(ps.nuis)
         cols = np.zeros((n * len(ps.outputs), m_loc))
-        if self.fast:
-            mx, off = self._mixing(z, model, ps)
         for o, (idx, _y) in enumerate(ps.outputs):
             rows = slice(o * n, (o + 1) * n)
             sc = self.scale(idx)
-            if self.fast:
-                block = S[:, idx, :] @ (mx * sc)
-                if idx == 0 and off.any():
-                    block += off * sc
-                cols[rows] = block
-            else:
-                for j in range(self.n_global):
-                    cols[rows, j] = fd_cache[j][q][:, idx] * sc
-        if not self.fast:
-            base_x = X
-            for k, sidx in enumerate(ps.nuis):
-                h = 1e-6 * max(1.0, abs(z[self.offsets[q] + k]))
-                x0 = self.x0_of(z, q)
-                x0[sidx] += h
-                Xp = _general_sim(model, ps.seg, x0, ps.dJ)
-                for o, (idx, _y) in enumerate(ps.outputs):
-                    rows = slice(o * n, (o + 1) * n)
-                    cols[rows, self.n_global + k] = (
-                        (Xp[:, idx] - base_x[:, idx]) / h * self.scale(idx)
-                    )
+            for j in range(self.n_global):
+                cols[rows, j] = fd_cache[j][q][:, idx] * sc
+        for k, sidx in enumerate(ps.nuis):
+            h = 1e-6 * max(1.0, abs(z[self.offsets[q] + k]))
+            x0 = self.x0_of(z, q)
+            x0[sidx] += h
+            Xp = _general_sim(model, ps.seg, x0, ps.dJ)
+            for o, (idx, _y) in enumerate(ps.outputs):
+                rows = slice(o * n, (o + 1) * n)
+                cols[rows, self.n_global + k] = (Xp[:, idx] - X[:, idx]) / h * self.scale(idx)
         return cols
 
     def _fd_global(self, z: FloatArray, model: Model) -> list[list[FloatArray]]:
