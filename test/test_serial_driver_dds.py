@@ -1,6 +1,6 @@
 """The driver node with backend:=serial against the virtual board, over DDS.
 
-The board runs in this process on a pty; the driver node is a child process.
+The board (`pmdc-ident virtual-board`) and the driver node are child processes.
 Checks: samples arrive stamped on the board's grid and follow the command; a
 board reset is reported once and the driver re-handshakes; when the port is
 closed mid-run the driver logs one clear line, publishes an ERROR
@@ -10,7 +10,10 @@ diagnostic, keeps running (no crash, no hang) and exits cleanly on SIGINT.
 from __future__ import annotations
 
 import signal
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,19 +25,27 @@ RATE_HZ = 500.0
 BAUD = 1_000_000
 
 
-def test_driver_over_serial_streams_then_survives_the_port_closing() -> None:
+def test_driver_over_serial_streams_then_survives_the_port_closing(tmp_path: Path) -> None:
     rclpy = pytest.importorskip("rclpy")
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
-    from pmdc_ident.backends.virtual_board import VirtualBoard
-    from pmdc_ident.core.motors import load_motor
     from pmdc_ident.nodes.driver_harness import DriverClient, DriverProcess, apply_ros_env
 
     apply_ros_env(DOMAIN_ID)
-    board = VirtualBoard(load_motor("seed000_ebike"), baud=BAUD, max_lag_s=5.0).start()
+    # The board in its own process, as hardware is: SIGUSR1 resets it, SIGTERM pulls it.
+    link = tmp_path / "board"
+    board = subprocess.Popen(
+        [sys.executable, "-m", "pmdc_ident.cli", "virtual-board", "--baud", str(BAUD)]
+        + ["--link", str(link)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    end = time.monotonic() + 30.0
+    while not link.exists() and time.monotonic() < end:
+        time.sleep(0.05)
     params = {
         "backend": "serial",
-        "port": board.port,
+        "port": str(link),
         "baud": BAUD,
         "rate_hz": RATE_HZ,
         "poll_rate_hz": 100.0,
@@ -61,11 +72,12 @@ def test_driver_over_serial_streams_then_survives_the_port_closing() -> None:
         speeds = client.encoder.array()[:, 1]
         # The board resets: one line, safe, re-handshake, samples flow again.
         n_before = len(client.encoder.stamps_ns)
-        board.reset()
+        board.send_signal(signal.SIGUSR1)
         client.spin_for(2.0)
         resumed = len(client.encoder.stamps_ns) - n_before
         after_reset = np.array(client.encoder.stamps_ns[n_before:], dtype=np.int64)
-        board.unplug()
+        board.send_signal(signal.SIGTERM)  # the pty disappears: a pulled cable
+        board.wait(timeout=10)
         client.spin_for(2.0)
         alive_after_unplug = driver.alive()
     finally:
@@ -74,7 +86,8 @@ def test_driver_over_serial_streams_then_survives_the_port_closing() -> None:
         t0 = time.monotonic()
         rc = driver.stop(signal.SIGINT, timeout_s=15.0)
         stop_s = time.monotonic() - t0
-        board.close()
+        if board.poll() is None:
+            board.kill()
     # Streaming: stamps on the board's 2 ms grid, the command reaches the motor.
     assert len(stamps) > 0.7 * RATE_HZ
     gaps = np.diff(stamps)

@@ -2,6 +2,8 @@
 
 Prints the port, then runs until Ctrl-C (or SIGTERM). Point the driver node at
 it exactly as at hardware: ``backend:=serial port:=<printed path> baud:=<baud>``.
+``kill -USR1 <pid>`` makes the board reset (as a brown-out or a watchdog reset
+of the MCU would); stopping the process is the cable being pulled.
 """
 
 from __future__ import annotations
@@ -96,13 +98,16 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"driver: ros2 run pmdc_ident driver_node --ros-args -p backend:=serial "
             f"-p port:={link or board.port} -p baud:={args.baud} "
-            f"-p rate_hz:={min(1000.0, 1e6 / info.min_period_us):.1f}  (Ctrl-C to stop)",
+            f"-p rate_hz:={min(1000.0, 1e6 / info.min_period_us):.1f}  "
+            f"(Ctrl-C to stop; kill -USR1 {os.getpid()} to reset the board)",
             flush=True,
         )
         # Stop on Ctrl-C and SIGTERM even when started in the background by a
         # shell (which would leave SIGINT ignored).
         signal.signal(signal.SIGINT, _stop)
         signal.signal(signal.SIGTERM, _stop)
+        # kill -USR1 <pid>: the MCU resets (BOOT frame, armature open, new handshake).
+        signal.signal(signal.SIGUSR1, lambda _sig, _frame: board.reset())
         try:
             board.run_forever()
         except KeyboardInterrupt:
