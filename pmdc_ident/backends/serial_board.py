@@ -241,15 +241,19 @@ class SerialBackend:
 
     def start(self) -> None:
         """Open the port, handshake and start the stream; raises BackendError."""
-        if self._state is LinkState.STREAMING:
-            return
+        alive = self._thread is not None and self._thread.is_alive()
+        if self._state is LinkState.STREAMING or (alive and self._state is LinkState.LOST):
+            return  # streaming, or reconnecting in the background
+        if alive:  # FAILED: retire the old reader before trying again
+            self._stop.set()
+            self._thread.join(timeout=3.0)  # type: ignore[union-attr]
+        self._stop.clear()
         try:
             self._connect()
         except _LinkLostError as exc:
             self._state = LinkState.FAILED
             self._last_error = str(exc)
             raise BackendError(str(exc)) from None
-        self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="serial-board", daemon=True)
         self._thread.start()
 
@@ -437,6 +441,9 @@ class SerialBackend:
         streaming = False
         while not streaming:
             now = time.monotonic()
+            if self._stop.is_set():
+                msg = f"serial board on {self.port}: closed during the handshake"
+                raise _LinkLostError(msg)
             if now > deadline:
                 what = "HELLO" if info is None else "START_STREAM"
                 msg = (
