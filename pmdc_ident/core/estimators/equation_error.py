@@ -98,9 +98,13 @@ def fit_equation_error(
     if values is None:
         values = _quasi_static(i0, w0, v0, s0, i1, w1, dt, coulomb, Kt, J)
         method = "quasi-static"
+        why = (
+            "the current settles within a sample"
+            if phi[0, 0] <= 0.05
+            else "the exact-discretisation regression was not physical (noisy or derived speed)"
+        )
         notes.append(
-            "equation error: the current settles within a sample; L not estimated "
-            "(quasi-static electrical equation)"
+            f"equation error: {why}; quasi-static electrical equation used, L not estimated"
         )
     return EquationErrorResult(values, method, n, tuple(notes))
 
