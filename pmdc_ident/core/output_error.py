@@ -231,15 +231,28 @@ class _Seg:
 
 
 def _x0_from_data(seg: Segment) -> FloatArray:
+    """Initial state from a segment's first samples.
+
+    Speed: a straight line through the first 5 samples, taken at t0 (a median or
+    mean would lag a rotor that is already accelerating); from position alone, the
+    slope at t0 of a parabola through the first 6 samples.
+    """
     i0 = float(seg.current[0]) if seg.current is not None else 0.0
     if seg.voltage is not None and math.isnan(seg.voltage[0]):
         i0 = 0.0
+    t = seg.t - seg.t[0]
     if seg.speed is not None:
-        w0 = float(np.median(seg.speed[: min(3, seg.n)]))
+        k = min(5, seg.n)
+        w0 = float(np.polyfit(t[:k], seg.speed[:k], 1)[1]) if k >= 3 else float(seg.speed[0])
+        if np.all(seg.speed[:k] == 0.0):
+            w0 = 0.0
     else:
         assert seg.position is not None
-        k = min(3, seg.n - 1)
-        w0 = float((seg.position[k] - seg.position[0]) / (seg.t[k] - seg.t[0]))
+        k = min(6, seg.n)
+        deg = 2 if k >= 4 else 1
+        w0 = float(np.polyfit(t[:k], seg.position[:k], deg)[deg - 1])
+        if np.all(seg.position[:k] == seg.position[0]):
+            w0 = 0.0
     th0 = float(seg.position[0]) if seg.position is not None else 0.0
     if abs(w0) < 1e-12:
         w0 = 0.0
