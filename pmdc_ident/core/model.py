@@ -327,7 +327,8 @@ def simulate(
 ) -> SimResult:
     """Simulate the motor with all effects of ``model`` under a ZOH voltage command.
 
-    ``x0`` is ``[i, w, theta]`` (default at rest). ``substeps`` sub-steps per
+    ``x0`` is ``[i, w, theta]`` (default at rest; when given, a delay effect sees the
+    first command as the command before the segment). ``substeps`` sub-steps per
     sample resolve friction reversals and stiction; the linear part of each
     sub-step is exact.
     """
@@ -339,7 +340,11 @@ def simulate(
     dz = model.effect("dead_zone")
     dl = model.effect("delay")
     v_app = apply_dead_zone(v_cmd, dz.voltage_v if isinstance(dz, DeadZone) else 0.0)
-    v_app = apply_delay(v_app, dl.delay_s if isinstance(dl, Delay) else 0.0, dt_s)
+    # From a given state x0 (a segment cut from a longer run) the command before the
+    # first sample is taken as the first command: the lag then does not inject a
+    # spurious 0 V interval at every segment start. From rest (x0 None) it is 0 V.
+    pre_v = float(v_app[0]) if x0 is not None and v_app.size else 0.0
+    v_app = apply_delay(v_app, dl.delay_s if isinstance(dl, Delay) else 0.0, dt_s, pre_v)
     state = np.zeros(5)
     state[:3] = _initial_state(x0)
     out = _run_effects(model, v_app, dt_s, state, substeps)
