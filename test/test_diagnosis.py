@@ -98,7 +98,8 @@ def test_angle_harmonics_finds_the_cogging_period_count():
     noise = NoiseModel({"current": 1e-3, "speed": 1e-3}, {"current": 1.0, "speed": 20.0})
     err = 0.5 * np.sin(6 * theta + 0.3)
     res = Residuals({"current": np.zeros(n), "speed": err}, np.zeros(n, dtype=np.int64), noise)
-    n_h, share = angle_harmonics([seg], res)
+    n_h, share, top = angle_harmonics([seg], res)
+    assert top[0] == 6
     assert n_h == 6
     assert share > 0.9
 

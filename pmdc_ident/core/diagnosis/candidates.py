@@ -94,9 +94,9 @@ def starting_effects(name: str, sc: DataScales) -> list[Effect]:
     if name == "load_torque":
         return [LoadTorque(t * f) for f in (-0.2, -0.05, 0.05, 0.2)]
     if name == "brush_drop":
-        return [BrushDrop(v * f) for f in (0.02, 0.05, 0.1)]
+        return [BrushDrop(v * f) for f in (0.01, 0.02, 0.035, 0.05, 0.075, 0.1)]
     if name == "dead_zone":
-        return [DeadZone(v * f) for f in (0.02, 0.05, 0.1)]
+        return [DeadZone(v * f) for f in (0.01, 0.02, 0.035, 0.05, 0.075, 0.1)]
     if name == "cogging":
         return [
             Cogging(t * 0.1, float(n), ph)
@@ -106,7 +106,8 @@ def starting_effects(name: str, sc: DataScales) -> list[Effect]:
     if name == "resistance_drift":
         return [ResistanceDrift(min(f / sc.charge_a2s, 10.0)) for f in (0.05, 0.2)]
     if name == "delay":
-        return [Delay(min(k * sc.dt_s, 1.0)) for k in (1.0, 3.0, 8.0, 20.0)]
+        # every whole sample: at high sweep frequencies the cost wraps with the phase
+        return [Delay(min(k * sc.dt_s, 1.0)) for k in (*range(1, 25), 30, 40)]
     if name == "current_offset":
         return [CurrentOffset(sc.current_a * f) for f in (-0.05, -0.01, 0.01, 0.05)]
     if name == "inductance_saturation":
@@ -140,13 +141,23 @@ def predict(model: Model, segments: Sequence[Segment], substeps: int = 4) -> lis
 
 def scan_start(
     base: Model, name: str, sc: DataScales, segments: Sequence[Segment], noise: NoiseModel
-) -> Effect:
-    """The starting effect whose simulation (baseline held) best matches the data."""
+) -> Model:
+    """The baseline plus the starting effect whose simulation best matches the data.
+
+    For a delay, L is scanned too: a linear model fitted to delayed data inflates L
+    to mimic the lag, and the fit could not undo both from there.
+    """
+    bases = [base]
+    if name == "delay":
+        p = base.params
+        bases += [Model(p.replace(L=p.L * f), base.effects) for f in (1 / 3, 1 / 10, 1 / 30)]
     best, best_gap = None, math.inf
-    for eff in starting_effects(name, sc):
-        g = residuals(segments, predict(base.with_effects(eff), segments), noise).gap()
-        if g < best_gap:
-            best, best_gap = eff, g
+    for b in bases:
+        for eff in starting_effects(name, sc):
+            m = b.with_effects(eff)
+            g = residuals(segments, predict(m, segments), noise).gap()
+            if g < best_gap:
+                best, best_gap = m, g
     assert best is not None
     return best
 

@@ -69,6 +69,7 @@ class Localization:
     sentences: tuple[str, ...]
     angle_periods_per_rev: int | None  # strongest shaft-angle harmonic
     angle_share: float  # share of the excess it explains
+    angle_candidates: tuple[int, ...] = ()  # strongest N, however weak
 
     def to_json(self) -> dict[str, object]:
         out: dict[str, object] = {
@@ -185,23 +186,35 @@ def regime_masks(
 
 def angle_harmonics(
     segments: Sequence[Segment], res: Residuals, max_harmonic: int = MAX_HARMONIC
-) -> tuple[int | None, float]:
+) -> tuple[int | None, float, tuple[int, ...]]:
     """Strongest harmonic N of the shaft angle in the residuals and its energy share.
 
     Each signal's residual (relative to its scale) is regressed on sin/cos(N theta)
     for N = 1..max_harmonic; the share is the energy the best N explains over the
-    total excess energy. Only samples while turning are used.
+    total excess energy. Only samples while turning are used. Also returns the
+    three strongest N (the starts of a cogging candidate), however weak.
     """
     theta = np.concatenate([_angle(s) for s in segments])
     w = np.concatenate([s.speed_or_derivative() for s in segments])
-    moving = np.abs(w) > NEAR_ZERO_FRACTION * (float(np.max(np.abs(w))) or 1.0)
+    # cogging shows most where the rotor crawls through its detents: keep slow samples
+    moving = np.abs(w) > 0.002 * (float(np.max(np.abs(w))) or 1.0)
     if moving.sum() < 50 or np.ptp(theta[moving]) < 4 * math.pi:
-        return None, 0.0
+        return None, 0.0, ()
     total = float(np.sum(np.maximum(res.excess_per_sample(), 0.0)))
     if total <= 0:
-        return None, 0.0
-    best_n, best_e = None, 0.0
-    th = theta[moving]
+        return None, 0.0, ()
+    ranked = harmonic_energies(theta[moving], res, moving, max_harmonic)
+    best_n, best_e = ranked[0]
+    share = min(best_e / total, 1.0)
+    top = tuple(n for n, _ in ranked[:3])
+    return (best_n if share >= MIN_ANGLE_SHARE else None), share, top
+
+
+def harmonic_energies(
+    th: FloatArray, res: Residuals, moving: NDArray[np.bool_], max_harmonic: int
+) -> list[tuple[int, float]]:
+    """(N, residual energy explained by sin/cos(N theta)), strongest first."""
+    out: list[tuple[int, float]] = []
     for n_h in range(1, max_harmonic + 1):
         basis = np.column_stack([np.sin(n_h * th), np.cos(n_h * th)])
         energy = 0.0
@@ -211,10 +224,8 @@ def angle_harmonics(
             coef, *_ = np.linalg.lstsq(basis, y, rcond=None)
             energy += float(np.sum((basis @ coef) ** 2))
         energy /= max(len(res.error), 1)
-        if energy > best_e:
-            best_n, best_e = n_h, energy
-    share = min(best_e / total, 1.0)
-    return (best_n, share) if share >= MIN_ANGLE_SHARE else (None, share)
+        out.append((n_h, energy))
+    return sorted(out, key=lambda ne: -ne[1])
 
 
 def _smooth(y: FloatArray, width: int = 201) -> FloatArray:
@@ -267,7 +278,7 @@ def localize(
     sig_items = tuple(RegimeItem(k, pos[k] / tot, 1.0, by_sig[k]) for k in by_sig)
     bds = [Breakdown("signal", sig_items)]
     bds += [breakdown(res, m, cat) for cat, m in masks.items()]
-    n_h, share = angle_harmonics(segments, res)
+    n_h, share, strongest = angle_harmonics(segments, res)
     sentences: list[str] = []
     for b in bds:
         top = b.top()
@@ -288,4 +299,4 @@ def localize(
             f"by shaft angle: {share:.0%} of the gap is periodic in the shaft angle, "
             f"{n_h} periods per turn"
         )
-    return Localization(tuple(bds), tuple(sentences), n_h, share)
+    return Localization(tuple(bds), tuple(sentences), n_h, share, strongest)

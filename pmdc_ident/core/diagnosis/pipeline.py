@@ -286,7 +286,7 @@ class _Search:
 
     def single(self, base: _Fitted, name: str, sc: DataScales) -> _Fitted:
         start = scan_start(base.fit.model, name, sc, self.split.fit, self.noise)
-        out = self.try_evaluate((name,), base.fit.model.with_effects(start), base)
+        out = self.try_evaluate((name,), start, base)
         self.say(f"candidate {name}: held-out gap {out.gap:.3g} ({out.seconds:.1f} s)")
         return out
 
@@ -352,11 +352,13 @@ def diagnose(
     noise_rel = float(np.mean([noise.noise_rel(s) for s in noise.signals]))
     penalty = max(th.penalty_rel_per_param * max(g0, 0.0), th.penalty_noise_per_param * noise_rel)
 
-    periods = [loc.angle_periods_per_rev] if loc.angle_periods_per_rev else []
+    # cogging is tried when the residuals are periodic in the shaft angle (it is the
+    # costliest fit, and the output error of a rotor caught in detents is multimodal)
+    periods = list(loc.angle_candidates) if loc.angle_periods_per_rev else []
     sc = data_scales(split.fit, base.fit.model.params.Kt, periods)
     untestable: dict[str, str] = {}
     if not periods:
-        untestable["cogging"] = "no shaft-angle periodicity in the residuals"
+        untestable["cogging"] = "no periodicity in shaft angle in the residuals"
     if "L" in search.fixed:
         untestable["inductance_saturation"] = "L is held (the data do not resolve L/R)"
     names = [n for n in cfg.effects if n not in untestable]
