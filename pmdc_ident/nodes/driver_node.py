@@ -227,7 +227,7 @@ class DriverNode(Node):
         try:
             self._wire(cfg)
         except BaseException:
-            self._backend.make_safe()
+            self.shutdown_safe()  # e.g. Ctrl-C during start-up: safe and released
             raise
 
     def _wire(self, cfg: dict[str, Any]) -> None:
@@ -573,8 +573,10 @@ def main(args: list[str] | None = None) -> int:
         print(f"{NODE_NAME}: {exc}", file=sys.stderr, flush=True)
         status = 2
     except Exception as exc:  # unexpected: still leave the motor safe, then report
-        if node is not None and not node.context.ok():
-            pass  # a signal shut the context down while the executor was waiting: normal exit
+        if not rclpy.ok():
+            # a signal shut the context down while the executor waited or while the node
+            # was being built (its backend is then already safe and closed): normal exit
+            pass
         else:
             print(f"{NODE_NAME}: internal error: {exc!r}", file=sys.stderr, flush=True)
             status = 1
@@ -583,6 +585,8 @@ def main(args: list[str] | None = None) -> int:
             final = node.shutdown_safe()
             print(f"{NODE_NAME}: {final}", file=sys.stderr, flush=True)
             node.destroy_node()
+        elif status == 0:  # interrupted before the node existed (or while it was built)
+            print(f"{NODE_NAME}: stopped during start-up: motor safe", file=sys.stderr)
         rclpy.try_shutdown()
     return status
 
