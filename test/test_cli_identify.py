@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from pmdc_ident.cli import EXIT_USER_ERROR, main
+from pmdc_ident.core.data import Segment
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model, simulate
 from pmdc_ident.core.motors import load_motor
@@ -192,4 +193,26 @@ def test_known_added_inertia_replaces_the_kt_ke_closure(tmp_path, capsys):
     assert d["parameters"]["J"]["value"] == pytest.approx(p.J, rel=0.002)
     assert any("added inertia" in s for s in d["assumptions"])
     assert not any(s.startswith("Kt = Ke") for s in d["assumptions"])
+    capsys.readouterr()
+
+
+def test_current_driven_csv_fits_the_mechanical_side_given_kt(tmp_path, capsys):
+    spec = load_motor("seed000_ebike")
+    p = spec.model.params
+    cfg = SequenceConfig(coast=False, sweep_duration_tau=10.0)
+    run = synthesize_run(spec.model, plan_for_motor(spec, 2e-3, cfg), spec.sensors, seed=3)
+    segs = [Segment(s.label, s.t, None, current=s.current, speed=s.speed) for s in run.segments]
+    csv_path = write_csv(segs, tmp_path / "cur.csv")
+    assert main(["identify", str(csv_path), "--quiet"]) == EXIT_USER_ERROR
+    assert "--fix Kt=" in capsys.readouterr().err
+    js = tmp_path / "r.json"
+    args = ["identify", str(csv_path), "--fix", f"Kt={p.Kt}", "--json", str(js), "--quiet"]
+    assert main([*args, "--no-holdout"]) == 0
+    d = json.loads(js.read_text())
+    assert d["model"] == "mechanical"
+    assert d["parameters"]["J"]["value"] == pytest.approx(p.J, rel=0.02)
+    assert d["parameters"]["coulomb_friction.torque_nm"]["value"] == pytest.approx(
+        0.0256, rel=0.05
+    )
+    assert d["parameters"]["R"]["identifiable"] is False
     capsys.readouterr()

@@ -92,20 +92,25 @@ def identify_runs(runs: Sequence[Run], **kwargs: Any) -> IdentificationResult:
 def _check_excitation(segs: Sequence[Segment]) -> None:
     speeds = np.concatenate([s.speed_or_derivative() for s in segs])
     volts = [s.voltage[~np.isnan(s.voltage)] for s in segs if s.voltage is not None]
-    v = np.concatenate(volts) if volts else np.zeros(1)
+    v = np.concatenate(volts) if volts else np.zeros(0)
     has_open = any(s.open_mask.any() for s in segs)
     cur = [s.current for s in segs if s.current is not None]
     moving = float(np.ptp(speeds)) > 0 and float(np.max(np.abs(speeds))) > 0
-    if not moving or (v.size and np.ptp(v) == 0 and not has_open and abs(v[0]) == 0):
-        held = f"{v[0]:g} V" if v.size else "no voltage"
+    still_input = (v.size == 0 or (np.ptp(v) == 0 and abs(v[0]) == 0)) and not has_open
+    if not moving and still_input:
+        held = f"{v[0]:g} V" if v.size else "no voltage column"
         msg = (
             f"no excitation: the motor never moves ({held}, speed constant); "
             "record a step, sweep, staircase or coast-down"
         )
         raise DataError(msg)
-    if cur and not any(np.ptp(c) > 0 for c in cur) and np.ptp(v) == 0 and not has_open:
-        msg = "no excitation: voltage and current are constant in every segment"
+    if not moving:
+        msg = "no excitation: the speed never changes, so nothing mechanical can be identified"
         raise DataError(msg)
+    if cur and not any(np.ptp(c) > 0 for c in cur) and (v.size == 0 or np.ptp(v) == 0):
+        if not has_open:
+            msg = "no excitation: voltage and current are constant in every segment"
+            raise DataError(msg)
 
 
 def _is_dynamic(s: Segment) -> bool:
