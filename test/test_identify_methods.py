@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pmdc_ident.core.data import Segment
 from pmdc_ident.core.errors import DataError
 from pmdc_ident.core.estimators.equation_error import fit_equation_error
 from pmdc_ident.core.estimators.frequency import (
@@ -99,3 +100,24 @@ def test_pipeline_picks_coulomb_for_seed000_and_flags_l_at_1khz():
     tc = res.parameters["coulomb_friction.torque_nm"]
     p = spec.model.params
     assert tc.value == pytest.approx(0.0256 * p.Ke / p.Kt, rel=0.01)
+
+
+def test_timestamp_jitter_is_tolerated_with_one_warning(seed001_run):
+    spec, run = seed001_run
+    rng = np.random.default_rng(0)
+    segs = [
+        Segment(
+            s.label,
+            s.t + rng.uniform(-1e-4, 1e-4, s.n),
+            s.voltage,
+            current=s.current,
+            speed=s.speed,
+        )
+        for s in run.segments
+    ]  # +-10 % of the 1 ms period
+    res = identify(segs, holdout=False, frequency=False)
+    assert sum("not uniform" in w for w in res.warnings) == 1
+    for name in ("R", "Ke", "J", "B"):
+        assert res.parameters[name].value == pytest.approx(
+            getattr(spec.model.params, name), rel=0.01
+        )

@@ -281,12 +281,10 @@ def _prepare(
         msg = "some segments have a voltage column and some do not; fit them separately"
         raise DataError(msg)
     out: list[_Seg] = []
+    jittery: list[str] = []
     for s in segments:
         if not s.is_uniform:
-            warnings.append(
-                f"segment {s.label!r}: sample period not uniform; simulated on its median "
-                f"period {s.dt_s * 1e3:.4g} ms"
-            )
+            jittery.append(s.label)
         outputs: list[tuple[int, FloatArray]] = []
         nuis: list[int] = []
         if s.voltage is None:
@@ -316,6 +314,11 @@ def _prepare(
                 _x0_from_data(s),
                 float(added.get(s.label, 0.0)),
             )
+        )
+    if jittery:
+        warnings.append(
+            "sample period not uniform (timestamp jitter above 1 %) in "
+            f"{', '.join(jittery)}: each simulated on its median period"
         )
     return out
 

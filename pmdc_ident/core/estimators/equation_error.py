@@ -45,7 +45,11 @@ def _rows(segments: Sequence[Segment]) -> tuple[FloatArray, ...]:
     cols: list[list[FloatArray]] = [[] for _ in range(7)]
     dts = []
     for s in segments:
-        if s.voltage is None or s.current is None or s.n < 4 or not s.is_uniform:
+        dt = np.diff(s.t)
+        if s.voltage is None or s.current is None or s.n < 4:
+            continue
+        if np.any(np.abs(dt - s.dt_s) > 0.25 * s.dt_s):  # gaps: not one sample period
+            continue
             continue
         w = s.speed_or_derivative()
         v = s.voltage
@@ -62,7 +66,7 @@ def _rows(segments: Sequence[Segment]) -> tuple[FloatArray, ...]:
         cols[6].append(np.full(idx.size, s.dt_s))
         dts.append(s.dt_s)
     if not dts:
-        msg = "equation error needs uniformly sampled segments with voltage and current"
+        msg = "equation error needs regularly sampled segments with voltage and current"
         raise DataError(msg)
     return tuple(np.concatenate(c) for c in cols)
 

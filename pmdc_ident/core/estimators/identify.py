@@ -114,7 +114,14 @@ def _check_excitation(segs: Sequence[Segment]) -> None:
 
 
 def _is_dynamic(s: Segment) -> bool:
-    return s.n > TABLE_MAX_ROWS and s.is_uniform
+    return s.n > TABLE_MAX_ROWS and regular_sampling(s)
+
+
+def regular_sampling(s: Segment, jitter: float = 0.25) -> bool:
+    """Every sample period within ``jitter`` of the median: timestamp jitter is tolerated
+    (the fit simulates on the median period and says so), gaps are not."""
+    dt = np.diff(s.t)
+    return bool(np.all(np.abs(dt - s.dt_s) <= jitter * s.dt_s))
 
 
 def identify(
@@ -204,7 +211,8 @@ def identify(
     skipped = [s.label for s in segs if not _is_dynamic(s) and s.n > TABLE_MAX_ROWS]
     if skipped:
         warnings.append(
-            f"segments not uniformly sampled, left out of the dynamic fit: {', '.join(skipped)}"
+            "segments with gaps in time (a sample period off the median by more than 25 %), "
+            f"left out of the dynamic fit: {', '.join(skipped)}"
         )
     limits = _limits(segs)
 
