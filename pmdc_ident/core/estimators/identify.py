@@ -385,12 +385,21 @@ def identify(
         "white": tests.white,
         "independent_of_input": tests.independent_of_input,
     }
+    widen = 1.0
+    if not all(tests.white.values()):
+        from pmdc_ident.core.estimators.uncertainty import coloured_noise_factor
+
+        factors = coloured_noise_factor(fit, dyn)
+        widen = math.sqrt(max([1.0, *factors.values()]))
+        validation["residuals"]["variance_inflation"] = factors
+        validation["residuals"]["interval_widening"] = widen
     for sig, ok in tests.white.items():
         if not ok:
             warnings.append(
                 f"{sig} residuals are not white ({100 * tests.autocorr_outside[sig]:.0f} % of "
-                "lags outside the 95 % band): unmodelled dynamics or coloured noise; "
-                "intervals may be optimistic (see `pmdc-ident diagnose`)"
+                "lags outside the 95 % band): unmodelled dynamics or coloured noise "
+                "(see `pmdc-ident diagnose`); intervals widened x"
+                f"{widen:.2g} for the residuals' autocorrelation"
             )
     if bootstrap > 0:
         from pmdc_ident.core.estimators.uncertainty import parametric_bootstrap
@@ -425,6 +434,16 @@ def identify(
             warnings.append(f"frequency response skipped: {exc}")
 
     params = {name: estimate_from_fit(fit, name, f"output_error_{chosen}") for name in fit.values}
+    if widen > 1.0:
+        from pmdc_ident.core.estimators.uncertainty import widen_interval
+
+        for name, est in params.items():
+            if est.ci95 is not None:
+                params[name] = _replace_est(
+                    est,
+                    ci95=widen_interval(est.value, est.ci95, widen),
+                    stderr=None if est.stderr is None else est.stderr * widen,
+                )
     for name in fit.fixed:
         params[name] = _replace_est(params[name], reason="fixed by the user", method="fixed")
     if current_mode:

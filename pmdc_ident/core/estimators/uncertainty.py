@@ -18,7 +18,9 @@ import numpy as np
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.output_error import CLOSURE_KT_KE, FitResult, fit_output_error
 
-__all__ = ["parametric_bootstrap", "simulated_copy"]
+__all__ = ["coloured_noise_factor", "parametric_bootstrap", "simulated_copy", "widen_interval"]
+
+MAX_LAG = 50
 
 
 def simulated_copy(
@@ -78,3 +80,45 @@ def parametric_bootstrap(
             "bootstrap_ci95": [float(np.percentile(arr, 2.5)), float(np.percentile(arr, 97.5))],
         }
     return out
+
+
+def coloured_noise_factor(fit: FitResult, segments: Sequence[Segment]) -> dict[str, float]:
+    """Variance inflation for autocorrelated residuals, per signal (1 when white).
+
+    ``1 + 2 sum_k (1 - k/(K+1)) rho_k`` over lags 1..50 (Bartlett weights), the
+    long-run variance factor of a coloured residual: the covariance intervals
+    assume white residuals, and their width scales with the square root of this.
+    """
+    preds = fit.simulate_segments(segments)
+    acc: dict[str, list[float]] = {}
+    for seg, pred in zip(segments, preds, strict=True):
+        if seg.n < 4 * MAX_LAG:
+            continue
+        pairs = []
+        if seg.current is not None and seg.voltage is not None:
+            pairs.append(("current", seg.current - pred.current))
+        if seg.speed is not None:
+            pairs.append(("speed", seg.speed - pred.speed))
+        for name, r in pairs:
+            r = r - r.mean()
+            den = float(r @ r)
+            if den <= 0:
+                continue
+            f = 1.0
+            for k in range(1, MAX_LAG + 1):
+                rho = float(r[:-k] @ r[k:]) / den
+                f += 2.0 * (1.0 - k / (MAX_LAG + 1)) * rho
+            acc.setdefault(name, []).append(max(f, 1.0))
+    return {k: float(np.median(v)) for k, v in acc.items()}
+
+
+def widen_interval(
+    value: float, ci: tuple[float, float] | None, factor: float
+) -> tuple[float, float] | None:
+    """Scale an interval's half-widths by ``factor`` (in ratio when it is all positive)."""
+    if ci is None or factor <= 1.0:
+        return ci
+    lo, hi = ci
+    if lo > 0 and value > 0:
+        return (value * (lo / value) ** factor, value * (hi / value) ** factor)
+    return (value - (value - lo) * factor, value + (hi - value) * factor)
