@@ -91,11 +91,16 @@ COMMAND_QOS = QoSProfile(
 )
 
 
-def sample_qos(rate_hz: float) -> QoSProfile:
-    """Driver sample topics: reliable, one second deep (as the driver publishes them)."""
+def sample_qos(rate_hz: float, seconds: float = 10.0) -> QoSProfile:
+    """Subscriptions to the driver's sample topics: reliable, ``seconds`` of samples deep.
+
+    DDS acknowledges samples as its own thread receives them; the reader history
+    then holds them until Python takes them. Ten seconds of depth (the driver's
+    writer keeps one) let a node that is held up for a while lose nothing.
+    """
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
-        depth=max(10, int(math.ceil(rate_hz))),
+        depth=max(10, int(math.ceil(rate_hz * seconds))),
         reliability=ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.VOLATILE,
     )
