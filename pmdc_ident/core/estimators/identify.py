@@ -289,7 +289,7 @@ def identify(
     want = [ModelChoice.LINEAR, ModelChoice.COULOMB] if model == ModelChoice.AUTO else [model]
     fits: dict[str, FitResult] = {}
     for kind in map(str, want):
-        m0 = _start_model(start, kind, current_mode)
+        m0 = _start_model(start, kind, current_mode, fixed)
         say(f"output error, {kind} model")
         try:
             fits[kind] = fit_output_error(
@@ -579,16 +579,19 @@ def _crude_guess(dyn: Sequence[Segment]) -> dict[str, float]:
     return {}
 
 
-def _start_model(vals: Mapping[str, float], kind: str, current_mode: bool) -> Model:
+def _start_model(
+    vals: Mapping[str, float], kind: str, current_mode: bool, fixed: Mapping[str, float]
+) -> Model:
     p = MotorParams(**{n: vals[n] for n in PARAMETER_NAMES})
     effects = []
-    if kind == ModelChoice.COULOMB:
+    if kind == ModelChoice.COULOMB or TC in fixed:
         tc = vals.get(TC, 0.0)
-        if tc <= 0:
-            # a small positive start: a tenth of the torque at the current scale
+        if tc <= 0 and TC not in fixed:
+            # a small positive start (1 mA worth of torque)
             tc = 1e-3 * p.Kt
         effects.append(CoulombFriction(tc))
-    if current_mode:
+    if current_mode or "load_torque.torque_nm" in fixed:
+        # a load torque is fitted on current-driven data, or held where the user knows it
         effects.append(LoadTorque(float(vals.get("load_torque.torque_nm", 0.0))))
     return Model(p, tuple(effects))
 
