@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from pmdc_ident.core.data import Run, Segment
-from pmdc_ident.core.effects import BrushDrop, CoulombFriction, LoadTorque, QuadraticDrag
+from pmdc_ident.core.effects import (
+    BrushDrop,
+    CoulombFriction,
+    CurrentOffset,
+    LoadTorque,
+    QuadraticDrag,
+)
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import SensorSpec, load_motor
@@ -138,3 +144,51 @@ def test_brush_drop_is_fitted_on_the_finite_difference_path():
     lo, hi = res.ci95["brush_drop.voltage_v"]
     assert lo < 1.5 < hi and hi - lo < 0.05  # V
     assert res.values["R"] == pytest.approx(spec.model.params.R, rel=0.01)
+
+
+@pytest.mark.parametrize("current_driven", [False, True])
+def test_analytic_gradient_matches_finite_differences_without_friction_events(current_driven):
+    from pmdc_ident.core import output_error as oe
+
+    spec = load_motor("seed001_110v")
+    p = spec.model.params
+    cfg = SequenceConfig(staircase=False, coast=False, sweep_duration_tau=10.0)
+    run = synthesize_run(
+        spec.model.with_effects(QuadraticDrag(1e-4)),
+        plan_for_motor(spec, 2e-3, cfg),
+        spec.sensors,
+        seed=1,
+    )
+    segs = list(run.segments)
+    effects = (QuadraticDrag(1.2e-4), LoadTorque(0.05))
+    if current_driven:
+        segs = [Segment(s.label, s.t, None, current=s.current, speed=s.speed) for s in segs]
+        free = ["Kt", "J", "B", "quadratic_drag.coeff_nm_s2", "load_torque.torque_nm"]
+    else:
+        effects += (CurrentOffset(0.01),)
+        free = [
+            "R",
+            "L",
+            "Ke",
+            "J",
+            "B",
+            "quadratic_drag.coeff_nm_s2",
+            "load_torque.torque_nm",
+            "current_offset.offset_a",
+        ]
+    m = Model(p.replace(R=p.R * 1.05, Kt=p.Ke), effects)
+    ps = oe._prepare(segs, [])
+    prob = oe._Problem(
+        ps, m, oe._model_values(m), free, not current_driven, True, oe._initial_noise(ps), {}
+    )
+    z = prob.z0()
+    _r, _A, g = prob.evaluate(z, True)
+    for j in [*range(len(free)), len(free)]:  # every parameter and one initial state
+        h = 1e-6 * max(1.0, abs(z[j]))
+        zp, zm = z.copy(), z.copy()
+        zp[j] += h
+        zm[j] -= h
+        rp, _, _ = prob.evaluate(zp, False)
+        rm, _, _ = prob.evaluate(zm, False)
+        fd = (0.5 * rp @ rp - 0.5 * rm @ rm) / (2 * h)
+        assert g[j] == pytest.approx(fd, rel=1e-4), j

@@ -621,7 +621,7 @@ def _fast_kernel(
                     for c in nc:
                         sn[a, c] += ga[a, 1] * dt_dw * s[1, c]
                 if cmode:
-                    sn[a, 3] -= ga[a, 1] * i_in
+                    sn[a, 3] -= ga[a, 1] * kt * i_in
         if cmode:
             xn[0] = imeas[k + 1]
             if want_s:
