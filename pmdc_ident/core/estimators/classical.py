@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -290,6 +290,7 @@ class ClassicalResult:
     values: dict[str, float]
     ci95: dict[str, tuple[float, float] | None]
     notes: tuple[str, ...]
+    stderr: dict[str, float | None] = field(default_factory=dict)
 
 
 def classical_chain(
@@ -369,4 +370,12 @@ def classical_chain(
                 )
     elif coasts:
         notes.append("classical: a coast-down without a staircase gives J only up to friction")
-    return ClassicalResult(stair, coast, values, ci95, tuple(notes))
+    stderr: dict[str, float | None] = {}
+    if stair is not None:
+        q = float(stats.t.ppf(0.975, max(stair.n_points - 2, 1)))
+        for name, ci in ci95.items():
+            if ci is not None and name != "J":
+                stderr[name] = (ci[1] - ci[0]) / (2.0 * q)
+    if coast is not None:
+        stderr["J"] = coast.J_stderr
+    return ClassicalResult(stair, coast, values, ci95, tuple(notes), stderr)

@@ -662,6 +662,7 @@ def _classical_only(
                 None if name in fixed else classical.ci95.get(name),
                 parameter_unit(name),
                 True,
+                stderr=None if name in fixed else classical.stderr.get(name),
                 reason="fixed by the user"
                 if name in fixed
                 else ("assumed equal to Ke (closure Kt = Ke in SI units)" if name == "Kt" else ""),
