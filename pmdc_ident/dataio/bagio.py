@@ -3,16 +3,17 @@
 What a session bag holds (topic names are matched by their last component, so a
 namespaced graph works too):
 
-=================  ===========================  =======================================
-topic              type                         content
-=================  ===========================  =======================================
-``current``        sensor_msgs/msg/JointState   effort[0] armature current, A
-``encoder``        sensor_msgs/msg/JointState   position[0] rad, velocity[0] rad/s
-``voltage_applied``sensor_msgs/msg/JointState   effort[0] applied V (NaN: armature
-                                                open), effort[1] terminal V if measured
-``voltage_cmd``    std_msgs/msg/Float64         the identification node's command, V
-``segment``        std_msgs/msg/String          JSON :class:`~pmdc_ident.core.session.Marker`
-=================  ===========================  =======================================
+=====================  ==========================  ======================================
+topic                  type                        content
+=====================  ==========================  ======================================
+``current``            sensor_msgs/msg/JointState  effort[0] armature current, A
+``encoder``            sensor_msgs/msg/JointState  position[0] rad, velocity[0] rad/s
+``voltage_applied``    sensor_msgs/msg/JointState  effort[0] applied V (NaN: armature
+                                                   open), effort[1] terminal V if measured
+``voltage_cmd``        std_msgs/msg/Float64        the identification node's command, V
+``segment``            std_msgs/msg/String         JSON segment marker
+                                                   (:class:`pmdc_ident.core.session.Marker`)
+=====================  ==========================  ======================================
 
 Driver topics carry the driver's own sample time in ``header.stamp``;
 :func:`read_bag` joins them on that stamp and cuts the session's segments at the
