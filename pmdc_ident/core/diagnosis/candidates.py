@@ -144,13 +144,12 @@ def scan_start(
 ) -> Model:
     """The baseline plus the starting effect whose simulation best matches the data.
 
-    For a delay, L is scanned too: a linear model fitted to delayed data inflates L
-    to mimic the lag, and the fit could not undo both from there.
+    L is scanned too: when L/R is near the sample period the linear fit places L to
+    mimic the effect (a delay most of all), and the fit holds L where it starts.
     """
-    bases = [base]
-    if name == "delay":
-        p = base.params
-        bases += [Model(p.replace(L=p.L * f), base.effects) for f in (1 / 3, 1 / 10, 1 / 30)]
+    p = base.params
+    factors = (1 / 3, 1 / 10, 1 / 30) if name == "delay" else (1 / 3, 3.0)
+    bases = [base] + [Model(p.replace(L=p.L * f), base.effects) for f in factors]
     best, best_gap = None, math.inf
     for b in bases:
         for eff in starting_effects(name, sc):

@@ -269,9 +269,10 @@ class _Search:
 
     def evaluate(self, effects: tuple[str, ...], model: Model) -> _Fitted:
         t0 = time.perf_counter()
-        fit = fit_model(
-            self.split.fit, model, max_nfev=self.cfg.max_nfev, fixed=self.fixed or None
-        )
+        fixed = dict(self.fixed)
+        if "L" in fixed and "L" not in self.cfg.fixed:
+            fixed["L"] = float(model.params.L)  # held where the candidate's scan put it
+        fit = fit_model(self.split.fit, model, max_nfev=self.cfg.max_nfev, fixed=fixed or None)
         res = residuals(self.split.held_out, _predictions(fit, self.split.held_out), self.noise)
         return _Fitted(effects, fit, res, res.gap(), time.perf_counter() - t0)
 
