@@ -683,3 +683,27 @@ def test_ctrl_c_on_bringup_is_forwarded_and_everything_stops_safe(tmp_path):
     assert "motor confirmed safe by the driver" in text, text
     assert "driver stopped: motor safe" in text, text
     assert "Traceback" not in text, text
+
+
+def test_without_a_driver_the_node_says_so_and_exits_2(tmp_path):
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pmdc_ident.nodes.identification_node",
+            "--ros-args",
+            "-p",
+            "driver_wait_s:=2.0",
+            "-p",
+            "exit_when_done:=true",
+        ],
+        env=node_env(76),
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert "session not started, motor untouched: no driver node 'driver_node'" in proc.stderr
+    assert "Traceback" not in proc.stderr

@@ -483,8 +483,22 @@ class IdentificationNode(Node):
         """Driver up, its limits read, recorder present: build and check the plan, start."""
         now = time.monotonic()
         if now > self._prep_deadline:
-            what = "driver limits" if self._driver_params is None else "the recorder"
-            self._fail(f"gave up waiting for {what} after {self._p('driver_wait_s'):g} s")
+            waited = f"{self._p('driver_wait_s'):g} s"
+            if self._driver_params is None:
+                why = (
+                    f"no driver node {self._p('driver_node')!r} answered within {waited} "
+                    "(is it running, on this ROS_DOMAIN_ID?)"
+                )
+            elif now - self._last_sample_wall > 0.5:
+                why = f"the driver sent no samples within {waited}"
+            elif self._last_lag_ns > float(self._p("max_start_latency_s")) * 1e9:
+                why = f"driver samples still arrive late after {waited}"
+            else:
+                why = (
+                    f"no recorder within {waited} (start recorder_node, or run without "
+                    "a bag: -p require_recorder:=false)"
+                )
+            self._fail(f"session not started, motor untouched: {why}")
             return
         if self._driver_params is None:
             if self._param_future is None:
