@@ -35,7 +35,7 @@ BoolArray = NDArray[np.bool_]
 
 NEAR_ZERO_FRACTION = 0.05  # |w| below this fraction of the largest |w|
 MAX_HARMONIC = 64
-MIN_ANGLE_SHARE = 0.03  # weaker shaft-angle periodicity is not reported
+MIN_PROMINENCE = 10.0  # strongest harmonic over the median one, to call it periodic
 
 
 @dataclass(frozen=True)
@@ -207,7 +207,10 @@ def angle_harmonics(
     best_n, best_e = ranked[0]
     share = min(best_e / total, 1.0)
     top = tuple(n for n, _ in ranked[:3])
-    return (best_n if share >= MIN_ANGLE_SHARE else None), share, top
+    # periodic when one harmonic stands out of the others (noise spreads evenly)
+    median_e = float(np.median([e for _, e in ranked])) or 1e-300
+    periodic = best_e >= MIN_PROMINENCE * median_e
+    return (best_n if periodic else None), share, top
 
 
 def harmonic_energies(
@@ -294,7 +297,7 @@ def localize(
             f"by {word}: {top.label} holds {top.share:.0%} of the gap in "
             f"{top.sample_share:.0%} of the samples{conc}"
         )
-    if n_h is not None and share >= 0.05:
+    if n_h is not None:
         sentences.append(
             f"by shaft angle: {share:.0%} of the gap is periodic in the shaft angle, "
             f"{n_h} periods per turn"
