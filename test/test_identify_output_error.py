@@ -192,3 +192,18 @@ def test_analytic_gradient_matches_finite_differences_without_friction_events(cu
         rm, _, _ = prob.evaluate(zm, False)
         fd = (0.5 * rp @ rp - 0.5 * rm @ rm) / (2 * h)
         assert g[j] == pytest.approx(fd, rel=1e-4), j
+
+
+def test_without_closure_kt_j_b_are_reported_as_one_scale_ambiguity():
+    spec = load_motor("seed001_110v")
+    p = spec.model.params
+    cfg = SequenceConfig(staircase=False, coast=False, sweep_duration_tau=20.0)
+    run = synthesize_run(spec.model, plan_for_motor(spec, 2e-3, cfg), spec.sensors, seed=4)
+    res = fit_output_error(run.segments, _perturbed(p), closure=None)
+    for name in ("Kt", "J", "B"):
+        assert not res.identifiable[name] and res.ci95[name] is None
+        assert "scale ambiguity" in res.reasons[name]
+    assert res.identifiable["R"] and res.identifiable["Ke"]
+    # what the data do fix: the ratios
+    assert res.values["Kt"] / res.values["J"] == pytest.approx(p.Kt / p.J, rel=1e-3)
+    assert res.values["B"] / res.values["J"] == pytest.approx(p.B / p.J, rel=1e-2)

@@ -906,6 +906,13 @@ def fit_output_error(
             lm = _LMState(lm2.cost, lm.nfev + lm2.nfev, lm.it + lm2.it, lm2.converged, lm2.message)
 
     result = _finish(prob, z, lm, reasons, fixed, closure if tie_kt else None, warnings, t_start)
+    scale = ("Kt", "J", "B")
+    if all(n in result.free and not result.identifiable[n] for n in scale):
+        why = (
+            "scale ambiguity: voltage, current and speed fix (Kt, J, B) only up to a common "
+            "factor; use the Kt = Ke closure, fix Kt or J, or add a known inertia"
+        )
+        result = _replace(result, reasons={**result.reasons, **dict.fromkeys(scale, why)})
     if check_inductance and not current_mode and "L" in result.free:
         tau_e = result.values["L"] / result.values["R"]
         dt_min = min(s.dt for s in segs)
