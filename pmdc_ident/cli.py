@@ -26,7 +26,6 @@ COMMANDS: dict[str, str] = {
     "identify": "identify",
     "diagnose": "diagnose",
     "export": "export",
-    "simulate": "simulate",
     "virtual-board": "virtual_board",
     "benchmark": "benchmark",
 }
