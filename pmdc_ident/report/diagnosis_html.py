@@ -37,7 +37,8 @@ def _traces(result: DiagnosisResult, path: Path) -> bool:
             if meas is None:
                 ax.set_visible(False)
                 continue
-            ax.plot(seg.t, meas, color="0.6", lw=0.8, label="measured")
+            mk = "o" if seg.n < 50 else None  # tables: show the samples
+            ax.plot(seg.t, meas, color="0.6", lw=0.8, marker=mk, label="measured")
             ax.plot(seg.t, getattr(before, sig), color="tab:red", lw=1.0, label="linear model")
             ax.plot(
                 seg.t,
