@@ -9,6 +9,8 @@ voltage marks a sample whose armature was open (coast-down).
 from __future__ import annotations
 
 import enum
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -16,9 +18,13 @@ from numpy.typing import NDArray
 
 from pmdc_ident.core.errors import DataError
 
-__all__ = ["Run", "Segment", "TestKind", "segment_kind"]
+__all__ = ["HISTORY_MAX_SAMPLES", "Run", "Segment", "TestKind", "link_history", "segment_kind"]
 
 FloatArray = NDArray[np.float64]
+# Commanded voltages kept before a segment: enough for a delay of this many samples.
+HISTORY_MAX_SAMPLES = 4096
+# Segments are contiguous when the gap between them is within this many sample periods.
+_CONTIGUOUS_GAP = 1.5
 
 
 class TestKind(enum.Enum):
@@ -49,6 +55,13 @@ class Segment:
     Attributes are SI: ``t`` s, ``voltage`` V (commanded; NaN = armature open),
     ``current`` A, ``position`` rad, ``speed`` rad/s, ``terminal_voltage`` V
     (measured at the motor, when the hardware has it).
+
+    History, when the segment was cut from a longer contiguous recording (both
+    optional; ``None`` = unknown, the segment is treated as starting the record):
+    ``history_voltage`` V holds the commanded voltages of the samples just before
+    the segment, oldest first (NaN = open), on the segment's sample period;
+    ``history_heat_a2s`` A^2*s is the measured ``int i^2 dt`` over the driven
+    samples of the record before the segment's first sample.
     """
 
     label: str
@@ -59,6 +72,8 @@ class Segment:
     speed: FloatArray | None = None
     terminal_voltage: FloatArray | None = None
     kind: TestKind = field(default=TestKind.OTHER)
+    history_voltage: FloatArray | None = field(default=None, repr=False)
+    history_heat_a2s: float | None = None
 
     def __post_init__(self) -> None:
         t = _float_array("t", self.t, self.label)
@@ -99,6 +114,18 @@ class Segment:
             raise DataError(msg)
         if self.kind is TestKind.OTHER:
             object.__setattr__(self, "kind", segment_kind(self.label))
+        if self.history_voltage is not None:
+            hv = _float_array("history_voltage", self.history_voltage, self.label)
+            if np.isinf(hv).any():
+                msg = f"segment {self.label!r}: history_voltage holds infinite values"
+                raise DataError(msg)
+            object.__setattr__(self, "history_voltage", hv[-HISTORY_MAX_SAMPLES:])
+        if self.history_heat_a2s is not None:
+            q = float(self.history_heat_a2s)
+            if not (math.isfinite(q) and q >= 0.0):
+                msg = f"segment {self.label!r}: history_heat_a2s must be >= 0 A^2*s, got {q}"
+                raise DataError(msg)
+            object.__setattr__(self, "history_heat_a2s", q)
 
     # -- derived ------------------------------------------------------------------
     @property
@@ -134,10 +161,38 @@ class Segment:
         assert self.position is not None
         return np.gradient(self.position, self.t)
 
+    def driven_heat_a2s(self, stop: int | None = None) -> float | None:
+        """Measured ``int i^2 dt`` (trapezoid) over the driven intervals before sample ``stop``.
+
+        ``None`` without a current column. An interval ``[t_k, t_k+1)`` counts when
+        its command ``voltage[k]`` is not NaN (as the model integrates it).
+        """
+        if self.current is None:
+            return None
+        stop = self.n if stop is None else stop
+        if stop < 2:
+            return 0.0
+        i2 = self.current[:stop] ** 2
+        area = 0.5 * (i2[:-1] + i2[1:]) * np.diff(self.t[:stop])
+        if self.voltage is not None:
+            area = np.where(np.isnan(self.voltage[: stop - 1]), 0.0, area)
+        return float(np.sum(area))
+
     def slice(self, start: int, stop: int, label: str | None = None) -> Segment:
+        """Samples ``start:stop``; the samples cut off before ``start`` become history."""
+        start, stop, _ = slice(start, stop).indices(self.n)
+
         def cut(a: FloatArray | None) -> FloatArray | None:
             return None if a is None else a[start:stop]
 
+        hist_v, hist_q = self.history_voltage, self.history_heat_a2s
+        if start > 0:
+            if self.voltage is not None:
+                before = self.voltage[:start]
+                hist_v = before if hist_v is None else np.concatenate([hist_v, before])
+            heat = self.driven_heat_a2s(start + 1)
+            if heat is not None:
+                hist_q = (hist_q or 0.0) + heat
         return replace(
             self,
             label=label or self.label,
@@ -147,6 +202,8 @@ class Segment:
             position=cut(self.position),
             speed=cut(self.speed),
             terminal_voltage=cut(self.terminal_voltage),
+            history_voltage=hist_v,
+            history_heat_a2s=hist_q,
         )
 
 
@@ -184,6 +241,52 @@ class Run:
     @property
     def has_current(self) -> bool:
         return all(s.current is not None for s in self.segments)
+
+
+def link_history(segments: Sequence[Segment]) -> tuple[Segment, ...]:
+    """Give each segment the history of the contiguous segments before it.
+
+    Segments are taken in the given (record) order; a segment continues the
+    previous one when it starts one sample period (within half a period) after
+    the previous one's last sample, on the same period. The first segment of
+    each contiguous stretch keeps the history it has.
+    """
+    out: list[Segment] = []
+    for seg in segments:
+        prev = out[-1] if out else None
+        if prev is None or not _contiguous(prev, seg):
+            out.append(seg)
+            continue
+        hist_v = None
+        if prev.voltage is not None and seg.voltage is not None:
+            parts = (
+                [prev.voltage]
+                if prev.history_voltage is None
+                else [
+                    prev.history_voltage,
+                    prev.voltage,
+                ]
+            )
+            hist_v = np.concatenate(parts)
+        hist_q = None
+        heat = prev.driven_heat_a2s()
+        if heat is not None and seg.current is not None:
+            # the interval from the previous segment's last sample to this one's first
+            i2 = 0.5 * (prev.current[-1] ** 2 + seg.current[0] ** 2)  # type: ignore[index]
+            gap = float(seg.t[0] - prev.t[-1]) * i2
+            if prev.voltage is not None and np.isnan(prev.voltage[-1]):
+                gap = 0.0
+            hist_q = (prev.history_heat_a2s or 0.0) + heat + gap
+        out.append(replace(seg, history_voltage=hist_v, history_heat_a2s=hist_q))
+    return tuple(out)
+
+
+def _contiguous(prev: Segment, seg: Segment) -> bool:
+    dt = prev.dt_s
+    if abs(seg.dt_s - dt) > 0.01 * dt:
+        return False
+    gap = float(seg.t[0] - prev.t[-1])
+    return abs(gap - dt) <= 0.5 * dt
 
 
 def _float_array(name: str, value: object, label: str) -> FloatArray:

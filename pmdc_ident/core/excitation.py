@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from pmdc_ident.core.data import Run, Segment, TestKind, segment_kind
+from pmdc_ident.core.data import Run, Segment, TestKind, link_history, segment_kind
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.model import Model, simulate
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec
@@ -240,7 +240,7 @@ def synthesize_run(
             )
         )
         start = stop
-    return Run(tuple(out), source)
+    return Run(link_history(out), source)
 
 
 def plan_for_motor(spec: MotorSpec, dt_s: float, config: SequenceConfig | None = None) -> TestPlan:

@@ -324,6 +324,9 @@ def simulate(
     dt_s: float,
     x0: ArrayLike | None = None,
     substeps: int = 8,
+    *,
+    pre_voltage: ArrayLike | None = None,
+    heat0_a2s: float = 0.0,
 ) -> SimResult:
     """Simulate the motor with all effects of ``model`` under a ZOH voltage command.
 
@@ -331,6 +334,11 @@ def simulate(
     first command as the command before the segment). ``substeps`` sub-steps per
     sample resolve friction reversals and stiction; the linear part of each
     sub-step is exact.
+
+    For a segment cut from a longer record: ``pre_voltage`` (V, oldest first, NaN =
+    open) are the commands of the samples just before it, which fill a delay line
+    (commands older than those given are taken as the oldest one given);
+    ``heat0_a2s`` (A^2*s) is the ``int i^2 dt`` a resistance drift starts from.
     """
     _check_dt(dt_s)
     if substeps < 1:
@@ -344,9 +352,23 @@ def simulate(
     # first sample is taken as the first command: the lag then does not inject a
     # spurious 0 V interval at every segment start. From rest (x0 None) it is 0 V.
     pre_v = float(v_app[0]) if x0 is not None and v_app.size else 0.0
-    v_app = apply_delay(v_app, dl.delay_s if isinstance(dl, Delay) else 0.0, dt_s, pre_v)
+    delay_s = dl.delay_s if isinstance(dl, Delay) else 0.0
+    if pre_voltage is not None and delay_s > 0.0:
+        pre = _as_voltage(pre_voltage)
+        if pre.size:
+            pre = apply_dead_zone(pre, dz.voltage_v if isinstance(dz, DeadZone) else 0.0)
+            both = apply_delay(np.concatenate([pre, v_app]), delay_s, dt_s, float(pre[0]))
+            v_app = both[pre.size :]
+        else:
+            v_app = apply_delay(v_app, delay_s, dt_s, pre_v)
+    else:
+        v_app = apply_delay(v_app, delay_s, dt_s, pre_v)
+    if not (math.isfinite(heat0_a2s) and heat0_a2s >= 0.0):
+        msg = f"initial heat integral must be >= 0 A^2*s, got {heat0_a2s}"
+        raise ParameterError(msg)
     state = np.zeros(5)
     state[:3] = _initial_state(x0)
+    state[3] = heat0_a2s
     out = _run_effects(model, v_app, dt_s, state, substeps)
     off = model.effect("current_offset")
     current = out[:, 0] + (off.offset_a if isinstance(off, CurrentOffset) else 0.0)

@@ -792,7 +792,16 @@ def _general_sim(model: Model, seg: Segment, x0: FloatArray, dJ: float = 0.0) ->
     if seg.voltage is None:
         msg = "current-driven (no voltage) fits support only coulomb_friction and load_torque"
         raise ParameterError(msg)
-    sim = simulate(model, seg.voltage, seg.dt_s, x0=x0)
+    # A segment cut from a longer record starts with the commands still in a delay
+    # line and the heat already dissipated (see Segment.history_*).
+    sim = simulate(
+        model,
+        seg.voltage,
+        seg.dt_s,
+        x0=x0,
+        pre_voltage=seg.history_voltage,
+        heat0_a2s=seg.history_heat_a2s or 0.0,
+    )
     return np.column_stack([sim.current, sim.speed, sim.position])
 
 

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pmdc_ident.core.data import Run, Segment
+from pmdc_ident.core.data import Run, Segment, link_history
 from pmdc_ident.core.errors import DataError, PmdcError
 from pmdc_ident.core.session import Marker, MarkerEvent
 
@@ -197,7 +197,7 @@ def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = N
     if not segments:
         msg = f"{source or 'data'}: no segment holds 2 or more driver samples"
         raise DataError(msg)
-    return Run(tuple(segments), source)
+    return Run(link_history(segments), source)
 
 
 def _ns(t_s: float) -> int:

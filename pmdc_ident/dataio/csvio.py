@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pmdc_ident.core.data import Run, Segment
+from pmdc_ident.core.data import Run, Segment, link_history
 from pmdc_ident.core.errors import DataError
 
 __all__ = ["CSV_COLUMNS", "read_csv", "write_csv"]
@@ -101,7 +101,7 @@ def read_csv(path: str | Path) -> Run:
         if "segment" in cols
         else ["run"] * len(body)
     )
-    return Run(tuple(_segments(p, data, labels)), source=str(p))
+    return Run(link_history(tuple(_segments(p, data, labels))), source=str(p))
 
 
 def _column(p: Path, body: list[list[str]], name: str, k: int) -> np.ndarray:

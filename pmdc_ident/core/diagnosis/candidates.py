@@ -130,11 +130,19 @@ def _x0(seg: Segment) -> list[float]:
 
 
 def predict(model: Model, segments: Sequence[Segment], substeps: int = 4) -> list[_Pred]:
-    """Free-run simulation of each segment from its measured initial state."""
+    """Free-run simulation of each segment from its measured initial state and history."""
     out = []
     for s in segments:
         v = s.voltage if s.voltage is not None else np.full(s.n, math.nan)
-        sim = simulate(model, v, s.dt_s, x0=_x0(s), substeps=substeps)
+        sim = simulate(
+            model,
+            v,
+            s.dt_s,
+            x0=_x0(s),
+            substeps=substeps,
+            pre_voltage=s.history_voltage,
+            heat0_a2s=s.history_heat_a2s or 0.0,
+        )
         out.append(_Pred(sim.current, sim.speed, sim.position))
     return out
 
