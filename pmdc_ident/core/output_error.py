@@ -1,7 +1,9 @@
 """Output-error identification: simulation residuals over all segments at once.
 
 Seed 001's method done properly. The model is simulated free-running on every
-segment from its own (estimated) initial state, and the residuals on current
+segment from its own (estimated) initial state and, for a segment cut from a
+longer record, its history (``Segment.history_voltage`` fills a delay line,
+``Segment.history_heat_a2s`` starts a resistance drift), and the residuals on current
 and speed (or position, when speed is absent) are scaled per signal by the
 noise level, so the cost is the negative log-likelihood of white Gaussian
 measurement noise. Parameters:

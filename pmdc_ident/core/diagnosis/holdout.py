@@ -11,6 +11,9 @@ never saw:
   sweep into quarters (1st and 3rd fitted, 2nd and 4th held out, so both sets
   span low and high frequencies), any other into halves (first fitted).
 
+A piece cut in time keeps the samples before it as history (``Segment.slice``), so
+a delay line and a resistance drift continue into it as they did in the motor.
+
 ``holdout_labels`` overrides the default: exactly those segments are held out.
 """
 
