@@ -139,16 +139,18 @@ def discretize_zoh(params: MotorParams, dt_s: float) -> tuple[FloatArray, FloatA
     m[:2, :2] = a2
     m[2, 1] = 1.0
     m[:2, 3:] = b2
-    e = _expm_loops(m * dt_s)
+    e = _expm_small(m * dt_s)
     return np.ascontiguousarray(e[:3, :3]), np.ascontiguousarray(e[:3, 3:])
 
 
 @njit
-def _expm_loops(a):  # pragma: no cover - jitted
+def _expm_small(a):  # pragma: no cover - jitted
     """exp(a) of a small matrix: scaling and squaring with an 18-term Taylor series.
 
     Plain loops, no BLAS: scipy's expm calls threaded BLAS, which on a busy
-    machine costs milliseconds per 5x5 matrix (simulate calls this per segment).
+    machine costs milliseconds per 5x5 matrix (simulate calls this per segment;
+    the output-error engine for its 5x5 and 10x10 Van Loan blocks). Relative
+    accuracy ~1e-15 after scaling.
     """
     n = a.shape[0]
     norm = 0.0

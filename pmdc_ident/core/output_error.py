@@ -44,7 +44,14 @@ from pmdc_ident.core._jit import njit
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.effects import EFFECT_TYPES, Effect
 from pmdc_ident.core.errors import DataError, ParameterError
-from pmdc_ident.core.model import Model, _coefficients, _effects_kernel, discretize_zoh, simulate
+from pmdc_ident.core.model import (
+    Model,
+    _coefficients,
+    _effects_kernel,
+    _expm_small,
+    discretize_zoh,
+    simulate,
+)
 from pmdc_ident.core.params import PARAMETER_NAMES, PARAMETER_UNITS, MotorParams
 
 __all__ = [
@@ -367,36 +374,6 @@ def _system(p: MotorParams, closed: bool) -> tuple[FloatArray, list[FloatArray]]
     for k, val in enumerate((R, L, Ke, Kt, J, B)):
         d[k] *= val
     return m, d
-
-
-@njit
-def _expm_small(a):  # pragma: no cover - jitted
-    """exp(a) of a small dense matrix: scaling and squaring with an 18-term Taylor series.
-
-    Plain loops, no BLAS: for the 5x5 and 10x10 matrices here this is faster and
-    free of thread start-up costs; relative accuracy ~1e-15 after scaling.
-    """
-    n = a.shape[0]
-    norm = 0.0
-    for i in range(n):
-        row = 0.0
-        for j in range(n):
-            row += abs(a[i, j])
-        norm = max(norm, row)
-    s = 0
-    while norm > 0.5:
-        norm *= 0.5
-        s += 1
-    scale = 0.5**s
-    b = a * scale
-    result = np.eye(n)
-    term = np.eye(n)
-    for k in range(1, 19):
-        term = (term @ b) / k
-        result += term
-    for _ in range(s):
-        result = result @ result
-    return result
 
 
 def _zoh_with_derivatives(
