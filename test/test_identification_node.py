@@ -192,14 +192,15 @@ def test_short_session_completes_and_the_bag_holds_every_driver_sample(short_ses
             assert seg.n + probe["skipped"] >= p.voltage.size >= seg.n, seg.label
         else:  # staircase levels wait for steady state: at least half the nominal hold
             assert seg.n >= p.voltage.size // 2
-    # the applied voltage follows the plan (commands reach the driver within ~50 ms)
+    # the applied voltage follows the plan: commands reach the driver within 100 ms (a few ms
+    # on an idle machine; more than 50 ms was seen with a load average of 9 on 2 cores)
     step = run.segments[[s.label for s in run.segments].index("step_up")]
     v = step.voltage
     n_rest = plan.segments[3].voltage.size // 6
     assert np.median(v[-50:]) == pytest.approx(0.5 * 110.0, rel=1e-9)
     assert np.all(v[50:n_rest] == 0.0)  # the rest before the step (after the latency)
     k_rise = 50 + int(np.argmax(v[50:] > 27.5))
-    assert 0 <= k_rise - n_rest < 50, k_rise - n_rest
+    assert 0 <= k_rise - n_rest < 100, k_rise - n_rest
     coast = run.segments[-1]
     assert coast.open_mask.sum() > 0.9 * 1000  # armature open ~1 s
 
