@@ -28,6 +28,8 @@ __all__ = [
     "MotorSpec",
     "SensorSpec",
     "builtin_motor_dir",
+    "share_candidates",
+    "share_file",
     "load_motor",
     "motor_to_yaml",
 ]
@@ -84,18 +86,32 @@ class MotorSpec:
     description: str = ""
 
 
-def builtin_motor_dir() -> Path:
-    """Folder of the built-in motor files (source tree, or an installed share/)."""
-    here = Path(__file__).resolve().parent.parent.parent / "config" / "motors"
-    candidates = [here]
+def share_candidates(*parts: str) -> list[Path]:
+    """Where a file of the package's share folder may be, most specific first.
+
+    The source tree (``config/``, ``launch/`` beside the package), then each
+    ``AMENT_PREFIX_PATH`` prefix's and ``sys.prefix``'s ``share/pmdc_ident/``.
+    """
+    candidates = [Path(__file__).resolve().parents[2].joinpath(*parts)]
     for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
         if prefix:
-            candidates.append(Path(prefix) / "share" / "pmdc_ident" / "config" / "motors")
-    candidates.append(Path(sys.prefix) / "share" / "pmdc_ident" / "config" / "motors")
-    for c in candidates:
-        if (c / f"{BUILTIN_MOTORS[0]}.yaml").is_file():
-            return c
-    msg = "built-in motor files not found (looked in: " + ", ".join(map(str, candidates)) + ")"
+            candidates.append(Path(prefix, "share", "pmdc_ident", *parts))
+    candidates.append(Path(sys.prefix, "share", "pmdc_ident", *parts))
+    return candidates
+
+
+def share_file(*parts: str) -> Path | None:
+    """The first existing share file (e.g. ``share_file("config", "driver.yaml")``)."""
+    return next((c for c in share_candidates(*parts) if c.is_file()), None)
+
+
+def builtin_motor_dir() -> Path:
+    """Folder of the built-in motor files (source tree, or an installed share/)."""
+    found = share_file("config", "motors", f"{BUILTIN_MOTORS[0]}.yaml")
+    if found is not None:
+        return found.parent
+    looked = ", ".join(str(c.parent) for c in share_candidates("config", "motors", "x"))
+    msg = f"built-in motor files not found (looked in: {looked})"
     raise ParameterError(msg)
 
 

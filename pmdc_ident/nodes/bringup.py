@@ -27,19 +27,9 @@ from typing import IO, Any
 
 import yaml
 
+from pmdc_ident.core.motors import share_file
+
 __all__ = ["BringupResult", "main", "node_env", "run_session"]
-
-PKG_ROOT = Path(__file__).resolve().parents[2]
-
-
-def _share_file(*parts: str) -> Path | None:
-    """A file of the source tree's or the installed package's share folder."""
-    candidates = [PKG_ROOT.joinpath(*parts)]
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        if prefix:
-            candidates.append(Path(prefix, "share", "pmdc_ident", *parts))
-    candidates.append(Path(sys.prefix, "share", "pmdc_ident", *parts))
-    return next((c for c in candidates if c.is_file()), None)
 
 
 def node_env(
@@ -49,7 +39,7 @@ def node_env(
     env = dict(os.environ if base is None else base)
     for k in ("ROS_STATIC_PEERS", "ROS_DISCOVERY_SERVER", "ROS_LOCALHOST_ONLY"):
         env.pop(k, None)
-    profile = _share_file("config", "fastdds_localhost.xml")
+    profile = share_file("config", "fastdds_localhost.xml")
     if profile is not None:
         env["FASTDDS_DEFAULT_PROFILES_FILE"] = str(profile)
         env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profile)
@@ -214,7 +204,7 @@ def run_session(
         procs["driver"] = _Proc(
             "driver",
             "pmdc_ident.nodes.driver_node",
-            _ros_args(_share_file("config", "driver.yaml"), dparams),
+            _ros_args(share_file("config", "driver.yaml"), dparams),
             env,
             files["driver"],
             nice,
@@ -223,7 +213,7 @@ def run_session(
             procs["recorder"] = _Proc(
                 "recorder",
                 "pmdc_ident.nodes.recorder_node",
-                _ros_args(_share_file("config", "recorder.yaml"), rparams),
+                _ros_args(share_file("config", "recorder.yaml"), rparams),
                 env,
                 files["recorder"],
                 nice,
@@ -231,7 +221,7 @@ def run_session(
         procs["identification"] = _Proc(
             "identification",
             "pmdc_ident.nodes.identification_node",
-            _ros_args(_share_file("config", "identification.yaml"), iparams),
+            _ros_args(share_file("config", "identification.yaml"), iparams),
             env,
             files["identification"],
             nice,

@@ -1,7 +1,7 @@
 """Run the driver node in a child process and talk to it over DDS (demo, tests, benchmark).
 
-* :func:`ros_env` - the environment that keeps DDS on this machine (loopback
-  Fast DDS profile, localhost discovery, a chosen domain id);
+* :func:`ros_env` - :func:`pmdc_ident.nodes.bringup.node_env`, the environment that keeps DDS
+  on this machine (loopback Fast DDS profile, localhost discovery, a chosen domain id);
 * :class:`DriverProcess` - ``python -m pmdc_ident.nodes.driver_node`` as a child,
   stopped with SIGINT, its exit status and stderr kept;
 * :class:`DriverClient` - a small node that publishes ``voltage_cmd``, calls
@@ -18,7 +18,6 @@ import sys
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -31,14 +30,14 @@ from std_srvs.srv import Trigger
 
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.model import simulate
-from pmdc_ident.core.motors import builtin_motor_dir, load_motor
+from pmdc_ident.core.motors import load_motor
+from pmdc_ident.nodes.bringup import node_env as ros_env
 from pmdc_ident.nodes.driver_node import COMMAND_QOS, sample_qos
 
 __all__ = [
     "DriverClient",
     "DriverProcess",
     "StepDemoResult",
-    "fastdds_profile",
     "ros_env",
     "run_step_demo",
 ]
@@ -46,25 +45,6 @@ __all__ = [
 
 class DemoError(PmdcError):
     """The demo could not reach the driver or the driver misbehaved (one line)."""
-
-
-def fastdds_profile() -> Path:
-    """The loopback-only Fast DDS profile (source tree or installed share/)."""
-    return builtin_motor_dir().parent / "fastdds_localhost.xml"
-
-
-def ros_env(domain_id: int | None = None, base: Mapping[str, str] | None = None) -> dict[str, str]:
-    """Environment keeping ROS 2 on localhost; FASTRTPS_* is what Fast DDS 2.14 reads."""
-    env = dict(os.environ if base is None else base)
-    profile = str(fastdds_profile())
-    env.setdefault("FASTDDS_DEFAULT_PROFILES_FILE", profile)
-    env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", env["FASTDDS_DEFAULT_PROFILES_FILE"])
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    if domain_id is not None:
-        env["ROS_DOMAIN_ID"] = str(domain_id)
-    env.setdefault("ROS_DOMAIN_ID", "42")
-    env.setdefault("PYTHONUNBUFFERED", "1")
-    return env
 
 
 def apply_ros_env(domain_id: int | None = None) -> None:
