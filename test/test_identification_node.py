@@ -15,6 +15,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -356,17 +357,32 @@ def test_stall_aborts_when_current_flows_and_the_shaft_does_not_turn(tmp_path):
     _assert_safe_after(probe, marker["t_s"], strict_zero=True, res=res)
 
 
+def _once_running(
+    tmp_path: Path,
+    state: dict[str, Any],
+    act: Callable[[dict[str, subprocess.Popen[bytes]]], object],
+    key: str = "sent",
+) -> Callable[[dict[str, subprocess.Popen[bytes]], float], None]:
+    """A ``during`` callback that runs ``act(procs)`` once, 1 s after the session started,
+    and records it as ``state[key]``."""
+
+    def during(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
+        log = (tmp_path / "logs" / "identification.log").read_text()
+        if "segments, nominal" in log and key not in state:
+            state.setdefault("seen", elapsed)
+            if elapsed - state["seen"] > 1.0:
+                act(procs)
+                state[key] = True
+
+    return during
+
+
 def test_ctrl_c_aborts_the_session_and_makes_the_motor_safe(tmp_path):
     state: dict[str, Any] = {}
 
-    def interrupt(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
-        log = (tmp_path / "logs" / "identification.log").read_text()
-        if "segments, nominal" in log and "sent" not in state:
-            state.setdefault("seen", elapsed)
-            if elapsed - state["seen"] > 1.0:
-                procs["identification"].send_signal(signal.SIGINT)
-                state["sent"] = True
-
+    interrupt = _once_running(
+        tmp_path, state, lambda procs: procs["identification"].send_signal(signal.SIGINT)
+    )
     res, probe = _session(tmp_path, 65, during=interrupt)
     assert state.get("sent"), _logs(res)
     assert res.identification_rc == 130, _logs(res)
@@ -380,14 +396,8 @@ def test_ctrl_c_aborts_the_session_and_makes_the_motor_safe(tmp_path):
 def test_crashed_recorder_aborts_the_session(tmp_path):
     state: dict[str, Any] = {}
 
-    def crash(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
-        log = (tmp_path / "logs" / "identification.log").read_text()
-        if "segments, nominal" in log and "killed" not in state:
-            state.setdefault("seen", elapsed)
-            if elapsed - state["seen"] > 1.0:
-                procs["recorder"].kill()  # SIGKILL: no goodbye, as in a real crash
-                state["killed"] = True
-
+    # SIGKILL: no goodbye, as in a real crash
+    crash = _once_running(tmp_path, state, lambda procs: procs["recorder"].kill(), "killed")
     res, probe = _session(tmp_path, 66, during=crash)
     assert state.get("killed"), _logs(res)
     assert res.identification_rc == 3, _logs(res)
@@ -621,14 +631,9 @@ def test_the_session_runs_against_the_virtual_serial_board_as_against_the_sim(tm
 def test_sigterm_to_the_recorder_mid_session_closes_a_readable_bag(tmp_path):
     state: dict[str, Any] = {}
 
-    def term(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
-        log = (tmp_path / "logs" / "identification.log").read_text()
-        if "segments, nominal" in log and "sent" not in state:
-            state.setdefault("seen", elapsed)
-            if elapsed - state["seen"] > 1.0:
-                procs["recorder"].send_signal(signal.SIGTERM)
-                state["sent"] = True
-
+    term = _once_running(
+        tmp_path, state, lambda procs: procs["recorder"].send_signal(signal.SIGTERM)
+    )
     res, probe = _session(tmp_path, 74, during=term)
     assert state.get("sent"), _logs(res)
     assert res.recorder_rc == 0, _logs(res)
