@@ -368,5 +368,6 @@ def test_config_defaults_match_the_declared_parameters():
         assert type(values[name]) is type(p.default), name
 
 
-def test_launch_file_compiles():
-    py_compile.compile(str(REPO / "launch" / "driver.launch.py"), doraise=True)
+@pytest.mark.parametrize("name", ["driver.launch.py", "session.launch.py"])
+def test_launch_file_compiles(name):
+    py_compile.compile(str(REPO / "launch" / name), doraise=True)
