@@ -2,22 +2,25 @@
 
 Each sub-command lives in ``pmdc_ident/commands/<module>.py`` and defines
 ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``. A user
-error (:class:`~pmdc_ident.core.errors.PmdcError`, a missing file) becomes one
-line on stderr and a non-zero exit status, never a traceback.
+error (:class:`~pmdc_ident.core.errors.PmdcError`, a file that cannot be read
+or written) is one line on stderr and exit status 2; Ctrl-C at any moment is one
+line and 130; a bug of ours is one line and 1 (``PMDC_IDENT_DEBUG=1`` shows its
+traceback). Never a traceback by default.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
 from pmdc_ident import __version__
-from pmdc_ident.core.errors import PmdcError
 
-__all__ = ["EXIT_INTERRUPTED", "EXIT_USER_ERROR", "main"]
+__all__ = ["EXIT_INTERNAL_ERROR", "EXIT_INTERRUPTED", "EXIT_USER_ERROR", "main"]
 
+EXIT_INTERNAL_ERROR = 1
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
 
@@ -52,22 +55,87 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _interrupted(exc: BaseException) -> bool:
+    """``exc`` is, or was caused by, a Ctrl-C.
+
+    A Ctrl-C that lands while compiled (numba) code calls back into Python
+    surfaces as a ``SystemError`` "returned a result with an exception set"
+    whose cause is the ``KeyboardInterrupt``.
+    """
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    command = ""
+    user_errors: tuple[type[Exception], ...] = ()
     try:
+        words = list(sys.argv[1:] if argv is None else argv)
+        command = next((w for w in words if w in COMMANDS), "")
+        # Everything below, the imports of the command modules included, is
+        # inside the try: a Ctrl-C at any moment is one line and exit 130.
+        from pmdc_ident.core.errors import PmdcError
+
+        user_errors = (PmdcError,)
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        command = args.command
         return int(args._run(args) or 0)
-    except PmdcError as exc:
-        print(f"pmdc-ident {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_USER_ERROR
-    except (FileNotFoundError, IsADirectoryError, PermissionError) as exc:
-        print(f"pmdc-ident {args.command}: error: {exc.strerror}: {exc.filename}", file=sys.stderr)
-        return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print(f"pmdc-ident {args.command}: interrupted", file=sys.stderr)
+    except BaseException as exc:  # noqa: BLE001 - sorted below; SystemExit passes
+        if isinstance(exc, SystemExit):
+            raise
+        return _exit_status(command, exc, user_errors)
+
+
+def _exit_status(
+    command: str, exc: BaseException, user_errors: tuple[type[Exception], ...]
+) -> int:
+    """One line on stderr for ``exc`` and the exit status; never a traceback."""
+    prog = f"pmdc-ident {command}".rstrip()
+    if _interrupted(exc):
+        print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except BrokenPipeError:
+    if isinstance(exc, user_errors):
+        return _fail(prog, str(exc))
+    if isinstance(exc, BrokenPipeError):
+        # the reader of stdout went away (`| head`): not an error of ours
+        _silence_stdout()
         return 0
+    if isinstance(exc, OSError):
+        where = f": {exc.filename}" if exc.filename else ""
+        return _fail(prog, f"{exc.strerror or exc}{where}")
+    if isinstance(exc, MemoryError):
+        return _fail(prog, "out of memory (the data are too large for this machine)")
+    if os.environ.get("PMDC_IDENT_DEBUG"):
+        raise exc
+    first = (str(exc).splitlines() or [""])[0]
+    print(
+        f"{prog}: internal error: {type(exc).__name__}: {first} "
+        "(a bug: please report it; PMDC_IDENT_DEBUG=1 shows the traceback)",
+        file=sys.stderr,
+    )
+    return EXIT_INTERNAL_ERROR
+
+
+def _fail(prog: str, message: str) -> int:
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    return EXIT_USER_ERROR
+
+
+def _silence_stdout() -> None:
+    # Python flushes stdout at exit; with the reader gone that flush would
+    # print a BrokenPipeError of its own.
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -15,9 +15,16 @@ import sys
 import time
 from pathlib import Path
 
+from pmdc_ident.commands.outputs import (
+    STDOUT,
+    check_distinct,
+    check_file_output,
+    check_folder_output,
+)
 from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
 from pmdc_ident.core.effects import EFFECT_NAMES
 from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.params import PARAMETER_NAMES
 from pmdc_ident.dataio import load_data
 
 HELP = "diagnose the sim-to-real gap: where it lies, which effect causes it, how far it shrinks"
@@ -51,8 +58,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--max-effects", type=int, default=3, help="largest combination of effects (default 3)"
     )
-    parser.add_argument("--json", metavar="PATH", help="write the results as JSON")
-    parser.add_argument("--report", metavar="DIR", help="write an HTML page with plots here")
+    parser.add_argument(
+        "--json", metavar="PATH", help="write the results as JSON (.json; - for stdout)"
+    )
+    parser.add_argument(
+        "--report",
+        metavar="DIR",
+        help="write an HTML page with plots into this folder (created; its parent must exist)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
 
 
@@ -63,10 +76,20 @@ def run(args: argparse.Namespace) -> int:
     if not effects:
         msg = "--effects lists no effect"
         raise ParameterError(msg)
+    if args.max_effects < 1:
+        msg = f"--max-effects must be >= 1 (effects combined at most), got {args.max_effects}"
+        raise ParameterError(msg)
+    targets = {
+        "--json": check_file_output("--json", args.json, args.data, suffixes=(".json",)),
+        "--report": check_folder_output("--report", args.report, args.data),
+    }
+    check_distinct(targets)
+    json_to, report_to = targets["--json"], targets["--report"]
+    text_out = sys.stderr if json_to == STDOUT else sys.stdout
     config = DiagnosisConfig(
         holdout=tuple(args.holdout),
         effects=effects,
-        fixed=parse_fix(args.fix),
+        fixed=parse_fix(args.fix, known=PARAMETER_NAMES),
         max_effects=args.max_effects,
     )
     t0 = time.perf_counter()
@@ -77,19 +100,21 @@ def run(args: argparse.Namespace) -> int:
 
     runs = [load_data(p) for p in args.data]
     result = diagnose(runs, config=config, progress=progress)
-    print("\n".join(result.summary_lines()))
-    print("split: " + "; ".join(result.split.description))
+    print("\n".join(result.summary_lines()), file=text_out)
+    print("split: " + "; ".join(result.split.description), file=text_out)
     written: list[Path] = []
-    if args.json:
-        path = Path(args.json)
-        if path.parent and not path.parent.exists():
-            path.parent.mkdir(parents=True)
-        path.write_text(json.dumps(result.to_json(), indent=2) + "\n")
-        written.append(path)
-    if args.report:
+    if json_to is not None:
+        document = json.dumps(result.to_json(), indent=2) + "\n"
+        if json_to == STDOUT:
+            print(document, end="")
+        else:
+            path = Path(json_to)
+            path.write_text(document)
+            written.append(path)
+    if report_to is not None:
         from pmdc_ident.report.diagnosis_html import write_report
 
-        written.append(write_report(result, Path(args.report)))
+        written.append(write_report(result, Path(report_to)))
     for p in written:
-        print(f"wrote {p}")
+        print(f"wrote {p}", file=text_out)
     return 0

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
+from pmdc_ident.commands.outputs import STDOUT, check_file_output, check_folder_output
 from pmdc_ident.core.errors import DataError
 
 HELP = "convert a recorded run: bag -> CSV (--csv OUT.csv) or CSV -> rosbag2/MCAP (--bag DIR)"
@@ -13,9 +15,11 @@ HELP = "convert a recorded run: bag -> CSV (--csv OUT.csv) or CSV -> rosbag2/MCA
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", metavar="DATA", help="a bag directory, an .mcap file or a CSV")
     out = parser.add_mutually_exclusive_group(required=True)
-    out.add_argument("--csv", metavar="OUT.csv", type=Path, help="write the run as CSV")
     out.add_argument(
-        "--bag", metavar="OUTDIR", type=Path, help="write the run as a rosbag2/MCAP directory"
+        "--csv", metavar="OUT.csv", help="write the run as CSV (a .csv name; - for stdout)"
+    )
+    out.add_argument(
+        "--bag", metavar="OUTDIR", help="write the run as a new rosbag2/MCAP directory"
     )
     parser.add_argument(
         "--session", default=None, help="only this session of a bag (default: every session)"
@@ -30,21 +34,29 @@ def run(args: argparse.Namespace) -> int:
     if args.session is not None and not is_bag:
         msg = "--session applies to bags only"
         raise DataError(msg)
+    csv_to = check_file_output("--csv", args.csv, [src], suffixes=(".csv",))
+    bag_to = check_folder_output("--bag", args.bag, [src], must_be_new=True)
     if is_bag:
         from pmdc_ident.dataio.bagio import read_bag
 
         data = read_bag(src, session=args.session)
     else:
         data = load_data(src)
-    if args.csv is not None:
+    summary = f"{len(data.segments)} segment(s), {sum(s.n for s in data.segments)} samples"
+    if csv_to == STDOUT:
         from pmdc_ident.dataio.csvio import write_csv
 
-        write_csv(data, args.csv)
-        out = args.csv
+        write_csv(data, sys.stdout)
+        print(f"standard output: {summary}", file=sys.stderr)
+        return 0
+    if csv_to is not None:
+        from pmdc_ident.dataio.csvio import write_csv
+
+        out = write_csv(data, csv_to)
     else:
         from pmdc_ident.dataio.bagio import write_bag
 
-        out = write_bag(data, args.bag, session=src.stem or "export")
-    n = sum(s.n for s in data.segments)
-    print(f"{out}: {len(data.segments)} segment(s), {n} samples")
+        assert bag_to is not None  # argparse: exactly one of --csv, --bag
+        out = write_bag(data, bag_to, session=src.stem or "export")
+    print(f"{out}: {summary}")
     return 0

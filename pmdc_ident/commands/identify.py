@@ -9,15 +9,28 @@ YAML that ``load_motor`` (and the simulated driver) reads, and with
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import time
 from pathlib import Path
 
+from pmdc_ident.commands.outputs import (
+    STDOUT,
+    check_distinct,
+    check_file_output,
+    check_folder_output,
+)
+from pmdc_ident.core.effects import EFFECT_TYPES
 from pmdc_ident.core.errors import ParameterError
-from pmdc_ident.core.estimators.identify import ModelChoice, identify, merge_runs
+from pmdc_ident.core.estimators.identify import TC, ModelChoice, identify, merge_runs
+from pmdc_ident.core.motors import motor_to_yaml
 from pmdc_ident.core.output_error import CLOSURE_KT_KE
+from pmdc_ident.core.params import PARAMETER_NAMES, check_physical_range
 from pmdc_ident.dataio import load_data
+
+# the first line of a motor file identify writes (as IdentificationResult.write_motor_yaml)
+MOTOR_YAML_HEADER = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
 
 HELP = "identify R, L, Ke, Kt, J, B and friction from recorded runs (CSV or bag)"
 
@@ -42,12 +55,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="this DATA file was recorded with a known inertia added to the shaft: with "
         "runs with and without it, Kt is estimated instead of assumed equal to Ke",
     )
-    parser.add_argument("--json", metavar="PATH", help="write the results as JSON")
     parser.add_argument(
-        "--yaml", metavar="PATH", help="write a motor file that load_motor()/the sim driver reads"
+        "--json", metavar="PATH", help="write the results as JSON (.json; - for stdout)"
     )
     parser.add_argument(
-        "--report", metavar="DIR", help="write plots (measured vs simulated, residuals) here"
+        "--yaml",
+        metavar="PATH",
+        help="write a motor file that load_motor()/the sim driver reads (.yaml; - for stdout)",
+    )
+    parser.add_argument(
+        "--report",
+        metavar="DIR",
+        help="write plots (measured vs simulated, residuals) into this folder (created; its "
+        "parent must exist)",
     )
     parser.add_argument(
         "--model",
@@ -76,7 +96,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
 
 
-def parse_fix(items: list[str]) -> dict[str, float]:
+# what identify can hold at a known value: the motor parameters and two effects
+FIXABLE: tuple[str, ...] = (*PARAMETER_NAMES, TC, "load_torque.torque_nm")
+
+
+def parse_fix(items: list[str], known: tuple[str, ...] = FIXABLE) -> dict[str, float]:
+    """``--fix NAME=VALUE`` items: known names, physical values, no conflicting repeats."""
     out: dict[str, float] = {}
     for item in items:
         name, sep, value = item.partition("=")
@@ -92,8 +117,29 @@ def parse_fix(items: list[str]) -> dict[str, float]:
         if not math.isfinite(v):
             msg = f"--fix {name}: value must be finite, got {value!r}"
             raise ParameterError(msg)
+        if name not in known:
+            msg = f"--fix {name}: unknown parameter (known: {', '.join(known)})"
+            raise ParameterError(msg)
+        _check_fix_range(name, v)
+        if name in out and out[name] != v:
+            msg = f"--fix {name} given twice with different values ({out[name]:g} and {v:g})"
+            raise ParameterError(msg)
         out[name] = v
     return out
+
+
+def _check_fix_range(name: str, value: float) -> None:
+    if name in PARAMETER_NAMES:
+        check_physical_range(name, value, source="--fix")
+        return
+    effect, _, field_name = name.partition(".")
+    spec = EFFECT_TYPES[effect].SPECS[field_name]
+    if not spec.lower <= value <= spec.upper:
+        msg = (
+            f"--fix {name}={value:g}: outside the range of the {spec.description}, "
+            f"[{spec.lower:g}, {spec.upper:g}] {spec.unit}"
+        )
+        raise ParameterError(msg)
 
 
 def _added_inertia(items: list[str], data: list[str], runs, segments) -> dict[str, float]:
@@ -129,11 +175,33 @@ def _added_inertia(items: list[str], data: list[str], runs, segments) -> dict[st
     return out
 
 
+def _outputs(args: argparse.Namespace) -> dict[str, Path | str | None]:
+    """The checked --json/--yaml/--report targets (before any work is done)."""
+    inputs = list(args.data)
+    targets: dict[str, Path | str | None] = {
+        "--json": check_file_output("--json", args.json, inputs, suffixes=(".json",)),
+        "--yaml": check_file_output("--yaml", args.yaml, inputs, suffixes=(".yaml", ".yml")),
+        "--report": check_folder_output("--report", args.report, inputs),
+    }
+    check_distinct(targets)
+    return targets
+
+
 def run(args: argparse.Namespace) -> int:
     fixed = parse_fix(args.fix)
     if args.bootstrap is not None and args.bootstrap < 0:
         msg = f"--bootstrap must be >= 0, got {args.bootstrap}"
         raise ParameterError(msg)
+    if args.closure == "none" and not ({"Kt", "J"} & set(fixed) or args.added_inertia):
+        msg = (
+            "--closure none leaves the scale of (Kt, J, B) unidentifiable from voltage, "
+            "current and speed: give --fix Kt=..., --fix J=... or --added-inertia DATA=KG_M2"
+        )
+        raise ParameterError(msg)
+    targets = _outputs(args)
+    to_stdout = STDOUT in targets.values()
+    # with a document on standard output, the human-readable report goes to stderr
+    text_out = sys.stderr if to_stdout else sys.stdout
     t0 = time.perf_counter()
 
     def progress(msg: str) -> None:
@@ -155,21 +223,26 @@ def run(args: argparse.Namespace) -> int:
         progress=progress,
         added_inertia=added,
     )
-    print(result.text_report())
-    written = []
-    if args.json:
-        written.append(result.write_json(args.json))
-    if args.yaml:
-        written.append(result.write_motor_yaml(args.yaml))
-    if args.report:
+    print(result.text_report(), file=text_out)
+    written: list[Path] = []
+    json_to, yaml_to, report_to = targets["--json"], targets["--yaml"], targets["--report"]
+    if json_to == STDOUT:
+        print(json.dumps(result.to_json_dict(), indent=2, allow_nan=False))
+    elif json_to is not None:
+        written.append(result.write_json(json_to))
+    if yaml_to == STDOUT:
+        print(MOTOR_YAML_HEADER + motor_to_yaml(result.motor_spec("identified")), end="")
+    elif yaml_to is not None:
+        written.append(result.write_motor_yaml(yaml_to))
+    if report_to is not None:
         from pmdc_ident.report.plots import write_report
 
-        out = Path(args.report)
+        out = Path(report_to)
         written += write_report(result, segments, out)
-        if not args.json:
+        if json_to is None:
             written.append(result.write_json(out / "identify.json"))
-        if not args.yaml:
+        if yaml_to is None:
             written.append(result.write_motor_yaml(out / "identified_motor.yaml"))
     for p in written:
-        print(f"wrote {p}")
+        print(f"wrote {p}", file=text_out)
     return 0

@@ -60,6 +60,21 @@ def _stop(_sig: int, _frame: FrameType | None) -> None:
     raise KeyboardInterrupt
 
 
+def _check_link(link: Path | None) -> None:
+    """``--link`` may replace a stale symlink, never a file or a folder."""
+    if link is None:
+        return
+    if link.is_symlink():
+        return
+    if link.exists():
+        kind = "folder" if link.is_dir() else "file"
+        msg = f"--link {link}: a {kind} exists there; --link only replaces a symlink"
+        raise ParameterError(msg)
+    if not link.parent.is_dir():
+        msg = f"--link {link}: folder {link.parent} does not exist"
+        raise ParameterError(msg)
+
+
 def run(args: argparse.Namespace) -> int:
     from pmdc_ident.backends.virtual_board import VirtualBoard
     from pmdc_ident.core.motors import load_motor
@@ -69,6 +84,10 @@ def run(args: argparse.Namespace) -> int:
     if args.supply_v is not None and not args.supply_v > 0:
         msg = f"--supply-v must be > 0 V, got {args.supply_v}"
         raise ParameterError(msg)
+    if args.seed < 0:
+        msg = f"--seed must be >= 0, got {args.seed}"
+        raise ParameterError(msg)
+    _check_link(args.link)
     board = VirtualBoard(
         spec,
         baud=args.baud,

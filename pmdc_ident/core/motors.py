@@ -20,7 +20,7 @@ import yaml
 from pmdc_ident.core.effects import effects_from_mapping, effects_to_mapping
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.model import Model
-from pmdc_ident.core.params import MotorParams
+from pmdc_ident.core.params import MotorParams, check_physical_range
 
 __all__ = [
     "BUILTIN_MOTORS",
@@ -125,7 +125,10 @@ def load_motor(name_or_path: str | Path) -> MotorSpec:
         msg = f"no motor file {text!r} (built-in motors: {', '.join(BUILTIN_MOTORS)})"
         raise ParameterError(msg)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        msg = f"{path}: not a motor file (not UTF-8 text)"
+        raise ParameterError(msg) from None
     except yaml.YAMLError as exc:
         msg = f"{path}: not valid YAML ({str(exc).splitlines()[0]})"
         raise ParameterError(msg) from None
@@ -138,6 +141,8 @@ def motor_from_mapping(data: Any, source: str = "motor") -> MotorSpec:
         raise ParameterError(msg)
     try:
         params = MotorParams.from_mapping(data["parameters"])
+        for name, value in params.as_dict().items():
+            check_physical_range(name, value)
         effects = effects_from_mapping(data.get("effects"))
         sensors = SensorSpec(**(data.get("sensors") or {}))
         limits = Limits(**(data.get("limits") or {}))

@@ -28,7 +28,13 @@ from typing import Any
 
 from pmdc_ident.core.errors import ParameterError
 
-__all__ = ["PARAMETER_NAMES", "PARAMETER_UNITS", "MotorParams"]
+__all__ = [
+    "PARAMETER_NAMES",
+    "PARAMETER_RANGES",
+    "PARAMETER_UNITS",
+    "MotorParams",
+    "check_physical_range",
+]
 
 PARAMETER_NAMES: tuple[str, ...] = ("R", "L", "Ke", "Kt", "J", "B")
 PARAMETER_UNITS: dict[str, str] = {
@@ -47,6 +53,31 @@ PARAMETER_DESCRIPTIONS: dict[str, str] = {
     "J": "rotor inertia",
     "B": "viscous friction coefficient",
 }
+
+# The physical range of each parameter: generous bounds (a watch motor to a
+# traction motor) that a value given by a user (``--fix``, a motor file) must
+# lie in. A value outside is a typo or a unit mistake, never a motor.
+PARAMETER_RANGES: dict[str, tuple[float, float]] = {
+    "R": (1e-4, 1e4),
+    "L": (1e-9, 10.0),
+    "Ke": (1e-6, 100.0),
+    "Kt": (1e-6, 100.0),
+    "J": (1e-12, 1e3),
+    "B": (0.0, 100.0),
+}
+
+
+def check_physical_range(name: str, value: float, source: str = "motor parameter") -> float:
+    """``value`` if it lies in :data:`PARAMETER_RANGES` for ``name``, else a ParameterError."""
+    lo, hi = PARAMETER_RANGES[name]
+    if not (math.isfinite(value) and lo <= value <= hi):
+        msg = (
+            f"{source} {name}={value:g}: outside the physical range of the "
+            f"{PARAMETER_DESCRIPTIONS[name]}, [{lo:g}, {hi:g}] {PARAMETER_UNITS[name]} "
+            "(a unit mistake?)"
+        )
+        raise ParameterError(msg)
+    return value
 
 
 @dataclass(frozen=True)

@@ -167,6 +167,11 @@ def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = N
     dt_ns = int(np.median(np.diff(stamps)))
 
     markers = [m for m in arrays.markers if session is None or m.session == session]
+    if session is not None and not markers:
+        present = sorted({m.session for m in arrays.markers if m.session})
+        have = f"sessions in it: {', '.join(present)}" if present else "it has no session markers"
+        msg = f"{source or 'data'}: no session {session!r} ({have})"
+        raise DataError(msg)
     spans = _segment_spans(markers)
     starts = [m for m in markers if m.event is MarkerEvent.SESSION_START]
     t0_ns = _ns(starts[0].t_s) if starts else int(stamps[0])

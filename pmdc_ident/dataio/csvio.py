@@ -35,6 +35,7 @@ import csv
 import math
 from collections.abc import Iterable
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
@@ -171,8 +172,11 @@ def _segments(p: Path, data: dict[str, np.ndarray], labels: list[str]) -> Iterab
         start = stop
 
 
-def write_csv(run: Run | Iterable[Segment], path: str | Path) -> Path:
-    """Write segments in the schema :func:`read_csv` reads (open armature -> empty cell)."""
+def write_csv(run: Run | Iterable[Segment], path: str | Path | TextIO) -> Path | TextIO:
+    """Write segments in the schema :func:`read_csv` reads (open armature -> empty cell).
+
+    ``path`` is a file name or an open text stream (such as ``sys.stdout``).
+    """
     segs = list(run.segments if isinstance(run, Run) else run)
     names = ["t"]
     for name in ("voltage", "current", "position", "speed", "terminal_voltage"):
@@ -181,17 +185,24 @@ def write_csv(run: Run | Iterable[Segment], path: str | Path) -> Path:
                 msg = f"cannot write CSV: only some segments have a '{name}' signal"
                 raise DataError(msg)
             names.append(name)
+    if not isinstance(path, (str, Path)):
+        _write_rows(path, names, segs)
+        return path
     p = Path(path)
     with p.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow([*names, "segment"])
-        for s in segs:
-            arrays = [getattr(s, n) for n in names]
-            for k in range(s.n):
-                row = []
-                for arr in arrays:
-                    v = float(arr[k])
-                    row.append("" if math.isnan(v) else repr(v))
-                row.append(s.label)
-                w.writerow(row)
+        _write_rows(fh, names, segs)
     return p
+
+
+def _write_rows(fh: TextIO, names: list[str], segs: list[Segment]) -> None:
+    w = csv.writer(fh, lineterminator="\n")
+    w.writerow([*names, "segment"])
+    for s in segs:
+        arrays = [getattr(s, n) for n in names]
+        for k in range(s.n):
+            row = []
+            for arr in arrays:
+                v = float(arr[k])
+                row.append("" if math.isnan(v) else repr(v))
+            row.append(s.label)
+            w.writerow(row)

@@ -1,0 +1,146 @@
+"""Where a command may write: one set of rules for every output option.
+
+Checked before any work starts, so a bad output path costs the user nothing:
+
+* ``-`` names standard output (for options that write one document: JSON,
+  YAML, CSV); everything else is a path.
+* An output never replaces an input (a ``DATA`` file, or a file inside a
+  ``DATA`` bag folder), whatever spelling or link leads to it.
+* The folder an output goes into must exist: a mistyped folder is an error,
+  not a tree of new folders (``--report DIR`` itself is created, its parent
+  must exist).
+* A file output must not name a folder, a folder output must not name a file,
+  and a file output's name ends in the suffix of what is written.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+from pmdc_ident.core.errors import PmdcError
+
+__all__ = ["STDOUT", "OutputError", "check_file_output", "check_folder_output"]
+
+STDOUT = "-"
+
+
+class OutputError(PmdcError):
+    """An output option names a place the command must not or cannot write."""
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    try:
+        path.resolve().relative_to(folder.resolve())
+    except (ValueError, OSError):
+        return False
+    return True
+
+
+def _check_not_input(option: str, path: Path, inputs: Sequence[str | Path]) -> None:
+    for src in map(Path, inputs):
+        if _same_file(path, src) or path.resolve() == src.resolve():
+            msg = f"{option} {path}: that is the input {src}; refusing to write over an input"
+            raise OutputError(msg)
+        if src.is_dir() and _inside(path, src):
+            msg = f"{option} {path}: inside the input folder {src}; write outside the bag"
+            raise OutputError(msg)
+
+
+def _check_parent(option: str, path: Path) -> None:
+    parent = path.parent
+    if not parent.exists():
+        msg = f"{option} {path}: folder {parent} does not exist (create it first)"
+        raise OutputError(msg)
+    if not parent.is_dir():
+        msg = f"{option} {path}: {parent} is not a folder"
+        raise OutputError(msg)
+
+
+def check_file_output(
+    option: str,
+    value: str | None,
+    inputs: Sequence[str | Path],
+    *,
+    suffixes: tuple[str, ...] = (),
+    stdout_ok: bool = True,
+) -> Path | str | None:
+    """The checked target of a file option: ``None`` (not given), :data:`STDOUT` or a Path."""
+    if value is None:
+        return None
+    if value == STDOUT:
+        if not stdout_ok:
+            msg = f"{option}: '-' (standard output) is not possible here; give a file name"
+            raise OutputError(msg)
+        return STDOUT
+    if not value.strip():
+        msg = f"{option}: empty file name"
+        raise OutputError(msg)
+    path = Path(value)
+    if path.is_dir():
+        msg = f"{option} {path}: is a folder; give a file name"
+        raise OutputError(msg)
+    if suffixes and path.suffix.lower() not in suffixes:
+        want = " or ".join(suffixes)
+        msg = f"{option} {path}: the file name must end in {want}"
+        raise OutputError(msg)
+    _check_parent(option, path)
+    _check_not_input(option, path, inputs)
+    return path
+
+
+def check_folder_output(
+    option: str,
+    value: str | Path | None,
+    inputs: Sequence[str | Path],
+    *,
+    must_be_new: bool = False,
+    file_suffixes: tuple[str, ...] = (".csv", ".txt", ".json", ".yaml", ".yml", ".html"),
+) -> Path | None:
+    """The checked target of a folder option (``--report DIR``, ``--bag OUTDIR``)."""
+    if value is None:
+        return None
+    if not str(value).strip():
+        msg = f"{option}: empty folder name"
+        raise OutputError(msg)
+    path = Path(value)
+    if str(value) == STDOUT:
+        msg = f"{option}: '-' (standard output) is not possible here; give a folder name"
+        raise OutputError(msg)
+    if path.exists() and not path.is_dir():
+        msg = f"{option} {path}: exists and is not a folder"
+        raise OutputError(msg)
+    if must_be_new and path.exists():
+        msg = f"{option} {path}: exists already and is never overwritten; give a new name"
+        raise OutputError(msg)
+    if path.suffix.lower() in file_suffixes:
+        msg = f"{option} {path}: names a folder to create, not a {path.suffix} file"
+        raise OutputError(msg)
+    _check_parent(option, path)
+    for src in map(Path, inputs):
+        if path.resolve() == src.resolve() or _same_file(path, src) or _inside(path, src):
+            msg = f"{option} {path}: that is the input {src}; refusing to write into an input"
+            raise OutputError(msg)
+    return path
+
+
+def check_distinct(targets: dict[str, Path | str | None]) -> None:
+    """No two options write to the same place (or both to standard output)."""
+    seen: dict[str, str] = {}
+    for option, target in targets.items():
+        if target is None:
+            continue
+        key = STDOUT if target == STDOUT else str(Path(target).resolve())
+        if key in seen:
+            what = "standard output" if key == STDOUT else str(target)
+            msg = f"{seen[key]} and {option} both write to {what}"
+            raise OutputError(msg)
+        seen[key] = option

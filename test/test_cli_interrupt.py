@@ -1,0 +1,81 @@
+"""Ctrl-C at any moment of ``pmdc-ident``: one line on stderr and exit 130.
+
+Real SIGINTs to a real process: while the command modules are still being
+imported, and in the middle of the output-error fit (where the signal can land
+inside the numba kernel). Each signal is sent when the process reports that it
+reached the phase, never after a fixed sleep.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
+from pmdc_ident.core.motors import load_motor
+from pmdc_ident.dataio.csvio import write_csv
+
+ENTRY = "import sys; from pmdc_ident.cli import main; sys.exit(main())"
+
+
+def _interrupt_when(
+    argv: list[str], ready: str, extra: list[str] | None = None, after: str = ""
+) -> tuple:
+    """Start ``pmdc-ident argv``; SIGINT it at the first stderr line holding ``ready``
+    (that comes after a line holding ``after``)."""
+    cmd = [sys.executable, *(extra or []), "-c", ENTRY, *argv]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env.pop("PMDC_IDENT_DEBUG", None)
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env
+    )
+    assert proc.stderr is not None
+    seen: list[str] = []
+    armed = not after
+    for line in proc.stderr:
+        seen.append(line)
+        armed = armed or after in line
+        if armed and ready in line:
+            proc.send_signal(signal.SIGINT)
+            break
+    rest = proc.stderr.read()
+    rc = proc.wait(timeout=120)
+    return rc, seen, rest
+
+
+@pytest.fixture(scope="module")
+def long_run(tmp_path_factory) -> Path:
+    spec = load_motor("seed000_ebike")
+    run = synthesize_run(spec.model, plan_for_motor(spec, 2e-3, SequenceConfig()), spec.sensors)
+    return write_csv(run, tmp_path_factory.mktemp("ctrl_c") / "run.csv")
+
+
+def test_ctrl_c_during_the_output_error_fit(long_run):
+    rc, seen, rest = _interrupt_when(["identify", str(long_run)], "output error, linear model")
+    assert any("output error, linear model" in s for s in seen)
+    assert rc == 130, rest
+    assert "Traceback" not in rest and "Error" not in rest
+    assert rest.strip().splitlines()[-1] == "pmdc-ident identify: interrupted"
+    lines = [s for s in rest.splitlines() if not s.startswith("[")]  # progress lines
+    assert lines == ["pmdc-ident identify: interrupted"], rest
+
+
+def test_ctrl_c_while_the_modules_are_imported(long_run):
+    # -X importtime reports each module as its import ends: the signal lands
+    # once main() imports numpy, while numpy/scipy/numba are being imported.
+    rc, seen, rest = _interrupt_when(
+        ["identify", str(long_run), "--quiet"],
+        "numpy",
+        extra=["-X", "importtime"],
+        after="pmdc_ident.cli",
+    )
+    assert any("pmdc_ident.cli" in s for s in seen)
+    assert not any("pmdc_ident.core.errors" in s for s in seen)  # still importing
+    lines = [s for s in rest.splitlines() if not s.startswith("import time:")]
+    assert rc == 130, rest
+    assert lines == ["pmdc-ident identify: interrupted"], rest
