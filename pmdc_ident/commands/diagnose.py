@@ -24,7 +24,6 @@ from pmdc_ident.commands.outputs import (
 from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
 from pmdc_ident.core.effects import EFFECT_NAMES
 from pmdc_ident.core.errors import ParameterError
-from pmdc_ident.core.params import PARAMETER_NAMES
 from pmdc_ident.dataio import load_data
 
 HELP = "diagnose the sim-to-real gap: where it lies, which effect causes it, how far it shrinks"
@@ -71,6 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from pmdc_ident.commands.identify import parse_fix
+    from pmdc_ident.core.params import PARAMETER_NAMES
 
     effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
     if not effects:

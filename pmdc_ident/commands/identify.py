@@ -21,12 +21,9 @@ from pmdc_ident.commands.outputs import (
     check_file_output,
     check_folder_output,
 )
-from pmdc_ident.core.effects import EFFECT_TYPES
 from pmdc_ident.core.errors import ParameterError
-from pmdc_ident.core.estimators.identify import TC, ModelChoice, identify, merge_runs
-from pmdc_ident.core.motors import motor_to_yaml
+from pmdc_ident.core.estimators.identify import ModelChoice, identify, merge_runs
 from pmdc_ident.core.output_error import CLOSURE_KT_KE
-from pmdc_ident.core.params import PARAMETER_NAMES, check_physical_range
 from pmdc_ident.dataio import load_data
 
 # the first line of a motor file identify writes (as IdentificationResult.write_motor_yaml)
@@ -96,12 +93,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
 
 
-# what identify can hold at a known value: the motor parameters and two effects
-FIXABLE: tuple[str, ...] = (*PARAMETER_NAMES, TC, "load_torque.torque_nm")
+def parse_fix(items: list[str], known: tuple[str, ...] | None = None) -> dict[str, float]:
+    """``--fix NAME=VALUE`` items: known names, physical values, no conflicting repeats.
 
+    ``known``: the names that may be fixed (default: what identify can hold, the
+    motor parameters, the Coulomb friction and a load torque).
+    """
+    from pmdc_ident.core.params import PARAMETER_NAMES
 
-def parse_fix(items: list[str], known: tuple[str, ...] = FIXABLE) -> dict[str, float]:
-    """``--fix NAME=VALUE`` items: known names, physical values, no conflicting repeats."""
+    if known is None:
+        known = (*PARAMETER_NAMES, "coulomb_friction.torque_nm", "load_torque.torque_nm")
     out: dict[str, float] = {}
     for item in items:
         name, sep, value = item.partition("=")
@@ -129,6 +130,9 @@ def parse_fix(items: list[str], known: tuple[str, ...] = FIXABLE) -> dict[str, f
 
 
 def _check_fix_range(name: str, value: float) -> None:
+    from pmdc_ident.core.effects import EFFECT_TYPES
+    from pmdc_ident.core.params import PARAMETER_NAMES, check_physical_range
+
     if name in PARAMETER_NAMES:
         check_physical_range(name, value, source="--fix")
         return
@@ -231,6 +235,8 @@ def run(args: argparse.Namespace) -> int:
     elif json_to is not None:
         written.append(result.write_json(json_to))
     if yaml_to == STDOUT:
+        from pmdc_ident.core.motors import motor_to_yaml
+
         print(MOTOR_YAML_HEADER + motor_to_yaml(result.motor_spec("identified")), end="")
     elif yaml_to is not None:
         written.append(result.write_motor_yaml(yaml_to))
