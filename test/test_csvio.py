@@ -55,10 +55,10 @@ def test_without_voltage_column_the_run_is_current_driven(tmp_path):
     [
         ("voltage,current,speed\n1,2,3\n2,3,4\n", "missing column 't'"),
         ("t,voltage,current\n0,1,2\n1,1,2\n", "'position' or 'speed'"),
-        ("t,voltage,speed\n0,1,2\n0.1,abc,2\n", "row 3: 'voltage' is not a number"),
-        ("t,voltage,speed\n0,1,2\n0,1,2\n", "row 3: time does not increase"),
+        ("t,voltage,speed\n0,1,2\n0.1,abc,2\n", "line 3: 'voltage' is not a number"),
+        ("t,voltage,speed\n0,1,2\n0,1,2\n", "line 3: time does not increase"),
         ("t,voltage,speed\n0,1,2\n-1,1,2\n", "time does not increase"),
-        ("t,voltage,speed\n0,1,2\n0.1,1,nan\n", "row 3: 'speed' is 'nan'"),
+        ("t,voltage,speed\n0,1,2\n0.1,1,nan\n", "line 3: 'speed' is 'nan'"),
         ("t,voltage,speed\n0,1,2\n0.1,NaN,2\n", "empty to mark an open armature"),
         ("t,voltage,speed\n0,1,2\n0.1,1,\n", "empty 'speed' cell"),
         ("t,voltage,speed\n", "header only"),

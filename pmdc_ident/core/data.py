@@ -18,13 +18,36 @@ from numpy.typing import NDArray
 
 from pmdc_ident.core.errors import DataError
 
-__all__ = ["HISTORY_MAX_SAMPLES", "Run", "Segment", "TestKind", "link_history", "segment_kind"]
+__all__ = [
+    "HISTORY_MAX_SAMPLES",
+    "MIN_SAMPLE_STEP_S",
+    "SIGNAL_LIMITS",
+    "Run",
+    "Segment",
+    "TestKind",
+    "link_history",
+    "segment_kind",
+]
 
 FloatArray = NDArray[np.float64]
 # Commanded voltages kept before a segment: enough for a delay of this many samples.
 HISTORY_MAX_SAMPLES = 4096
 # Segments are contiguous when the gap between them is within this many sample periods.
 _CONTIGUOUS_GAP = 1.5
+# Largest magnitude of each signal (SI) any motor test can produce: far beyond a
+# real motor, far below where squares and integrals overflow. A value beyond is
+# a unit mistake or garbage, refused before it reaches a fit.
+SIGNAL_LIMITS: dict[str, tuple[float, str]] = {
+    "t": (1e10, "s"),
+    "voltage": (1e5, "V"),
+    "current": (1e5, "A"),
+    "position": (1e12, "rad"),
+    "speed": (1e6, "rad/s"),
+    "terminal_voltage": (1e5, "V"),
+}
+# Shortest time between two samples (s): no clock ticks faster; shorter steps
+# are rounding noise or a unit mistake.
+MIN_SAMPLE_STEP_S = 1e-9
 
 
 class TestKind(enum.Enum):
@@ -92,6 +115,14 @@ class Segment:
                 f"(t[{k + 1}] = {t[k + 1]:.6g} s after t[{k}] = {t[k]:.6g} s)"
             )
             raise DataError(msg)
+        _check_magnitude(self.label, "t", t, t)
+        if (dt < MIN_SAMPLE_STEP_S).any():
+            k = int(np.argmax(dt < MIN_SAMPLE_STEP_S))
+            msg = (
+                f"segment {self.label!r}: samples {dt[k]:.3g} s apart at t = {t[k]:.9g} s "
+                f"(the shortest possible step is {MIN_SAMPLE_STEP_S:g} s): is t in seconds?"
+            )
+            raise DataError(msg)
         object.__setattr__(self, "t", t)
         for name in ("voltage", "current", "position", "speed", "terminal_voltage"):
             value = getattr(self, name)
@@ -108,6 +139,7 @@ class Segment:
                 k = int(np.argmax(np.isnan(arr)))
                 msg = f"segment {self.label!r}: {name} is NaN at t = {t[k]:.6g} s"
                 raise DataError(msg)
+            _check_magnitude(self.label, name, arr, t)
             object.__setattr__(self, name, arr)
         if self.position is None and self.speed is None:
             msg = f"segment {self.label!r} has neither position nor speed"
@@ -287,6 +319,19 @@ def _contiguous(prev: Segment, seg: Segment) -> bool:
         return False
     gap = float(seg.t[0] - prev.t[-1])
     return abs(gap - dt) <= 0.5 * dt
+
+
+def _check_magnitude(label: str, name: str, arr: FloatArray, t: FloatArray) -> None:
+    limit, unit = SIGNAL_LIMITS[name]
+    with np.errstate(invalid="ignore"):
+        beyond = np.abs(arr) > limit  # NaN (an open armature) is never beyond
+    if beyond.any():
+        k = int(np.argmax(beyond))
+        msg = (
+            f"segment {label!r}: {name} = {arr[k]:.6g} {unit} at t = {t[k]:.6g} s is beyond "
+            f"any motor test (|{name}| <= {limit:g} {unit}): a unit mistake?"
+        )
+        raise DataError(msg)
 
 
 def _float_array(name: str, value: object, label: str) -> FloatArray:

@@ -6,7 +6,7 @@ order; unknown columns are ignored):
 =================  =====  ==============================================
 column             unit   meaning
 =================  =====  ==============================================
-``t``              s      sample time, strictly increasing within a segment
+``t``              s      sample time, strictly increasing through the file
 ``voltage``        V      commanded voltage; an *empty* cell marks a sample
                           with the armature open (coast-down). Without this
                           column the run is current-driven (mechanical only)
@@ -24,9 +24,12 @@ rows, the retardation table a ``coast`` segment with empty voltage cells and
 the measured speeds (see ``test/fixtures/``).
 
 Lines starting with ``#`` are comments (provenance notes). Only an empty
-voltage cell means "open"; a NaN written anywhere, an empty cell
-in another column, a non-numeric cell or time that does not increase is refused
-with one line naming the row and column.
+voltage cell means "open"; a NaN written anywhere, an empty cell in another
+column, a non-numeric cell, a row with more or fewer cells than the header
+(empty trailing cells aside), time that does not increase (across segment
+boundaries too) or a value beyond any motor test
+(:data:`~pmdc_ident.core.data.SIGNAL_LIMITS`) is refused with one line naming
+the file's line and the column.
 """
 
 from __future__ import annotations
@@ -59,22 +62,12 @@ _NUMERIC = ("t", "voltage", "current", "position", "speed", "terminal_voltage")
 def read_csv(path: str | Path) -> Run:
     """Read a CSV run (schema in the module docs) into a :class:`Run`."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        msg = f"{p}: not a text (UTF-8) CSV file"
-        raise DataError(msg) from None
-    rows = list(
-        csv.reader(
-            line
-            for line in text.splitlines()
-            if line.strip() and not line.lstrip().startswith("#")
-        )
-    )
+    rows, lines = _rows(p, _text(p))
     if not rows:
         msg = f"{p}: empty file (expected a header row: t, voltage, current, speed...)"
         raise DataError(msg)
     header = [h.strip().lower() for h in rows[0]]
+    _check_separator(p, header)
     cols = {name: k for k, name in enumerate(header) if name in CSV_COLUMNS}
     dupes = sorted({h for h in header if h and header.count(h) > 1})
     if dupes:
@@ -89,46 +82,120 @@ def read_csv(path: str | Path) -> Run:
     if "voltage" not in cols and "current" not in cols:
         msg = f"{p}: needs a 'voltage' column (or 'current' for current-driven data)"
         raise DataError(msg)
-    body = rows[1:]
+    body, where = rows[1:], lines[1:]
     if not body:
         msg = f"{p}: header only, no samples"
         raise DataError(msg)
+    _check_cells(p, len(header), body, where)
     data: dict[str, np.ndarray] = {}
     for name in _NUMERIC:
         if name in cols:
-            data[name] = _column(p, body, name, cols[name])
+            data[name] = _column(p, body, where, name, cols[name])
+    _check_time(p, data["t"], where)
     labels = (
-        [r[cols["segment"]].strip() if cols["segment"] < len(r) else "" for r in body]
-        if "segment" in cols
-        else ["run"] * len(body)
+        [r[cols["segment"]].strip() for r in body] if "segment" in cols else ["run"] * len(body)
     )
-    return Run(link_history(tuple(_segments(p, data, labels))), source=str(p))
+    return Run(link_history(tuple(_segments(p, data, labels, where))), source=str(p))
 
 
-def _column(p: Path, body: list[list[str]], name: str, k: int) -> np.ndarray:
+def _text(p: Path) -> str:
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        msg = f"{p}: not a text (UTF-8) CSV file"
+        raise DataError(msg) from None
+    if "\x00" in text:
+        msg = f"{p}: holds NUL bytes: a binary or UTF-16 file, not a UTF-8 CSV file"
+        raise DataError(msg)
+    return text
+
+
+def _rows(p: Path, text: str) -> tuple[list[list[str]], list[int]]:
+    """The rows of the file without blank and comment lines, and each row's line number."""
+    numbered = [
+        (k, line)
+        for k, line in enumerate(text.splitlines(), start=1)
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
+    reader = csv.reader(line for _, line in numbered)
+    rows: list[list[str]] = []
+    lines: list[int] = []
+    prev = 0  # lines the reader had consumed before the current row
+    try:
+        for row in reader:
+            rows.append(row)
+            lines.append(numbered[prev][0])  # a quoted cell may span lines: the row's first
+            prev = reader.line_num
+    except csv.Error as exc:
+        line = numbered[min(prev, len(numbered) - 1)][0]
+        msg = f"{p}: line {line}: not a CSV row ({exc})"
+        raise DataError(msg) from None
+    return rows, lines
+
+
+def _check_separator(p: Path, header: list[str]) -> None:
+    if len(header) == 1:
+        for sep, name in ((";", "semicolons"), ("\t", "tabs")):
+            if sep in header[0]:
+                msg = (
+                    f"{p}: the header is one cell holding {name} ({header[0][:40]!r}): "
+                    "columns must be separated by commas"
+                )
+                raise DataError(msg)
+
+
+def _check_cells(p: Path, n_header: int, body: list[list[str]], where: list[int]) -> None:
+    """Every row has one cell per header column (trailing empty cells are tolerated)."""
+    for k, row in enumerate(body):
+        if len(row) == n_header:
+            continue
+        if len(row) > n_header and not any(c.strip() for c in row[n_header:]):
+            del row[n_header:]  # a trailing separator some tools write
+            continue
+        what = "a cut-off line?" if len(row) < n_header else "which column are the extra for?"
+        msg = f"{p}: line {where[k]}: {len(row)} cells, the header has {n_header} ({what})"
+        raise DataError(msg)
+
+
+def _column(p: Path, body: list[list[str]], where: list[int], name: str, k: int) -> np.ndarray:
     out = np.empty(len(body))
-    for row_no, row in enumerate(body, start=2):
-        cell = row[k].strip() if k < len(row) else ""
+    for i, row in enumerate(body):
+        cell = row[k].strip()
         if cell == "":
             if name == "voltage":
-                out[row_no - 2] = math.nan  # armature open
+                out[i] = math.nan  # armature open
                 continue
-            msg = f"{p}: row {row_no}: empty '{name}' cell (only voltage may be empty)"
+            msg = f"{p}: line {where[i]}: empty '{name}' cell (only voltage may be empty)"
             raise DataError(msg)
         try:
             value = float(cell)
         except ValueError:
-            msg = f"{p}: row {row_no}: '{name}' is not a number: {cell[:20]!r}"
+            msg = f"{p}: line {where[i]}: '{name}' is not a number: {cell[:20]!r}"
             raise DataError(msg) from None
         if not math.isfinite(value):
             hint = " (leave the voltage cell empty to mark an open armature)" * (name == "voltage")
-            msg = f"{p}: row {row_no}: '{name}' is {cell!r}{hint}"
+            msg = f"{p}: line {where[i]}: '{name}' is {cell[:20]!r}{hint}"
             raise DataError(msg)
-        out[row_no - 2] = value
+        out[i] = value
     return out
 
 
-def _segments(p: Path, data: dict[str, np.ndarray], labels: list[str]) -> Iterable[Segment]:
+def _check_time(p: Path, t: np.ndarray, where: list[int]) -> None:
+    """``t`` increases through the whole file, across segment boundaries too."""
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        k = int(back[0])
+        msg = (
+            f"{p}: line {where[k + 1]}: time does not increase "
+            f"(t = {t[k + 1]:.6g} s after {t[k]:.6g} s; t increases through the whole file, "
+            "across segments too: runs on clocks of their own go in separate files)"
+        )
+        raise DataError(msg)
+
+
+def _segments(
+    p: Path, data: dict[str, np.ndarray], labels: list[str], where: list[int]
+) -> Iterable[Segment]:
     n = len(labels)
     seen: dict[str, int] = {}
     start = 0
@@ -139,17 +206,8 @@ def _segments(p: Path, data: dict[str, np.ndarray], labels: list[str]) -> Iterab
         base = labels[start] or "run"
         seen[base] = seen.get(base, 0) + 1
         label = base if seen[base] == 1 else f"{base}_{seen[base]}"
-        t = data["t"][start:stop]
-        dt = np.diff(t)
-        if (dt <= 0).any():
-            k = int(np.argmax(dt <= 0)) + start
-            msg = (
-                f"{p}: row {k + 3}: time does not increase "
-                f"(t = {data['t'][k + 1]:.6g} s after {data['t'][k]:.6g} s)"
-            )
-            raise DataError(msg)
         if stop - start < 2:
-            msg = f"{p}: segment {label!r} (row {start + 2}) has only one sample"
+            msg = f"{p}: segment {label!r} (line {where[start]}) has only one sample"
             raise DataError(msg)
 
         def cut(name: str, lo: int = start, hi: int = stop) -> np.ndarray | None:
@@ -159,7 +217,7 @@ def _segments(p: Path, data: dict[str, np.ndarray], labels: list[str]) -> Iterab
         try:
             yield Segment(
                 label=label,
-                t=t.copy(),
+                t=data["t"][start:stop].copy(),
                 voltage=cut("voltage"),
                 current=cut("current"),
                 position=cut("position"),
