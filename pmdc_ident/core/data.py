@@ -38,7 +38,7 @@ _CONTIGUOUS_GAP = 1.5
 # real motor, far below where squares and integrals overflow. A value beyond is
 # a unit mistake or garbage, refused before it reaches a fit.
 SIGNAL_LIMITS: dict[str, tuple[float, str]] = {
-    "t": (1e10, "s"),
+    "t": (4e9, "s"),  # a bag stamps it in int64 ns: up to 9.2e9 s
     "voltage": (1e5, "V"),
     "current": (1e5, "A"),
     "position": (1e12, "rad"),
