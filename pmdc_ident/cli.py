@@ -29,6 +29,7 @@ COMMANDS: dict[str, str] = {
     "identify": "identify",
     "diagnose": "diagnose",
     "export": "export",
+    "export-model": "export_model",
     "virtual-board": "virtual_board",
     "benchmark": "benchmark",
 }

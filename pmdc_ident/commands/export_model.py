@@ -1,0 +1,165 @@
+"""``pmdc-ident export-model``: the identified motor for MuJoCo, URDF, ros2_control, a drive."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from pmdc_ident.core.errors import PmdcError
+
+HELP = (
+    "write an identified motor as MuJoCo MJCF (--mujoco), URDF (--urdf), ros2_control "
+    "parameters (--ros2-control) and/or cascade PI gains (--gains)"
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "motor", metavar="MOTOR", help="the YAML `identify --yaml` writes, or a built-in motor"
+    )
+    parser.add_argument("--mujoco", metavar="OUT.xml", type=Path, help="write MuJoCo MJCF")
+    parser.add_argument(
+        "--mujoco-actuator",
+        choices=("auto", "dcmotor", "general"),
+        default="auto",
+        help="MuJoCo's DC motor actuator (MuJoCo >= 4) or a general actuator with the same "
+        "torque-speed law (default: dcmotor unless an older mujoco is installed)",
+    )
+    parser.add_argument("--urdf", metavar="OUT.urdf", type=Path, help="write a URDF joint")
+    parser.add_argument(
+        "--ros2-control", metavar="OUT.yaml", type=Path, help="write ros2_control parameters"
+    )
+    parser.add_argument(
+        "--gains", metavar="OUT.yaml", type=Path, help="write PI current/speed gains and checks"
+    )
+    parser.add_argument("--joint", default="motor_joint", help="joint name (default motor_joint)")
+    parser.add_argument(
+        "--reduction", type=float, default=1.0, help="gear ratio, motor turns per joint turn"
+    )
+    parser.add_argument(
+        "--sample-rate-hz", type=float, default=1000.0, help="controller rate (default 1000)"
+    )
+    parser.add_argument(
+        "--speed-bandwidth-hz",
+        type=float,
+        default=None,
+        help="speed-loop crossover (default: a tenth of the current loop's)",
+    )
+    parser.add_argument(
+        "--current-bandwidth-hz",
+        type=float,
+        default=None,
+        help="current-loop crossover (default: the fastest the margin and rate allow)",
+    )
+    parser.add_argument(
+        "--phase-margin-deg", type=float, default=60.0, help="both loops (default 60)"
+    )
+    parser.add_argument(
+        "--verify-on",
+        metavar="MOTOR",
+        default=None,
+        help="also check the gains on this motor (a motor YAML with effects, or a built-in)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from pmdc_ident.core.motors import load_motor
+
+    if not any((args.mujoco, args.urdf, args.ros2_control, args.gains)):
+        msg = "nothing to write: give --mujoco, --urdf, --ros2-control and/or --gains"
+        raise PmdcError(msg)
+    spec = load_motor(args.motor)
+    if args.mujoco:
+        from pmdc_ident.exports.mujoco_xml import mujoco_xml
+
+        flavour = None if args.mujoco_actuator == "auto" else args.mujoco_actuator
+        ex = mujoco_xml(spec, reduction=args.reduction, joint=args.joint, flavour=flavour)
+        ex.write(args.mujoco)
+        print(f"{args.mujoco}: MJCF, {ex.flavour} actuator '{ex.actuator}' on '{ex.joint}'")
+        for item in ex.not_carried:
+            print(f"  not carried: {item}")
+    if args.urdf:
+        from pmdc_ident.exports.urdf import urdf_xml
+
+        Path(args.urdf).write_text(urdf_xml(spec, reduction=args.reduction, joint=args.joint))
+        print(f"{args.urdf}: URDF joint '{args.joint}' (reduction {args.reduction:g})")
+    if args.gains or args.ros2_control:
+        return _gains(args, spec)
+    return 0
+
+
+def _gains(args: argparse.Namespace, spec: object) -> int:
+    import yaml
+
+    from pmdc_ident.core.control_design import TOLERANCES, check_gains, design_gains
+    from pmdc_ident.core.motors import MotorSpec, load_motor
+
+    assert isinstance(spec, MotorSpec)
+    design = design_gains(
+        spec.model.params,
+        spec.limits,
+        sample_rate_hz=args.sample_rate_hz,
+        speed_bandwidth_hz=_speed_bandwidth(args),
+        phase_margin_deg=args.phase_margin_deg,
+        current_bandwidth_hz=args.current_bandwidth_hz,
+    )
+    others = [load_motor(args.verify_on)] if args.verify_on else []
+    checks = check_gains(design, spec, others)
+    if args.ros2_control:
+        from pmdc_ident.exports.urdf import ros2_control_yaml
+
+        text = ros2_control_yaml(spec, design, reduction=args.reduction, joint=args.joint)
+        Path(args.ros2_control).write_text(text)
+        print(f"{args.ros2_control}: ros2_control parameters for '{args.joint}'")
+    pr = design.promised
+    print(
+        f"current PI: Kp {design.current_kp_v_per_a:.4g} V/A, Ki {design.current_ki_v_per_as:.4g}"
+        f" V/(A*s) ({design.current_crossover_hz:.3g} Hz, "
+        f"{design.current_phase_margin_deg:.3g} deg margin)"
+    )
+    print(
+        f"speed PI:   Kp {design.speed_kp_a_s_per_rad:.4g} A*s/rad, Ki "
+        f"{design.speed_ki_a_per_rad:.4g} A/rad ({design.speed_crossover_hz:.3g} Hz, "
+        f"{design.speed_phase_margin_deg:.3g} deg margin) at {design.sample_rate_hz:g} Hz"
+    )
+    print(
+        f"promised {pr.step_rad_s:.3g} rad/s speed step: overshoot {pr.overshoot_pct:.1f} % "
+        f"(<= {pr.overshoot_pct + TOLERANCES['overshoot_pp']:.1f}), settling {pr.settling_s:.3f} s"
+        f" (<= {pr.settling_s * TOLERANCES['settling_factor']:.3f})"
+    )
+    for c in checks:
+        m = c.measured
+        verdict = "ok" if c.ok else "NOT MET"
+        print(
+            f"  closed loop on {c.plant}: overshoot {m.overshoot_pct:.1f} %, settling "
+            f"{m.settling_s:.3f} s, peak {c.peak_current_a:.3g} A {c.peak_voltage_v:.3g} V: "
+            f"{verdict}"
+        )
+    if args.gains:
+        data = design.as_dict()
+        data["verification"] = [
+            {
+                "plant": c.plant,
+                "overshoot_pct": c.measured.overshoot_pct,
+                "settling_2pct_s": c.measured.settling_s,
+                "peak_current_a": c.peak_current_a,
+                "peak_voltage_v": c.peak_voltage_v,
+                "within_promise": c.ok,
+            }
+            for c in checks
+        ]
+        header = f"# Cascade PI gains written by pmdc-ident export-model for '{spec.name}'.\n"
+        Path(args.gains).write_text(header + yaml.safe_dump(data, sort_keys=False))
+        print(f"{args.gains}: gains and closed-loop checks")
+    return 0 if all(c.ok for c in checks) else 1
+
+
+def _speed_bandwidth(args: argparse.Namespace) -> float:
+    if args.speed_bandwidth_hz is not None:
+        return float(args.speed_bandwidth_hz)
+    from pmdc_ident.core.control_design import current_crossover_hz
+
+    wc = current_crossover_hz(
+        args.sample_rate_hz, args.phase_margin_deg, args.current_bandwidth_hz
+    )
+    return wc / 10.0

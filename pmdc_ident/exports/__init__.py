@@ -1,0 +1,1 @@
+"""The identified motor in other tools' formats: MuJoCo MJCF, URDF, ros2_control."""

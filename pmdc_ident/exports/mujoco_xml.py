@@ -1,0 +1,220 @@
+"""The identified motor as MuJoCo MJCF: a hinge joint driven by the motor's actuator.
+
+Written as plain XML (no ``mujoco`` import is needed to write it). Two actuator
+flavours, both commanded in volts (``ctrl`` = armature voltage):
+
+* ``dcmotor`` (MuJoCo >= 4): MuJoCo's DC motor actuator with the winding
+  resistance, the inductance (the armature current is its activation state) and
+  the motor constant. MuJoCo's motor has one constant ``K`` for torque and
+  back-EMF; an identified motor has two (Kt, Ke). The export keeps the speed
+  response exact by giving MuJoCo ``K = Ke`` and scaling R and L by ``Ke/Kt``:
+  then ``L' di'/dt = V - R' i' - Ke w`` and ``torque = Ke i' = Kt i`` with
+  ``i' = i Kt/Ke``, so MuJoCo's actuator current reads ``Kt/Ke`` times the real
+  one (stated in the file).
+* ``general`` (any MuJoCo): a general actuator with the same torque-speed law,
+  ``torque = (Kt/R) filt(V) - (Kt Ke/R) w`` where ``filt`` is a first-order lag
+  ``L/R`` on the voltage (``dyntype=filterexact``). It neglects the inductance's lag
+  of the back-EMF term, an error of order ``(L/R)/(J R/(Kt Ke))``.
+
+Rotor inertia, viscous friction and Coulomb friction go on the joint, reflected
+through the gear ``N`` (``armature = J N^2``, ``damping = B N^2``, ``frictionloss
+= Tc N``; a quadratic drag ``Cq`` becomes the joint's second damping coefficient
+``Cq N^3``, MuJoCo >= 4). The actuator's ``gear`` is ``N``. Effects MuJoCo's model
+cannot carry are listed in :attr:`MujocoExport.not_carried` and in the file.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+from pmdc_ident.core.effects import CoulombFriction, QuadraticDrag
+from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.motors import MotorSpec
+
+__all__ = ["MUJOCO_FLAVOURS", "MujocoExport", "installed_mujoco_flavour", "mujoco_xml"]
+
+MUJOCO_FLAVOURS: tuple[str, ...] = ("dcmotor", "general")
+
+# Why each effect of core.effects is or is not in the MJCF.
+_NOT_CARRIED: dict[str, str] = {
+    "stribeck_friction": "extra breakaway torque at low speed (MuJoCo's frictionloss is constant)",
+    "load_torque": "constant load torque (apply it as qfrc_applied in your simulation)",
+    "brush_drop": "brush voltage drop (no such term in MuJoCo's motor)",
+    "dead_zone": "driver dead zone (put it in your controller's output stage)",
+    "cogging": "cogging torque (dcmotor's cogging needs integer poles; not exported)",
+    "resistance_drift": "winding heating R(1 + k int i^2 dt) (MuJoCo's thermal model differs)",
+    "delay": "command delay (use MuJoCo's actuator delay/nsample history if you need it)",
+    "current_offset": "current-sensor offset (a measurement effect, not dynamics)",
+    "inductance_saturation": "inductance falling with current (MuJoCo's L is constant)",
+}
+_ALWAYS_NOTED = (
+    "open armature (coast-down): MuJoCo's motor has no open circuit; ctrl = 0 V shorts "
+    "the winding and brakes",
+    "the motor's speed limit (MuJoCo has no velocity limit on a joint)",
+)
+
+
+@dataclass(frozen=True)
+class MujocoExport:
+    """The MJCF text and what it leaves out."""
+
+    xml: str
+    flavour: str
+    joint: str
+    actuator: str
+    timestep_s: float
+    not_carried: tuple[str, ...]
+    notes: tuple[str, ...]
+
+    def write(self, path: str | Path) -> Path:
+        p = Path(path)
+        p.write_text(self.xml)
+        return p
+
+
+def installed_mujoco_flavour() -> str:
+    """``dcmotor`` unless an installed ``mujoco`` package predates the DC motor actuator."""
+    try:
+        import mujoco  # noqa: PLC0415 - optional, only to choose the flavour
+    except ImportError:
+        return "dcmotor"
+    major = int(str(getattr(mujoco, "__version__", "4")).split(".")[0] or 0)
+    return "dcmotor" if major >= 4 else "general"
+
+
+def mujoco_xml(
+    spec: MotorSpec,
+    *,
+    reduction: float = 1.0,
+    joint: str = "motor_joint",
+    flavour: str | None = None,
+    timestep_s: float = 2.5e-4,
+) -> MujocoExport:
+    """MJCF of the motor ``spec`` behind a gear of ratio ``reduction`` (motor turns per
+    joint turn); ``flavour`` None picks :func:`installed_mujoco_flavour`."""
+    flavour = flavour or installed_mujoco_flavour()
+    if flavour not in MUJOCO_FLAVOURS:
+        msg = f"MuJoCo actuator flavour must be one of {', '.join(MUJOCO_FLAVOURS)}, got {flavour}"
+        raise ParameterError(msg)
+    if not (math.isfinite(reduction) and reduction > 0):
+        msg = f"gear reduction must be a positive number, got {reduction}"
+        raise ParameterError(msg)
+    if not (math.isfinite(timestep_s) and 0 < timestep_s <= 0.01):
+        msg = f"MuJoCo timestep must lie in (0, 0.01] s, got {timestep_s}"
+        raise ParameterError(msg)
+    p, n = spec.model.params, float(reduction)
+    coulomb = spec.model.effect("coulomb_friction")
+    drag = spec.model.effect("quadratic_drag")
+    tc = coulomb.torque_nm if isinstance(coulomb, CoulombFriction) else 0.0
+    cq = drag.coeff_nm_s2 if isinstance(drag, QuadraticDrag) else 0.0
+    not_carried = (
+        tuple(
+            f"{name}: {_NOT_CARRIED[name]}"
+            for name in spec.model.effect_names
+            if name in _NOT_CARRIED
+        )
+        + _ALWAYS_NOTED
+    )
+    if cq > 0 and flavour == "general":
+        not_carried += ("quadratic_drag: polynomial joint damping needs MuJoCo >= 4",)
+
+    root = ET.Element("mujoco", model=spec.name or "pmdc_motor")
+    ET.SubElement(root, "option", timestep=_f(timestep_s), gravity="0 0 0")
+    world = ET.SubElement(root, "worldbody")
+    body = ET.SubElement(world, "body", name=f"{joint}_output")
+    damping = (
+        _f(p.B * n * n)
+        if not (cq > 0 and flavour == "dcmotor")
+        else (f"{_f(p.B * n * n)} {_f(cq * n**3)}")
+    )
+    ET.SubElement(
+        body,
+        "joint",
+        name=joint,
+        type="hinge",
+        axis="0 0 1",
+        armature=_f(p.J * n * n),
+        damping=damping,
+        frictionloss=_f(tc * n),
+    )
+    # The rotor's inertia is the joint armature; the body itself is nearly massless.
+    ET.SubElement(body, "inertial", pos="0 0 0", mass="1e-6", diaginertia="1e-12 1e-12 1e-12")
+    act = ET.SubElement(root, "actuator")
+    vmax = spec.limits.voltage_max_v
+    common = {
+        "name": f"{joint}_motor",
+        "joint": joint,
+        "gear": _f(n),
+        "ctrllimited": "true",
+        "ctrlrange": f"{_f(-vmax)} {_f(vmax)}",
+    }
+    notes = [f"ctrl is the armature voltage in V (limited to +-{vmax:g} V)"]
+    if flavour == "dcmotor":
+        scale = p.Ke / p.Kt
+        ET.SubElement(
+            act,
+            "dcmotor",
+            **common,
+            resistance=_f(p.R * scale),
+            motorconst=f"{_f(p.Ke)} {_f(p.Ke)}",
+            inductance=f"{_f(p.L * scale)} 0",
+        )
+        notes.append(
+            f"MuJoCo's K = Ke; R and L scaled by Ke/Kt = {scale:.6g}, so the actuator's "
+            f"current state reads i * Kt/Ke (speed and torque are exact)"
+        )
+    else:
+        ET.SubElement(
+            act,
+            "general",
+            **common,
+            dyntype="filterexact",
+            dynprm=_f(p.L / p.R),
+            gaintype="fixed",
+            gainprm=_f(p.Kt / p.R),
+            biastype="affine",
+            biasprm=f"0 0 {_f(-p.Kt * p.Ke / p.R)}",
+        )
+        notes.append("the inductance lags the voltage only, not the back-EMF (see module doc)")
+    text = ET.tostring(root, encoding="unicode")
+    header = _comment(spec, n, flavour, notes, not_carried)
+    xml = _pretty(header + text)
+    return MujocoExport(
+        xml=xml,
+        flavour=flavour,
+        joint=joint,
+        actuator=f"{joint}_motor",
+        timestep_s=timestep_s,
+        not_carried=not_carried,
+        notes=tuple(notes),
+    )
+
+
+def _f(x: float) -> str:
+    return f"{x:.10g}"
+
+
+def _comment(
+    spec: MotorSpec, n: float, flavour: str, notes: list[str], not_carried: tuple[str, ...]
+) -> str:
+    p = spec.model.params
+    lines = [
+        f"MJCF written by pmdc-ident export-model from motor '{spec.name}' ({flavour} actuator).",
+        f"R={p.R:.6g} ohm L={p.L:.6g} H Ke={p.Ke:.6g} V*s/rad Kt={p.Kt:.6g} N*m/A "
+        f"J={p.J:.6g} kg*m^2 B={p.B:.6g} N*m*s/rad; gear reduction {n:g}.",
+        *notes,
+        "Not carried by this MuJoCo model:",
+        *(f"  - {item}" for item in not_carried),
+    ]
+    body = "\n".join(f"  {line}".replace("--", "- -") for line in lines)
+    return f"<!--\n{body}\n-->\n"
+
+
+def _pretty(text: str) -> str:
+    comment, _, rest = text.partition("-->\n")
+    tree = ET.ElementTree(ET.fromstring(rest))
+    ET.indent(tree, space="  ")
+    return comment + "-->\n" + ET.tostring(tree.getroot(), encoding="unicode") + "\n"
