@@ -30,6 +30,7 @@ COMMANDS: dict[str, str] = {
     "diagnose": "diagnose",
     "export": "export",
     "export-model": "export_model",
+    "monitor": "monitor",
     "virtual-board": "virtual_board",
     "benchmark": "benchmark",
 }

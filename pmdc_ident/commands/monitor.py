@@ -1,0 +1,163 @@
+"""``pmdc-ident monitor DATA --params MOTOR.yaml``: replay a recording through the drift monitor.
+
+The same :class:`~pmdc_ident.core.drift_monitor.DriftMonitor` the monitor node
+runs: every sample in time order (segments joined; a gap restarts the filters),
+the drift printed over time, a summary, and with ``--report DIR`` a plot and a
+CSV of the estimates with their 95 % intervals.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+
+from pmdc_ident.core.errors import DataError
+
+HELP = "replay a bag or CSV through the drift monitor: R, temperature, Ke, friction, delay"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("data", metavar="DATA", help="a bag directory, an .mcap file or a CSV")
+    parser.add_argument(
+        "--params",
+        required=True,
+        metavar="MOTOR.yaml",
+        help="the identified motor (`identify --yaml`), or a built-in motor name",
+    )
+    parser.add_argument("--report", metavar="DIR", type=Path, help="write drift.png and drift.csv")
+    parser.add_argument(
+        "--every",
+        type=float,
+        default=None,
+        metavar="S",
+        help="print every S seconds (default: ~30 lines)",
+    )
+    parser.add_argument("--r-warn", type=float, default=0.10, help="R rise for WARN (relative)")
+    parser.add_argument("--r-error", type=float, default=0.20, help="R rise for ERROR (relative)")
+    parser.add_argument(
+        "--ke-warn", type=float, default=0.05, help="Ke change for WARN (relative)"
+    )
+    parser.add_argument("--ke-error", type=float, default=0.10, help="Ke change for ERROR")
+    parser.add_argument(
+        "--friction-warn", type=float, default=0.0, help="friction rise for WARN, N*m (0: auto)"
+    )
+    parser.add_argument(
+        "--friction-error", type=float, default=0.0, help="friction rise for ERROR, N*m (0: auto)"
+    )
+    parser.add_argument("--delay-warn", type=float, default=0.002, help="delay change for WARN, s")
+    parser.add_argument(
+        "--delay-error", type=float, default=0.010, help="delay change for ERROR, s"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from pmdc_ident.core.drift_monitor import DriftMonitor, MonitorConfig
+    from pmdc_ident.core.motors import load_motor
+    from pmdc_ident.dataio import load_data
+
+    spec = load_motor(args.params)
+    data = load_data(args.data)
+    t, v, i, w = _samples(data)
+    cfg = MonitorConfig(
+        r_warn_rel=args.r_warn,
+        r_error_rel=args.r_error,
+        ke_warn_rel=args.ke_warn,
+        ke_error_rel=args.ke_error,
+        friction_warn_nm=args.friction_warn,
+        friction_error_nm=args.friction_error,
+        delay_warn_s=args.delay_warn,
+        delay_error_s=args.delay_error,
+    )
+    mon = DriftMonitor(spec, cfg)
+    reports = mon.process(t, v, i, w)
+    if not reports:
+        msg = f"{args.data}: too short to monitor ({t.size} samples over {t[-1] - t[0]:.3g} s)"
+        raise DataError(msg)
+    every = args.every or max((t[-1] - t[0]) / 30.0, cfg.report_period_s)
+    print(
+        f"{'t s':>8} {'R ohm':>16} {'dT K':>12} {'Ke V*s/rad':>20} {'friction N*m':>18} "
+        f"{'delay ms':>13}  level"
+    )
+    next_t = -math.inf
+    for r in reports:
+        if r.t_s >= next_t or r is reports[-1]:
+            next_t = r.t_s + every
+            print(_line(r))
+    last = reports[-1]
+    levels = [r.level for r in reports]
+    print(f"worst level {max(levels).name}; now {last.level.name}: {last.message}")
+    if args.report:
+        _write_report(args.report, reports)
+        print(f"{args.report}: drift.png, drift.csv")
+    return 0
+
+
+def _samples(data: object) -> tuple[np.ndarray, ...]:
+    """All samples of a run in time order, with voltage, current and speed."""
+    segs = sorted(data.segments, key=lambda s: float(s.t[0]))  # type: ignore[attr-defined]
+    missing = [s.label for s in segs if s.voltage is None or s.current is None]
+    if missing:
+        msg = f"the monitor needs voltage and current; segment {missing[0]!r} lacks one"
+        raise DataError(msg)
+    cols = [
+        np.concatenate([getattr(s, name) for s in segs]) for name in ("t", "voltage", "current")
+    ]
+    w = np.concatenate([s.speed_or_derivative() for s in segs])
+    order = np.argsort(cols[0], kind="stable")
+    return tuple(c[order] for c in (*cols, w))
+
+
+def _pm(q: object, scale: float = 1.0, fmt: str = ".4g") -> str:
+    return f"{q.value * scale:{fmt}}+-{q.ci95 * scale:.2g}"  # type: ignore[attr-defined]
+
+
+def _line(r: object) -> str:
+    q = {x.name: x for x in r.quantities}  # type: ignore[attr-defined]
+    flag = " re-identify" if r.suggest_reidentify else ""  # type: ignore[attr-defined]
+    return (
+        f"{r.t_s:8.1f} {_pm(q['resistance']):>16} "  # type: ignore[attr-defined]
+        f"{r.temperature_rise_k:+6.1f}+-{r.temperature_ci95_k:<4.2g} "  # type: ignore[attr-defined]
+        f"{_pm(q['back_emf']):>20} {_pm(q['friction']):>18} "
+        f"{_pm(q['delay'], 1e3, '.3f'):>13}  {r.level.name}{flag}"  # type: ignore[attr-defined]
+    )
+
+
+def _write_report(out: Path, reports: list) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    names = [q.name for q in reports[0].quantities]
+    header = ["t_s", "level", "suggest_reidentify", "temperature_rise_k"]
+    for n in names:
+        header += [n, f"{n}_ci95"]
+    rows = []
+    for r in reports:
+        row = [r.t_s, int(r.level), int(r.suggest_reidentify), r.temperature_rise_k]
+        for q in r.quantities:
+            row += [q.value, q.ci95]
+        rows.append(row)
+    arr = np.array(rows)
+    np.savetxt(out / "drift.csv", arr, delimiter=",", header=",".join(header), comments="")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(names) + 1, 1, sharex=True, figsize=(9, 2.2 * (len(names) + 1)))
+    t = arr[:, 0]
+    for k, (ax, q0) in enumerate(zip(axes, reports[0].quantities, strict=False)):
+        val, ci = arr[:, 4 + 2 * k], arr[:, 5 + 2 * k]
+        ax.plot(t, val, lw=1)
+        ax.fill_between(t, val - ci, val + ci, alpha=0.3, lw=0)
+        for thr, style in ((q0.warn, "--"), (q0.error, ":")):
+            ax.axhline(q0.reference + thr, color="k", ls=style, lw=0.8)
+            if q0.name != "resistance" and q0.name != "friction":
+                ax.axhline(q0.reference - thr, color="k", ls=style, lw=0.8)
+        ax.set_ylabel(f"{q0.name}\n{q0.unit}")
+    axes[-1].step(t, arr[:, 1], where="post")
+    axes[-1].set_yticks([0, 1, 2], ["OK", "WARN", "ERROR"])
+    axes[-1].set_xlabel("t s")
+    fig.tight_layout()
+    fig.savefig(out / "drift.png", dpi=90)
+    plt.close(fig)

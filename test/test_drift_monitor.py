@@ -1,0 +1,142 @@
+"""Drift monitor: tracks heating, flags each drift it can prove, claims none it cannot."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pmdc_ident.cli import main
+from pmdc_ident.core.control_design import GainDesign, design_gains
+from pmdc_ident.core.data import Run, Segment
+from pmdc_ident.core.drift_monitor import DriftLevel, DriftMonitor, DriftReport
+from pmdc_ident.core.effects import CoulombFriction, Delay, ResistanceDrift
+from pmdc_ident.core.model import Model
+from pmdc_ident.core.motors import MotorSpec, load_motor
+from pmdc_ident.core.service_run import ServiceRun, simulate_service
+from pmdc_ident.dataio.csvio import write_csv
+
+SPEC = load_motor("seed000_ebike")
+P = SPEC.model.params
+STEPS = np.repeat([100.0, 250.0, -150.0, 50.0, 300.0] * 4, 1000)  # rad/s set-points, 1 s each
+
+
+@pytest.fixture(scope="module")
+def design() -> GainDesign:
+    return design_gains(P, SPEC.limits, sample_rate_hz=1000, speed_bandwidth_hz=5)
+
+
+def _true(model: Model) -> MotorSpec:
+    return MotorSpec(SPEC.name, model, SPEC.sensors, SPEC.limits)
+
+
+def _monitor(run: ServiceRun, spec: MotorSpec = SPEC, batch: int = 20) -> list[DriftReport]:
+    mon = DriftMonitor(spec)
+    out: list[DriftReport] = []
+    for a in range(0, run.t.size, batch):  # as a node would: small batches
+        sl = slice(a, a + batch)
+        out += mon.process(run.t[sl], run.voltage[sl], run.current[sl], run.speed[sl])
+    return out
+
+
+def test_heating_is_tracked_within_2pct_and_flagged_within_10s(design: GainDesign) -> None:
+    run = simulate_service(_true(SPEC.model.with_effects(ResistanceDrift(1.5e-3))), design, 60.0)
+    reports = _monitor(run)
+    t = np.array([r.t_s for r in reports])
+    r_hat = np.array([r.quantity("resistance").value for r in reports])
+    r_true = np.interp(t, run.t, run.true_resistance_ohm)
+    late = t > 5.0
+    assert np.max(np.abs(r_hat[late] / r_true[late] - 1.0)) < 0.02
+    crossing = run.t[np.argmax(run.true_resistance_ohm > 1.10 * P.R)]
+    flagged = t[np.argmax([r.quantity("resistance").level >= DriftLevel.WARN for r in reports])]
+    assert crossing < flagged < crossing + 10.0
+    rise = reports[-1].temperature_rise_k
+    assert rise == pytest.approx((run.true_resistance_ohm[-1] / P.R - 1) / 3.93e-3, rel=0.05)
+    assert reports[-1].suggest_reidentify
+
+
+def test_no_warning_on_a_motor_that_has_not_changed(design: GainDesign) -> None:
+    run = simulate_service(_true(SPEC.model), design, 60.0, seed=5)
+    reports = _monitor(run)
+    assert max(r.level for r in reports) == DriftLevel.OK
+    r = np.array([(q.value, q.ci95) for r in reports[50:] for q in r.quantities[:1]])
+    covered = np.mean(np.abs(r[:, 0] - P.R) <= r[:, 1])
+    assert covered > 0.85  # the 95 % intervals are not overconfident
+
+
+@pytest.mark.parametrize(
+    ("model", "name"),
+    [
+        (SPEC.model.with_effects(Delay(0.004)), "delay"),
+        (SPEC.model.with_effects(CoulombFriction(0.08)), "friction"),
+        (Model(P.replace(Ke=P.Ke * 0.92, Kt=P.Kt * 0.92), SPEC.model.effects), "back_emf"),
+    ],
+)
+def test_each_drift_is_flagged_on_its_own_quantity(
+    design: GainDesign, model: Model, name: str
+) -> None:
+    reports = _monitor(simulate_service(_true(model), design, 30.0, seed=2))
+    last = reports[-1]
+    assert last.quantity(name).level == DriftLevel.WARN
+    assert {q.name for q in last.quantities if q.level > DriftLevel.OK} == {name}
+
+
+def test_a_motor_standing_still_claims_no_drift() -> None:
+    # Identified R is 30 % off, but the motor never moves: nothing can be proven.
+    wrong = MotorSpec("x", Model(P.replace(R=0.7 * P.R)), SPEC.sensors, SPEC.limits)
+    rng = np.random.default_rng(0)
+    t = np.arange(30000) * 1e-3
+    mon = DriftMonitor(wrong)
+    reports = mon.process(
+        t, np.zeros_like(t), rng.normal(0, 0.01, t.size), rng.normal(0, 0.05, t.size)
+    )
+    assert max(r.level for r in reports) == DriftLevel.OK
+    assert not any(q.excited for q in reports[-1].quantities)
+    assert not mon.suggest_reidentify
+
+
+def test_suggestion_stays_latched_until_reset(design: GainDesign) -> None:
+    hot = MotorSpec(
+        "hot", Model(P.replace(R=1.3 * P.R), SPEC.model.effects), SPEC.sensors, SPEC.limits
+    )
+    run = simulate_service(hot, design, 10.0, seed=1, setpoints=STEPS)
+    mon = DriftMonitor(SPEC)
+    mon.process(run.t, run.voltage, run.current, run.speed)
+    assert mon.suggest_reidentify
+    cool = simulate_service(_true(SPEC.model), design, 10.0, seed=2, setpoints=STEPS)
+    reports = mon.process(cool.t + 10.0, cool.voltage, cool.current, cool.speed)
+    assert reports[-1].level == DriftLevel.OK
+    assert reports[-1].suggest_reidentify
+    mon.reset_suggestion()
+    assert not mon.suggest_reidentify
+
+
+def test_monitor_command_replays_a_csv_and_writes_a_report(design, tmp_path, capsys) -> None:
+    heating = _true(SPEC.model.with_effects(ResistanceDrift(1.5e-3)))
+    r = simulate_service(heating, design, 20.0, setpoints=STEPS)
+    csv = tmp_path / "service.csv"
+    write_csv(Run((Segment("service", r.t, r.voltage, r.current, None, r.speed),), "sim"), csv)
+    rc = main(
+        ["monitor", str(csv), "--params", "seed000_ebike", "--report", str(tmp_path / "rep")]
+    )
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "worst level ERROR" in out and "re-identify" in out
+    assert (tmp_path / "rep" / "drift.png").stat().st_size > 1000
+    rows = np.loadtxt(tmp_path / "rep" / "drift.csv", delimiter=",", skiprows=1)
+    assert rows[-1, 4] == pytest.approx(r.true_resistance_ohm[-1], rel=0.02)
+    assert main(["monitor", str(csv), "--params", str(tmp_path / "none.yaml")]) == 2
+    assert (
+        main(
+            [
+                "monitor",
+                str(csv),
+                "--params",
+                "seed000_ebike",
+                "--r-warn",
+                "0.5",
+                "--r-error",
+                "0.2",
+            ]
+        )
+        == 2
+    )
