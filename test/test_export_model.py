@@ -212,3 +212,10 @@ def test_exports_are_importable_from_the_package() -> None:
     assert "<transmission" in ux(spec)
     design = dg(spec.model.params, spec.limits, sample_rate_hz=1000, speed_bandwidth_hz=3)
     assert design.speed_phase_margin_deg >= 59.5
+
+
+def test_cli_refuses_a_wrong_output_name_before_any_work(tmp_path, capsys) -> None:
+    rc = main(["export-model", "seed000_ebike", "--mujoco", str(tmp_path / "m.txt")])
+    assert rc == 2
+    assert "--mujoco" in capsys.readouterr().err
+    assert main(["export-model", "seed000_ebike", "--urdf", str(tmp_path / "no" / "m.urdf")]) == 2

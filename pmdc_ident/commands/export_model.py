@@ -17,7 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "motor", metavar="MOTOR", help="the YAML `identify --yaml` writes, or a built-in motor"
     )
-    parser.add_argument("--mujoco", metavar="OUT.xml", type=Path, help="write MuJoCo MJCF")
+    parser.add_argument("--mujoco", metavar="OUT.xml", help="write MuJoCo MJCF")
     parser.add_argument(
         "--mujoco-actuator",
         choices=("auto", "dcmotor", "general"),
@@ -25,12 +25,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="MuJoCo's DC motor actuator (MuJoCo >= 4) or a general actuator with the same "
         "torque-speed law (default: dcmotor unless an older mujoco is installed)",
     )
-    parser.add_argument("--urdf", metavar="OUT.urdf", type=Path, help="write a URDF joint")
+    parser.add_argument("--urdf", metavar="OUT.urdf", help="write a URDF joint")
+    parser.add_argument("--ros2-control", metavar="OUT.yaml", help="write ros2_control parameters")
     parser.add_argument(
-        "--ros2-control", metavar="OUT.yaml", type=Path, help="write ros2_control parameters"
-    )
-    parser.add_argument(
-        "--gains", metavar="OUT.yaml", type=Path, help="write PI current/speed gains and checks"
+        "--gains", metavar="OUT.yaml", help="write PI current/speed gains and checks"
     )
     parser.add_argument("--joint", default="motor_joint", help="joint name (default motor_joint)")
     parser.add_argument(
@@ -68,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     if not any((args.mujoco, args.urdf, args.ros2_control, args.gains)):
         msg = "nothing to write: give --mujoco, --urdf, --ros2-control and/or --gains"
         raise PmdcError(msg)
+    _check_outputs(args)
     spec = load_motor(args.motor)
     if args.mujoco:
         from pmdc_ident.exports.mujoco_xml import mujoco_xml
@@ -86,6 +85,27 @@ def run(args: argparse.Namespace) -> int:
     if args.gains or args.ros2_control:
         return _gains(args, spec)
     return 0
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Every output path checked (and made a Path) before any work (see commands.outputs)."""
+    from pmdc_ident.commands.outputs import check_distinct, check_file_output
+
+    inputs = [x for x in (args.motor, args.verify_on) if x and Path(x).exists()]
+    suffixes = {
+        "mujoco": (".xml",),
+        "urdf": (".urdf", ".xml"),
+        "ros2_control": (".yaml", ".yml"),
+        "gains": (".yaml", ".yml"),
+    }
+    targets = {}
+    for dest, suffix in suffixes.items():
+        option = "--" + dest.replace("_", "-")
+        value = getattr(args, dest)
+        path = check_file_output(option, value, inputs, suffixes=suffix, stdout_ok=False)
+        setattr(args, dest, path)
+        targets[option] = path
+    check_distinct(targets)
 
 
 def _gains(args: argparse.Namespace, spec: object) -> int:

@@ -11,8 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
-
-import numpy as np
+from typing import Any
 
 from pmdc_ident.core.errors import DataError
 
@@ -27,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="MOTOR.yaml",
         help="the identified motor (`identify --yaml`), or a built-in motor name",
     )
-    parser.add_argument("--report", metavar="DIR", type=Path, help="write drift.png and drift.csv")
+    parser.add_argument("--report", metavar="DIR", help="write drift.png and drift.csv")
     parser.add_argument(
         "--every",
         type=float,
@@ -54,9 +53,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pmdc_ident.commands.outputs import check_folder_output
     from pmdc_ident.core.drift_monitor import DriftMonitor, MonitorConfig
     from pmdc_ident.core.motors import load_motor
     from pmdc_ident.dataio import load_data
+
+    args.report = check_folder_output("--report", args.report, [args.data, args.params])
 
     spec = load_motor(args.params)
     data = load_data(args.data)
@@ -95,8 +97,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _samples(data: object) -> tuple[np.ndarray, ...]:
+def _samples(data: Any) -> tuple[Any, ...]:
     """All samples of a run in time order, with voltage, current and speed."""
+    import numpy as np
+
     segs = sorted(data.segments, key=lambda s: float(s.t[0]))  # type: ignore[attr-defined]
     missing = [s.label for s in segs if s.voltage is None or s.current is None]
     if missing:
@@ -126,6 +130,8 @@ def _line(r: object) -> str:
 
 
 def _write_report(out: Path, reports: list) -> None:
+    import numpy as np
+
     out.mkdir(parents=True, exist_ok=True)
     names = [q.name for q in reports[0].quantities]
     header = ["t_s", "level", "suggest_reidentify", "temperature_rise_k"]

@@ -7,8 +7,9 @@ drift from the identified value is compared with two thresholds at 95 %
 confidence (one-sided: the estimate's lower bound against the threshold):
 
 * the level rises when the drift is beyond a threshold with 95 % confidence,
-  confirmed again ``hold_s`` later without being disproven in between: drift is claimed only where the data prove it, so a motor
-  standing still (whose intervals widen) never raises one;
+  confirmed again ``hold_s`` later without being disproven in between: drift is
+  claimed only where the data prove it, so a motor standing still (whose
+  intervals widen) never raises one;
 * it falls back when the drift is below the threshold with 95 % confidence;
   while the data are uninformative the last proven level stays.
 
