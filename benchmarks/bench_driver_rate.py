@@ -15,7 +15,7 @@ publishes one sample per tick stamped with ``now()``), the design the exact grid
 replaces; its stamps jitter with the host timer, and its delivered rate is
 whatever the timer manages.
 
-    .venv/bin/python benchmarks/bench_driver_rate.py [--seconds 10] [--domain 19]
+    .venv/bin/python benchmarks/bench_driver_rate.py [--seconds 10] [--domain ID]
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ import numpy as np
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, REPO)
 
+from pmdc_ident.nodes.dds_domain import allocate_domain, lock_domain  # noqa: E402
 from pmdc_ident.nodes.driver_harness import DriverProcess, apply_ros_env, ros_env  # noqa: E402
 
 NAIVE = r"""
@@ -133,10 +134,13 @@ def _measure(name: str, pid: int, rate_hz: float, seconds: float, node, executor
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=10.0)
-    ap.add_argument("--domain", type=int, default=19)
+    ap.add_argument("--domain", type=int, default=None, help="default: a free one")
     ap.add_argument("--rates", type=float, nargs="+", default=[1000.0, 5000.0])
     ap.add_argument("--no-naive", action="store_true", help="skip the naive reference")
     args = ap.parse_args()
+    # A DDS domain no other suite, benchmark or demo on this machine uses meanwhile.
+    held = lock_domain(args.domain) if args.domain is not None else allocate_domain()
+    args.domain = held.domain_id
     apply_ros_env(args.domain)
     import rclpy
     from rclpy.experimental import EventsExecutor

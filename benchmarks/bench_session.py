@@ -1,7 +1,7 @@
 """Identification session figures: wall time against the nominal sequence, samples recorded
 against samples expected, CPU use of each node at 1 kHz, and the decoding speed-up.
 
-    .venv/bin/python benchmarks/bench_session.py [--short-only] [--domain-id 79]
+    .venv/bin/python benchmarks/bench_session.py [--short-only] [--domain-id ID]
 
 Runs the whole session (driver, recorder, identification in separate processes over
 DDS on loopback) on the simulated motor: the short seed-001 sequence and (unless
@@ -31,6 +31,7 @@ from pmdc_ident.dataio.bagio import (  # noqa: E402
     read_driver_arrays,
 )
 from pmdc_ident.nodes.bringup import run_session  # noqa: E402
+from pmdc_ident.nodes.dds_domain import allocate_domain, lock_domain  # noqa: E402
 
 SHORT = {
     "sequence.staircase_levels": 3,
@@ -168,8 +169,11 @@ def main() -> int:
     ap.add_argument(
         "--short-only", action="store_true", help="skip the full default sequence (~1 min)"
     )
-    ap.add_argument("--domain-id", type=int, default=79)
+    ap.add_argument("--domain-id", type=int, default=None, help="default: a free one")
     args = ap.parse_args()
+    # A DDS domain no other suite, benchmark or demo on this machine uses meanwhile.
+    held = lock_domain(args.domain_id) if args.domain_id is not None else allocate_domain()
+    args.domain_id = held.domain_id
     decoding()
     session("short sequence", "seed001_110v", SHORT, args.domain_id)
     if not args.short_only:

@@ -61,11 +61,27 @@ def _follow(log: Path) -> Any:
 def run_session_demo(
     *, output_dir: str | Path = "pmdc_sessions/demo", motor: str = "seed000_ebike"
 ) -> int:
-    from pmdc_ident.nodes.bringup import parameter_table, run_session
-
     out = Path(output_dir)
     logs = out / "logs"
-    domain = int(os.environ.get("ROS_DOMAIN_ID", "42"))
+    with _own_domain(int(os.environ.get("ROS_DOMAIN_ID", "42"))) as lock:
+        return _session_demo(out, logs, motor, lock.domain_id)
+
+
+def _own_domain(domain: int) -> Any:
+    """Lock ``domain`` for this demo, or a free one if another session holds it (said so)."""
+    from pmdc_ident.nodes.dds_domain import DomainBusyError, allocate_domain, lock_domain
+
+    try:
+        return lock_domain(domain, purpose="make demo")
+    except DomainBusyError as exc:
+        lock = allocate_domain(purpose="make demo")
+        print(f"demo: {exc}; this demo uses ROS_DOMAIN_ID {lock.domain_id}")
+        return lock
+
+
+def _session_demo(out: Path, logs: Path, motor: str, domain: int) -> int:
+    from pmdc_ident.nodes.bringup import parameter_table, run_session
+
     print(f"== identification session on the simulated {motor} motor (ROS_DOMAIN_ID {domain})")
     print(f"   driver, recorder and identification nodes in separate processes; logs in {logs}")
     t0 = time.monotonic()

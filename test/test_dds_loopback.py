@@ -31,12 +31,18 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 REPO = Path(__file__).resolve().parents[1]
 PROFILE = REPO / "config" / "fastdds_localhost.xml"
-DOMAIN_ID = 42
-# RTPS well-known ports (DDSI-RTPS 9.6.1.1): PB + DG * domain + offsets.
-PORT_BASE = 7400 + 250 * DOMAIN_ID
-PORT_RANGE = range(PORT_BASE, PORT_BASE + 250)
 PUBLISH_S = 5.0
 RATE_HZ = 20.0
+
+
+# RTPS well-known ports (DDSI-RTPS 9.6.1.1): PB + DG * domain + offsets.
+def _port_base(domain_id: int) -> int:
+    return 7400 + 250 * domain_id
+
+
+def _port_range(domain_id: int) -> range:
+    return range(_port_base(domain_id), _port_base(domain_id) + 250)
+
 
 _SOCKETS_HELPER = r'''
 import os
@@ -129,7 +135,7 @@ rclpy.try_shutdown()
 )
 
 
-def _child_env() -> dict[str, str]:
+def _child_env(domain_id: int) -> dict[str, str]:
     env = {
         k: v
         for k, v in os.environ.items()
@@ -140,7 +146,7 @@ def _child_env() -> dict[str, str]:
         FASTRTPS_DEFAULT_PROFILES_FILE=str(PROFILE),
         FASTDDS_DEFAULT_PROFILES_FILE=str(PROFILE),
         ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-        ROS_DOMAIN_ID=str(DOMAIN_ID),
+        ROS_DOMAIN_ID=str(domain_id),
     )
     return env
 
@@ -149,6 +155,7 @@ def _child_env() -> dict[str, str]:
 class Capture:
     """Counts UDP packets per interface kind while running, from an AF_PACKET socket."""
 
+    ports: range
     rtps_loopback: int = 0
     rtps_elsewhere: int = 0
     elsewhere_examples: list[str] = field(default_factory=list)
@@ -173,7 +180,7 @@ class Capture:
             if udp is None:
                 continue
             dst, dport, payload = udp
-            is_rtps = payload[:4] == b"RTPS" or dport in PORT_RANGE
+            is_rtps = payload[:4] == b"RTPS" or dport in self.ports
             if not is_rtps:
                 continue
             if ifname == "lo":
@@ -204,9 +211,9 @@ def _udp_payload(data: bytes, ethertype: int) -> tuple[str, int, bytes] | None:
     return dst, dport, udp[8:]
 
 
-def _run_pair() -> tuple[dict, dict]:
+def _run_pair(domain_id: int) -> tuple[dict, dict]:
     topic = "loopback_check_" + uuid.uuid4().hex[:8]
-    env = _child_env()
+    env = _child_env(domain_id)
     sub = subprocess.Popen(
         [sys.executable, "-c", _SUBSCRIBER, topic, str(PUBLISH_S + 20.0)],
         env=env,
@@ -236,9 +243,9 @@ def _run_pair() -> tuple[dict, dict]:
 
 
 @pytest.fixture(scope="module")
-def exchange() -> tuple[dict, dict, Capture | None, str]:
+def exchange(module_ros_domain) -> tuple[dict, dict, Capture | None, str, int]:
     """Runs the pair once, capturing packets if this process is allowed to."""
-    capture: Capture | None = Capture()
+    capture: Capture | None = Capture(_port_range(module_ros_domain))
     why_not = ""
     try:
         sock = capture.open()
@@ -249,18 +256,18 @@ def exchange() -> tuple[dict, dict, Capture | None, str]:
         thread = threading.Thread(target=capture.run, args=(sock,), daemon=True)
         thread.start()
     try:
-        pub, sub = _run_pair()
+        pub, sub = _run_pair(module_ros_domain)
     finally:
         if capture is not None:
             time.sleep(0.5)
             capture.stop()
             thread.join(timeout=5)
             sock.close()
-    return pub, sub, capture, why_not
+    return pub, sub, capture, why_not, module_ros_domain
 
 
 def test_publisher_and_subscriber_exchange_float64_over_dds(exchange):
-    pub, sub, _, _ = exchange
+    pub, sub, _, _, _ = exchange
     assert pub["matched"], "the publisher never discovered the subscriber"
     received = sub["received"]
     expected = PUBLISH_S * RATE_HZ
@@ -272,19 +279,20 @@ def test_publisher_and_subscriber_exchange_float64_over_dds(exchange):
 
 
 def test_rtps_sockets_are_bound_to_loopback_only(exchange):
-    pub, sub, _, _ = exchange
+    pub, sub, _, _, domain = exchange
+    ports = _port_range(domain)
     for who, report in (("publisher", pub), ("subscriber", sub)):
-        rtps = [(ip, port) for ip, port in report["sockets"] if port in PORT_RANGE]
-        assert rtps, f"{who}: no socket on the domain {DOMAIN_ID} RTPS ports {PORT_RANGE}"
+        rtps = [(ip, port) for ip, port in report["sockets"] if port in ports]
+        assert rtps, f"{who}: no socket on the domain {domain} RTPS ports {ports}"
         assert all(ip == "127.0.0.1" for ip, _ in rtps), (
             f"{who}: RTPS sockets not bound to loopback only (profile not loaded?): {rtps}"
         )
-        multicast_discovery = [s for s in rtps if s[1] == PORT_BASE]
+        multicast_discovery = [s for s in rtps if s[1] == _port_base(domain)]
         assert not multicast_discovery, f"{who} listens for multicast discovery"
 
 
 def test_no_rtps_packet_leaves_a_non_loopback_interface(exchange):
-    _, _, capture, why_not = exchange
+    _, _, capture, why_not, _ = exchange
     if capture is None:
         pytest.skip(f"packet capture unavailable ({why_not}); needs CAP_NET_RAW")
     non_loopback = sorted(Path("/sys/class/net").iterdir())

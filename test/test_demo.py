@@ -9,11 +9,11 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 pytest.importorskip("rclpy")
 
 
-def test_step_demo_reaches_the_model_steady_state_and_stops_the_driver_cleanly():
+def test_step_demo_reaches_the_model_steady_state_and_stops_the_driver_cleanly(ros_domain):
     from pmdc_ident.demo import run_step_demo
 
     lines: list[str] = []
-    res = run_step_demo(volts=10.0, step_s=1.5, domain_id=14, out=lines.append)
+    res = run_step_demo(volts=10.0, step_s=1.5, domain_id=ros_domain, out=lines.append)
     assert res.driver_exit == 0
     assert "motor safe" in res.driver_final_line
     # seed 000 at 10 V: ~139.8 rad/s and ~0.54 A with its Coulomb friction (noise-averaged)
@@ -24,9 +24,9 @@ def test_step_demo_reaches_the_model_steady_state_and_stops_the_driver_cleanly()
     assert res.t_s[-1] > 1.4  # the whole step arrived
 
 
-def test_demo_reports_a_driver_that_cannot_start_in_one_line():
+def test_demo_reports_a_driver_that_cannot_start_in_one_line(ros_domain):
     from pmdc_ident.core.errors import PmdcError
     from pmdc_ident.demo import run_step_demo
 
     with pytest.raises(PmdcError, match=r"exited at start \(status 2\): .*rate_hz.*out of range"):
-        run_step_demo(rate_hz=50000.0, domain_id=14, out=lambda _line: None)
+        run_step_demo(rate_hz=50000.0, domain_id=ros_domain, out=lambda _line: None)

@@ -1,4 +1,4 @@
-"""The driver node over real DDS, with the driver in its own process (domains 11-13).
+"""The driver node over real DDS, with the driver in its own process (private DDS domains).
 
 One driver (seed-000 motor, sim backend, 1 kHz) serves most tests in turn; the
 signal tests start their own. Loopback-only DDS: see pmdc_ident.nodes.driver_harness.
@@ -33,17 +33,17 @@ from pmdc_ident.nodes.driver_harness import (  # noqa: E402
 from pmdc_ident.nodes.driver_node import PARAMETERS  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-DOMAIN_ID = 11
 RATE_HZ = 1000.0
 DT_NS = 1_000_000
 SPEC = load_motor("seed000_ebike")
 
 
 @pytest.fixture(scope="module")
-def client():
-    apply_ros_env(DOMAIN_ID)
+def client(module_ros_domain):
+    apply_ros_env(module_ros_domain)
     with DriverProcess(
-        {"rate_hz": RATE_HZ, "watchdog_s": 0.5, "motor": "seed000_ebike"}, domain_id=DOMAIN_ID
+        {"rate_hz": RATE_HZ, "watchdog_s": 0.5, "motor": "seed000_ebike"},
+        domain_id=module_ros_domain,
     ) as driver:
         rclpy.init()
         node = DriverClient(RATE_HZ, name="test_driver_client")
@@ -272,8 +272,9 @@ def test_diagnostics_report_backend_rate_faults_and_armature(client):
     ],
     ids=["SIGINT", "SIGTERM", "SIGINT_zero_volts"],
 )
-def test_signal_leaves_the_motor_safe_and_exits_zero(sig, safe_mode, state):
-    driver = DriverProcess({"rate_hz": RATE_HZ, "safe_mode": safe_mode}, domain_id=12).start()
+def test_signal_leaves_the_motor_safe_and_exits_zero(sig, safe_mode, state, ros_domain):
+    params = {"rate_hz": RATE_HZ, "safe_mode": safe_mode}
+    driver = DriverProcess(params, domain_id=ros_domain).start()
     try:
         deadline = time.monotonic() + 40.0  # a loaded 2-core box starts slowly
         while time.monotonic() < deadline and "driver started" not in _peek(driver):
@@ -303,8 +304,8 @@ def _has_sockets(pid: int) -> bool:
     return False
 
 
-def test_signal_during_start_up_exits_zero_and_safe():
-    driver = DriverProcess({"rate_hz": RATE_HZ}, domain_id=12).start()
+def test_signal_during_start_up_exits_zero_and_safe(ros_domain):
+    driver = DriverProcess({"rate_hz": RATE_HZ}, domain_id=ros_domain).start()
     deadline = time.monotonic() + 40.0
     while time.monotonic() < deadline and not _has_sockets(driver.pid):
         time.sleep(0.01)
@@ -344,10 +345,10 @@ def _peek(driver: DriverProcess) -> str:
     ],
     ids=["backend", "voltage_limit", "rate_range", "rate_type", "safe_mode", "motor"],
 )
-def test_bad_start_parameter_is_one_line_and_a_non_zero_exit(args, fragment):
+def test_bad_start_parameter_is_one_line_and_a_non_zero_exit(args, fragment, ros_domain):
     proc = subprocess.run(
         [sys.executable, "-m", "pmdc_ident.nodes.driver_node", "--ros-args", *args],
-        env=ros_env(13),
+        env=ros_env(ros_domain),
         capture_output=True,
         text=True,
         timeout=30,

@@ -163,8 +163,8 @@ def _applied(probe: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
 # The short sequence: every sample recorded, the bag reads back, offline = online
 # ---------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def short_session(tmp_path_factory) -> tuple[BringupResult, dict[str, Any]]:
-    return _session(tmp_path_factory.mktemp("short"), 60)
+def short_session(tmp_path_factory, module_ros_domain) -> tuple[BringupResult, dict[str, Any]]:
+    return _session(tmp_path_factory.mktemp("short"), module_ros_domain)
 
 
 def test_short_session_completes_and_the_bag_holds_every_driver_sample(short_session):
@@ -310,25 +310,24 @@ def _stall_motor(tmp_path: Path) -> str:
 
 
 @pytest.mark.parametrize(
-    ("reason", "domain", "ident", "real"),
+    ("reason", "ident", "real"),
     [
         # 36.7 V into 3 ohm draws 12 A at the first staircase level
-        ("over_current", 62, {"safety.current_max_a": 8.0}, None),
+        ("over_current", {"safety.current_max_a": 8.0}, None),
         # plan checked against the nominal motor (47 rad/s at 90 V < 55), but the
         # motor on the bench has a weaker magnet and runs to ~69 rad/s
         (
             "over_speed",
-            63,
             {"safety.speed_max_rad_s": 55.0, "voltage_max_v": 90.0},
             {"Ke": 1.2, "Kt": 1.2},
         ),
     ],
 )
-def test_safety_abort_leaves_zero_volts(tmp_path, reason, domain, ident, real):
+def test_safety_abort_leaves_zero_volts(tmp_path, reason, ident, real, ros_domain):
     driver = None
     if real is not None:
         driver = {"motor": _variant(tmp_path, "weak_magnet", parameters=real)}
-    res, probe = _session(tmp_path, domain, ident=ident, driver=driver)
+    res, probe = _session(tmp_path, ros_domain, ident=ident, driver=driver)
     assert res.identification_rc == 3, _logs(res)
     marker = _abort_marker(probe)
     final = probe["status"][-1]
@@ -337,14 +336,14 @@ def test_safety_abort_leaves_zero_volts(tmp_path, reason, domain, ident, real):
     assert res.result is None  # nothing identified from an aborted session
 
 
-def test_stall_aborts_when_current_flows_and_the_shaft_does_not_turn(tmp_path):
+def test_stall_aborts_when_current_flows_and_the_shaft_does_not_turn(tmp_path, ros_domain):
     motor = _stall_motor(tmp_path)
     ident = {
         "motor": "seed001_110v",  # the nominal motor sizes the plan; the real one is locked
         "safety.stall_current_a": 5.0,
         "safety.stall_time_s": 0.2,
     }
-    res, probe = _session(tmp_path, 64, ident=ident, driver={"motor": motor})
+    res, probe = _session(tmp_path, ros_domain, ident=ident, driver={"motor": motor})
     assert res.identification_rc == 3, _logs(res)
     final = probe["status"][-1]
     assert final["reason"] == "stall", probe["status"]
@@ -377,13 +376,13 @@ def _once_running(
     return during
 
 
-def test_ctrl_c_aborts_the_session_and_makes_the_motor_safe(tmp_path):
+def test_ctrl_c_aborts_the_session_and_makes_the_motor_safe(tmp_path, ros_domain):
     state: dict[str, Any] = {}
 
     interrupt = _once_running(
         tmp_path, state, lambda procs: procs["identification"].send_signal(signal.SIGINT)
     )
-    res, probe = _session(tmp_path, 65, during=interrupt)
+    res, probe = _session(tmp_path, ros_domain, during=interrupt)
     assert state.get("sent"), _logs(res)
     assert res.identification_rc == 130, _logs(res)
     assert probe["status"][-1]["reason"] == "interrupted", probe["status"]
@@ -393,19 +392,19 @@ def test_ctrl_c_aborts_the_session_and_makes_the_motor_safe(tmp_path):
     assert read_bag(res.bag).labels[0] == "staircase_01"
 
 
-def test_crashed_recorder_aborts_the_session(tmp_path):
+def test_crashed_recorder_aborts_the_session(tmp_path, ros_domain):
     state: dict[str, Any] = {}
 
     # SIGKILL: no goodbye, as in a real crash
     crash = _once_running(tmp_path, state, lambda procs: procs["recorder"].kill(), "killed")
-    res, probe = _session(tmp_path, 66, during=crash)
+    res, probe = _session(tmp_path, ros_domain, during=crash)
     assert state.get("killed"), _logs(res)
     assert res.identification_rc == 3, _logs(res)
     assert probe["status"][-1]["reason"] == "peer_crashed", probe["status"]
     _assert_safe_after(probe, _abort_marker(probe)["t_s"], strict_zero=True, res=res)
 
 
-def test_lost_driver_data_aborts_and_the_driver_applies_the_safe_command(tmp_path):
+def test_lost_driver_data_aborts_and_the_driver_applies_the_safe_command(tmp_path, ros_domain):
     state: dict[str, Any] = {}
 
     def freeze(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
@@ -419,7 +418,9 @@ def test_lost_driver_data_aborts_and_the_driver_applies_the_safe_command(tmp_pat
             os.kill(procs["driver"].pid, signal.SIGCONT)
             state["resumed"] = elapsed
 
-    res, probe = _session(tmp_path, 67, during=freeze, ident={"safety.data_timeout_s": 1.0})
+    res, probe = _session(
+        tmp_path, ros_domain, during=freeze, ident={"safety.data_timeout_s": 1.0}
+    )
     assert state.get("resumed"), _logs(res)
     assert res.identification_rc == 3, _logs(res)
     assert probe["status"][-1]["reason"] == "lost_driver_data", probe["status"]
@@ -433,13 +434,13 @@ def test_lost_driver_data_aborts_and_the_driver_applies_the_safe_command(tmp_pat
     assert np.all((tail == 0.0) | np.isnan(tail)), tail
 
 
-def test_full_default_sequence_recovers_the_seed000_motor(tmp_path):
+def test_full_default_sequence_recovers_the_seed000_motor(tmp_path, ros_domain):
     """The whole default session (staircase, steps both ways, chirp, coast-down) on the
     seed-000 e-bike motor, which carries Coulomb friction; about 40 s of driver time."""
     pytest.importorskip("pmdc_ident.commands.identify")
     res, probe = _session(
         tmp_path,
-        68,
+        ros_domain,
         motor="seed000_ebike",
         ident={"safety.data_timeout_s": 1.5},
         timeout_s=240,
@@ -506,9 +507,11 @@ rclpy.try_shutdown()
 """
 
 
-def test_a_larger_stack_asks_for_a_run_by_service_and_a_late_joiner_gets_the_result(tmp_path):
+def test_a_larger_stack_asks_for_a_run_by_service_and_a_late_joiner_gets_the_result(
+    tmp_path, ros_domain
+):
     pytest.importorskip("pmdc_ident.commands.identify")
-    env = node_env(69)
+    env = node_env(ros_domain)
     state: dict[str, Any] = {}
 
     def helper(what: str) -> subprocess.Popen[str]:
@@ -534,7 +537,7 @@ def test_a_larger_stack_asks_for_a_run_by_service_and_a_late_joiner_gets_the_res
 
     res, probe = _session(
         tmp_path,
-        69,
+        ros_domain,
         ident={"autostart": False, "exit_when_done": False},
         during=drive,
         timeout_s=90,
@@ -547,10 +550,10 @@ def test_a_larger_stack_asks_for_a_run_by_service_and_a_late_joiner_gets_the_res
     assert res.result["parameters"]["R"]["value"] == pytest.approx(3.0484, rel=0.02)
 
 
-def test_a_plan_above_the_driver_limit_is_refused_before_anything_moves(tmp_path):
+def test_a_plan_above_the_driver_limit_is_refused_before_anything_moves(tmp_path, ros_domain):
     # the driver is limited to 48 V; the session asks for 110 V
     res, probe = _session(
-        tmp_path, 70, ident={"voltage_max_v": 110.0}, driver={"voltage_limit_v": 48.0}
+        tmp_path, ros_domain, ident={"voltage_max_v": 110.0}, driver={"voltage_limit_v": 48.0}
     )
     assert res.identification_rc == 2, _logs(res)
     final = probe["status"][-1]
@@ -561,7 +564,7 @@ def test_a_plan_above_the_driver_limit_is_refused_before_anything_moves(tmp_path
     assert res.bag is None and not probe["markers"]
 
 
-def test_a_bad_parameter_is_one_line_and_exit_status_2(tmp_path):
+def test_a_bad_parameter_is_one_line_and_exit_status_2(tmp_path, ros_domain):
     proc = subprocess.run(
         [
             sys.executable,
@@ -571,7 +574,7 @@ def test_a_bad_parameter_is_one_line_and_exit_status_2(tmp_path):
             "-p",
             "safe_mode:=banana",
         ],
-        env=node_env(71),
+        env=node_env(ros_domain),
         cwd=tmp_path,
         capture_output=True,
         text=True,
@@ -583,7 +586,9 @@ def test_a_bad_parameter_is_one_line_and_exit_status_2(tmp_path):
     assert len(lines) == 1 and "safe_mode" in lines[0] and "Traceback" not in proc.stderr, lines
 
 
-def test_the_session_runs_against_the_virtual_serial_board_as_against_the_sim(tmp_path):
+def test_the_session_runs_against_the_virtual_serial_board_as_against_the_sim(
+    tmp_path, ros_domain
+):
     """Driver with backend serial on `pmdc-ident virtual-board` (a pty), same session."""
     pytest.importorskip("pmdc_ident.commands.identify")
     board = subprocess.Popen(
@@ -608,7 +613,7 @@ def test_the_session_runs_against_the_virtual_serial_board_as_against_the_sim(tm
         port = first.split()[3]
         res, probe = _session(
             tmp_path,
-            73,
+            ros_domain,
             driver={"backend": "serial", "port": port, "baud": 1000000},
         )
     finally:
@@ -628,13 +633,13 @@ def test_the_session_runs_against_the_virtual_serial_board_as_against_the_sim(tm
     assert got["Ke"] == pytest.approx(truth.Ke, rel=0.03)
 
 
-def test_sigterm_to_the_recorder_mid_session_closes_a_readable_bag(tmp_path):
+def test_sigterm_to_the_recorder_mid_session_closes_a_readable_bag(tmp_path, ros_domain):
     state: dict[str, Any] = {}
 
     term = _once_running(
         tmp_path, state, lambda procs: procs["recorder"].send_signal(signal.SIGTERM)
     )
-    res, probe = _session(tmp_path, 74, during=term)
+    res, probe = _session(tmp_path, ros_domain, during=term)
     assert state.get("sent"), _logs(res)
     assert res.recorder_rc == 0, _logs(res)
     # the session lost its recorder: aborted, motor safe
@@ -657,7 +662,7 @@ def test_sigterm_to_the_recorder_mid_session_closes_a_readable_bag(tmp_path):
     assert n == arrays.encoder_ns.size
 
 
-def test_ctrl_c_on_bringup_is_forwarded_and_everything_stops_safe(tmp_path):
+def test_ctrl_c_on_bringup_is_forwarded_and_everything_stops_safe(tmp_path, ros_domain):
     cmd = [
         sys.executable,
         "-m",
@@ -667,12 +672,17 @@ def test_ctrl_c_on_bringup_is_forwarded_and_everything_stops_safe(tmp_path):
         "--output-dir",
         str(tmp_path / "out"),
         "--domain-id",
-        "75",
+        str(ros_domain),
     ]
     for k, v in SHORT.items():
         cmd += ["-p", f"identification:{k}={v}"]
     proc = subprocess.Popen(
-        cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        cmd,
+        cwd=REPO,
+        env=node_env(ros_domain),  # hands our domain lock to bringup
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
     )
     lines: list[str] = []
     assert proc.stdout is not None
@@ -691,7 +701,7 @@ def test_ctrl_c_on_bringup_is_forwarded_and_everything_stops_safe(tmp_path):
     assert "Traceback" not in text, text
 
 
-def test_without_a_driver_the_node_says_so_and_exits_2(tmp_path):
+def test_without_a_driver_the_node_says_so_and_exits_2(tmp_path, ros_domain):
     proc = subprocess.run(
         [
             sys.executable,
@@ -703,7 +713,7 @@ def test_without_a_driver_the_node_says_so_and_exits_2(tmp_path):
             "-p",
             "exit_when_done:=true",
         ],
-        env=node_env(76),
+        env=node_env(ros_domain),
         cwd=tmp_path,
         capture_output=True,
         text=True,

@@ -20,18 +20,19 @@ import pytest
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.timeout(120)]
 
-DOMAIN_ID = 51
 RATE_HZ = 500.0
 BAUD = 1_000_000
 
 
-def test_driver_over_serial_streams_then_survives_the_port_closing(tmp_path: Path) -> None:
+def test_driver_over_serial_streams_then_survives_the_port_closing(
+    tmp_path: Path, ros_domain: int
+) -> None:
     rclpy = pytest.importorskip("rclpy")
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
     from pmdc_ident.nodes.driver_harness import DriverClient, DriverProcess, apply_ros_env
 
-    apply_ros_env(DOMAIN_ID)
+    apply_ros_env(ros_domain)
     # The board in its own process, as hardware is: SIGUSR1 resets it, SIGTERM pulls it.
     link = tmp_path / "board"
     board = subprocess.Popen(
@@ -51,7 +52,7 @@ def test_driver_over_serial_streams_then_survives_the_port_closing(tmp_path: Pat
         "poll_rate_hz": 100.0,
         "watchdog_s": 2.0,
     }
-    driver = DriverProcess(params, domain_id=DOMAIN_ID).start()
+    driver = DriverProcess(params, domain_id=ros_domain).start()
     rclpy.init()
     client = DriverClient(RATE_HZ, name="serial_dds_client")
     diags: list[tuple[int, str]] = []

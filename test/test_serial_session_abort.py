@@ -24,8 +24,6 @@ from pmdc_ident.nodes.bringup import node_env
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.timeout(150)]
 
-DOMAIN_ID = 54
-
 
 def _wait_for(cond: Callable[[], bool], timeout_s: float) -> bool:
     end = time.monotonic() + timeout_s
@@ -37,10 +35,10 @@ def _wait_for(cond: Callable[[], bool], timeout_s: float) -> bool:
 
 
 def test_unplugging_the_board_mid_session_aborts_cleanly_with_the_motor_safe(
-    tmp_path: Path,
+    tmp_path: Path, ros_domain: int
 ) -> None:
     link = tmp_path / "board"
-    env = node_env(DOMAIN_ID)
+    env = node_env(ros_domain)
     board = subprocess.Popen(
         [sys.executable, "-m", "pmdc_ident.cli", "virtual-board", "--baud", "1000000"]
         + ["--link", str(link)],
@@ -54,7 +52,7 @@ def test_unplugging_the_board_mid_session_aborts_cleanly_with_the_motor_safe(
         assert _wait_for(link.exists, 30.0), "virtual board did not come up"
         session = subprocess.Popen(
             [sys.executable, "-m", "pmdc_ident.nodes.bringup", "--backend", "serial"]
-            + ["--port", str(link), "--domain-id", str(DOMAIN_ID)]
+            + ["--port", str(link), "--domain-id", str(ros_domain)]
             + ["--output-dir", str(tmp_path / "bags"), "--timeout", "100"]
             + ["-p", "driver:baud=1000000", "-p", "driver:rate_hz=500.0"],
             env=env,

@@ -28,6 +28,7 @@ from typing import IO, Any
 import yaml
 
 from pmdc_ident.core.motors import share_file
+from pmdc_ident.nodes.dds_domain import HELD_ENV, DomainBusyError, child_env, lock_domain
 
 __all__ = ["BringupResult", "main", "node_env", "run_session"]
 
@@ -47,6 +48,8 @@ def node_env(
     if domain_id is not None:
         env["ROS_DOMAIN_ID"] = str(int(domain_id))
     env.setdefault("ROS_DOMAIN_ID", "42")
+    env.pop(HELD_ENV, None)
+    env.update(child_env(int(env["ROS_DOMAIN_ID"])))  # the domain lock we hold, for them
     env["PYTHONUNBUFFERED"] = "1"
     return env
 
@@ -194,6 +197,13 @@ def run_session(
         if ident is not None and ident.popen.returncode is None:
             ident.popen.send_signal(signal.SIGINT)
 
+    # No other session, test or demo on this machine may use our domain while we run.
+    try:
+        lock = lock_domain(int(env["ROS_DOMAIN_ID"]), purpose=f"bringup session in {out}")
+    except DomainBusyError:
+        _close(files.values())
+        raise
+    env = node_env(lock.domain_id)  # now with the lock handed to the children
     old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     in_main = _in_main_thread()
     if in_main:
@@ -237,12 +247,11 @@ def run_session(
         for name in ("identification", "recorder", "driver"):
             if name in procs:
                 rc[name] = procs[name].stop(timeout_s=10.0)
+        lock.release()
         if in_main:
             for s, h in old.items():
                 signal.signal(s, h)
-        for f in files.values():
-            if f is not None and hasattr(f, "close"):
-                f.close()
+        _close(files.values())
     bag = _newest_bag(out)
     result = status = None
     if bag is not None and (bag / "parameters.json").is_file():
@@ -260,6 +269,12 @@ def run_session(
         logs=logs,
         cpu_s={name: p.cpu_s for name, p in procs.items()},
     )
+
+
+def _close(files: Any) -> None:
+    for f in files:
+        if f is not None and hasattr(f, "close"):
+            f.close()
 
 
 def _in_main_thread() -> bool:
@@ -317,15 +332,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     extra["driver"]["backend"] = args.backend
     if args.port:
         extra["driver"]["port"] = args.port
-    res = run_session(
-        output_dir=args.output_dir,
-        motor=args.motor,
-        domain_id=args.domain_id,
-        driver_params=extra["driver"],
-        identification_params=extra["identification"],
-        recorder_params=extra["recorder"],
-        timeout_s=args.timeout,
-    )
+    try:
+        res = run_session(
+            output_dir=args.output_dir,
+            motor=args.motor,
+            domain_id=args.domain_id,
+            driver_params=extra["driver"],
+            identification_params=extra["identification"],
+            recorder_params=extra["recorder"],
+            timeout_s=args.timeout,
+        )
+    except DomainBusyError as exc:
+        print(f"bringup: error: {exc} (--domain-id)", file=sys.stderr)
+        return 2
     print(f"bringup: session took {res.wall_s:.1f} s")
     if res.bag is not None:
         print(f"bringup: bag {res.bag}")

@@ -32,6 +32,7 @@ from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.model import simulate
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.nodes.bringup import node_env as ros_env
+from pmdc_ident.nodes.dds_domain import HELD_ENV, lock_domain
 from pmdc_ident.nodes.driver_node import COMMAND_QOS, sample_qos
 
 __all__ = [
@@ -49,7 +50,9 @@ class DemoError(PmdcError):
 
 def apply_ros_env(domain_id: int | None = None) -> None:
     """Put :func:`ros_env` into ``os.environ`` (before ``rclpy.init`` in this process)."""
-    os.environ.update(ros_env(domain_id))
+    env = ros_env(domain_id)
+    env.pop(HELD_ENV, None)  # that is for children: this process holds its own locks
+    os.environ.update(env)
 
 
 def _param_arg(name: str, value: Any) -> str:
@@ -281,6 +284,18 @@ def run_step_demo(
 ) -> StepDemoResult:
     """Start the driver, apply a voltage step, print a table and the steady state."""
     apply_ros_env(domain_id)
+    with lock_domain(int(os.environ["ROS_DOMAIN_ID"]), purpose="step demo"):
+        return _step_demo(volts, motor, step_s, rate_hz, command_hz, out)
+
+
+def _step_demo(
+    volts: float,
+    motor: str,
+    step_s: float,
+    rate_hz: float,
+    command_hz: float,
+    out: Callable[[str], None],
+) -> StepDemoResult:
     spec = load_motor(motor)
     driver = DriverProcess(
         {"motor": motor, "rate_hz": float(rate_hz)},

@@ -1,0 +1,62 @@
+"""DDS domain ids for the tests: each test that starts ROS processes gets a private one.
+
+Several suites (other worktrees), benchmarks and ``make demo`` run at once on this
+machine. A domain id is taken with an exclusive cross-process lock
+(:mod:`pmdc_ident.nodes.dds_domain`, ``/tmp/pmdc_dds_domain_<id>.lock``) and held
+for the test's duration, so no two of them ever share one. The pool leaves out
+42 (``make demo``) and 11-20 (``make test ROS_DOMAIN_ID=...``).
+
+- ``ros_domain``: a domain id held for one test;
+- ``module_ros_domain``: one held for a module (a driver shared by its tests);
+- the whole session also holds one and puts it in ``ROS_DOMAIN_ID``, so a process
+  started without an explicit domain is private too.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+
+import pytest
+
+from pmdc_ident.nodes.dds_domain import HELD_ENV, allocate_domain
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _session_ros_domain() -> Iterator[int]:
+    old = os.environ.get("ROS_DOMAIN_ID")
+    with allocate_domain(purpose="pytest session default") as lock:
+        os.environ["ROS_DOMAIN_ID"] = str(lock.domain_id)
+        try:
+            yield lock.domain_id
+        finally:
+            if old is None:
+                os.environ.pop("ROS_DOMAIN_ID", None)
+            else:
+                os.environ["ROS_DOMAIN_ID"] = old
+
+
+def _held(purpose: str) -> Iterator[int]:
+    names = ("ROS_DOMAIN_ID", HELD_ENV)
+    before = {k: os.environ.get(k) for k in names}
+    with allocate_domain(purpose=purpose) as lock:
+        try:
+            yield lock.domain_id
+        finally:  # a test may have put its domain into os.environ (in-process rclpy)
+            for k, v in before.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+
+
+@pytest.fixture
+def ros_domain(request: pytest.FixtureRequest) -> Iterator[int]:
+    """A DDS domain id no other process on this machine uses during this test."""
+    yield from _held(f"pytest {request.node.nodeid}"[:120])
+
+
+@pytest.fixture(scope="module")
+def module_ros_domain(request: pytest.FixtureRequest) -> Iterator[int]:
+    """A DDS domain id no other process on this machine uses during this module."""
+    yield from _held(f"pytest {request.module.__name__}"[:120])
