@@ -33,16 +33,15 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import statistics
 import sys
 import tempfile
 import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
 from pmdc_ident.core.effects import (
     EFFECT_NAMES,
     BrushDrop,
@@ -59,12 +58,17 @@ from pmdc_ident.core.effects import (
     StribeckFriction,
 )
 from pmdc_ident.core.errors import ParameterError
-from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
-from pmdc_ident.core.model import Model, simulate
-from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec
 from pmdc_ident.core.params import MotorParams
-from pmdc_ident.dataio import load_data
-from pmdc_ident.dataio.csvio import write_csv
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from pmdc_ident.core.diagnosis import DiagnosisConfig
+    from pmdc_ident.core.excitation import SequenceConfig
+    from pmdc_ident.core.motors import MotorSpec
+
+# numpy and the numerical core are imported inside the functions that use them, so
+# that building the command line's help stays light (see pmdc_ident.cli).
 
 HELP = "score the diagnosis on generated runs with withheld effects (accuracy, confusion)"
 
@@ -84,7 +88,17 @@ ARCHETYPES: dict[str, tuple[MotorParams, float, float, float]] = {
 RATES_HZ: tuple[float, ...] = (500.0, 1000.0, 2000.0)
 # The default session, with a shorter sweep and holds so a benchmark of ~80 runs
 # fits in a coffee break.
-BENCH_PLAN = SequenceConfig(sweep_duration_tau=20.0, staircase_hold_tau=4.0, step_hold_tau=5.0)
+BENCH_PLAN_TAU: dict[str, float] = {
+    "sweep_duration_tau": 20.0,
+    "staircase_hold_tau": 4.0,
+    "step_hold_tau": 5.0,
+}
+
+
+def bench_plan() -> SequenceConfig:
+    from pmdc_ident.core.excitation import SequenceConfig
+
+    return SequenceConfig(**BENCH_PLAN_TAU)
 
 
 @dataclass(frozen=True)
@@ -138,7 +152,7 @@ def draw_effect(
     if name == "load_torque":
         return LoadTorque(rng.choice([-1.0, 1.0]) * u(0.05, 0.3) * s["T_r"])
     if name == "brush_drop":
-        return BrushDrop(float(np.clip(u(0.02, 0.08) * vmax, 0.5, 3.0)))
+        return BrushDrop(min(max(u(0.02, 0.08) * vmax, 0.5), 3.0))
     if name == "dead_zone":
         return DeadZone(u(0.02, 0.08) * vmax)
     if name == "cogging":
@@ -159,6 +173,9 @@ def draw_effect(
 
 
 def _spec(case: Case, effects: tuple[Effect, ...]) -> MotorSpec:
+    from pmdc_ident.core.model import Model
+    from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec
+
     _, _, ni, nw = ARCHETYPES[case.archetype]
     f = case.noise_factor
     return MotorSpec(
@@ -200,8 +217,13 @@ def make_case(name: str, effect_names: tuple[str, ...], rng: np.random.Generator
     )
     # effects sized from a clean session: drift over the session, saturation vs peak current
     if any(isinstance(e, (ResistanceDrift, InductanceSaturation)) for e in effects):
+        import numpy as np
+
+        from pmdc_ident.core.excitation import plan_for_motor
+        from pmdc_ident.core.model import Model, simulate
+
         spec = _spec(case, ())
-        plan = plan_for_motor(spec, 1.0 / rate, BENCH_PLAN)
+        plan = plan_for_motor(spec, 1.0 / rate, bench_plan())
         v = np.concatenate([s.voltage for s in plan.segments])
         sim = simulate(Model(p), v, 1.0 / rate)
         i_drive = np.where(np.isnan(v), 0.0, sim.current)
@@ -220,6 +242,8 @@ def make_case(name: str, effect_names: tuple[str, ...], rng: np.random.Generator
 
 
 def generate_cases(runs_per_effect: int, clean_runs: int, pair_runs: int, seed: int) -> list[Case]:
+    import numpy as np
+
     rng = np.random.default_rng(seed)
     cases: list[Case] = []
     for name in EFFECT_NAMES:
@@ -238,8 +262,11 @@ def generate_cases(runs_per_effect: int, clean_runs: int, pair_runs: int, seed: 
 
 def write_case(case: Case, directory: Path) -> Path:
     """Synthesize the session and write it as a CSV run file (no truth in the file)."""
+    from pmdc_ident.core.excitation import plan_for_motor, synthesize_run
+    from pmdc_ident.dataio.csvio import write_csv
+
     spec = _spec(case, case.effects)
-    plan = plan_for_motor(_spec(case, ()), 1.0 / case.rate_hz, BENCH_PLAN)
+    plan = plan_for_motor(_spec(case, ()), 1.0 / case.rate_hz, bench_plan())
     run = synthesize_run(spec.model, plan, spec.sensors, seed=case.seed, source=case.name)
     path = directory / f"run_{abs(hash(case.name)) % 10**8:08d}.csv"
     write_csv(run, path)
@@ -247,6 +274,9 @@ def write_case(case: Case, directory: Path) -> Path:
 
 
 def run_case(case: Case, directory: Path, config: DiagnosisConfig) -> Outcome:
+    from pmdc_ident.core.diagnosis import diagnose
+    from pmdc_ident.dataio import load_data
+
     path = write_case(case, directory)
     t0 = time.perf_counter()
     res = diagnose(load_data(path), config=config)
@@ -333,7 +363,7 @@ def score(outcomes: list[Outcome]) -> Score:
         top1=right / total if total else 0.0,
         false_attribution=false_attr,
         clean_total=len(clean),
-        median_shrink_right=float(np.median(shrinks)) if shrinks else math.nan,
+        median_shrink_right=statistics.median(shrinks) if shrinks else math.nan,
         confusion={k: dict(v) for k, v in confusion.items()},
         pairs_both=(both, len(pairs)),
         pairs_one=(one, len(pairs)),
@@ -357,6 +387,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pmdc_ident.core.diagnosis import DiagnosisConfig
+
     if min(args.runs_per_effect, args.clean, args.pairs) < 0:
         msg = "--runs-per-effect, --clean and --pairs must be >= 0"
         raise ParameterError(msg)

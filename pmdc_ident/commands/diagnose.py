@@ -21,10 +21,8 @@ from pmdc_ident.commands.outputs import (
     check_file_output,
     check_folder_output,
 )
-from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
 from pmdc_ident.core.effects import EFFECT_NAMES
 from pmdc_ident.core.errors import ParameterError
-from pmdc_ident.dataio import load_data
 
 HELP = "diagnose the sim-to-real gap: where it lies, which effect causes it, how far it shrinks"
 
@@ -70,7 +68,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from pmdc_ident.commands.identify import parse_fix
+    from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
     from pmdc_ident.core.params import PARAMETER_NAMES
+    from pmdc_ident.dataio import load_data
 
     effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
     if not effects:

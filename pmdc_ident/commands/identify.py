@@ -22,14 +22,15 @@ from pmdc_ident.commands.outputs import (
     check_folder_output,
 )
 from pmdc_ident.core.errors import ParameterError
-from pmdc_ident.core.estimators.identify import ModelChoice, identify, merge_runs
-from pmdc_ident.core.output_error import CLOSURE_KT_KE
-from pmdc_ident.dataio import load_data
 
 # the first line of a motor file identify writes (as IdentificationResult.write_motor_yaml)
 MOTOR_YAML_HEADER = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
 
 HELP = "identify R, L, Ke, Kt, J, B and friction from recorded runs (CSV or bag)"
+
+# The values of core.estimators.identify.ModelChoice (a test checks they agree): the
+# numerical core is imported by run(), not to build the help (see pmdc_ident.cli).
+MODEL_CHOICES: tuple[str, ...] = ("auto", "linear", "coulomb")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -68,8 +69,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--model",
-        choices=[m.value for m in ModelChoice],
-        default=ModelChoice.AUTO.value,
+        choices=MODEL_CHOICES,
+        default=MODEL_CHOICES[0],
         help="model to report: linear, linear + Coulomb friction, or auto (Coulomb when "
         "significant; default)",
     )
@@ -206,6 +207,10 @@ def run(args: argparse.Namespace) -> int:
     to_stdout = STDOUT in targets.values()
     # with a document on standard output, the human-readable report goes to stderr
     text_out = sys.stderr if to_stdout else sys.stdout
+    from pmdc_ident.core.estimators.identify import identify, merge_runs
+    from pmdc_ident.core.output_error import CLOSURE_KT_KE
+    from pmdc_ident.dataio import load_data
+
     t0 = time.perf_counter()
 
     def progress(msg: str) -> None:

@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 from scipy.optimize import least_squares
+from scipy.special import stdtrit  # = stats.t.ppf(q, dof), without scipy.stats' import
 
 from pmdc_ident.core.data import Segment, TestKind
 from pmdc_ident.core.errors import DataError
@@ -108,7 +108,7 @@ def _ols(X: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray, float]:
 
 
 def _ci(value: float, var: float, dof: int) -> tuple[float, float]:
-    q = float(stats.t.ppf(0.975, max(dof, 1)))
+    q = float(stdtrit(max(dof, 1), 0.975))
     half = q * math.sqrt(max(var, 0.0))
     return (value - half, value + half)
 
@@ -245,7 +245,7 @@ def fit_coastdown(
         var += float(g @ friction_cov @ g)
     se = math.sqrt(var)
     dof = max(t.size - 2, 1)
-    q = float(stats.t.ppf(0.975, dof))
+    q = float(stdtrit(dof, 0.975))
     # free shape (needs enough moving points)
     moving = w > 0.02 * abs(w[0])
     c = a = jtc = jb = None
@@ -372,7 +372,7 @@ def classical_chain(
         notes.append("classical: a coast-down without a staircase gives J only up to friction")
     stderr: dict[str, float | None] = {}
     if stair is not None:
-        q = float(stats.t.ppf(0.975, max(stair.n_points - 2, 1)))
+        q = float(stdtrit(max(stair.n_points - 2, 1), 0.975))
         for name, ci in ci95.items():
             if ci is not None and name != "J":
                 stderr[name] = (ci[1] - ci[0]) / (2.0 * q)

@@ -1,0 +1,69 @@
+"""``pmdc-ident --help`` and argument errors answer without the numerical stack.
+
+Building the command line (every command's ``add_arguments``) must not import
+numpy, scipy, numba, matplotlib or the bag libraries: they cost about a second of
+CPU time, which a user pays for a help text. The check is on what a fresh
+interpreter has imported (deterministic), not on a time (the machine is shared).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from pmdc_ident.commands.identify import MODEL_CHOICES
+from pmdc_ident.core.estimators.identify import ModelChoice
+
+HEAVY = ("numpy", "scipy", "numba", "llvmlite", "matplotlib", "rosbags", "mcap", "yaml")
+
+_PROBE = """
+import json, sys
+from pmdc_ident import cli
+argv = sys.argv[1:]
+try:
+    cli.main(argv)
+except SystemExit:
+    pass
+heavy = {heavy!r}
+print(json.dumps(sorted({{m.split(".")[0] for m in sys.modules}} & set(heavy))))
+"""
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--help"],
+        ["identify", "--help"],
+        ["diagnose", "--help"],
+        ["identify", "--bootstrap"],  # an argument error
+        ["identify", "run.csv", "--bootstrap", "-1"],  # a value error found before loading
+        ["no-such-command"],
+    ],
+    ids=lambda a: " ".join(a),
+)
+def test_help_and_argument_errors_import_no_numerical_stack(argv: list[str]) -> None:
+    out = subprocess.run(
+        [sys.executable, "-c", _PROBE.format(heavy=HEAVY), *argv],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == []
+
+
+def test_core_package_names_resolve_lazily() -> None:
+    import pmdc_ident.core as core
+
+    for name in core.__all__:
+        assert getattr(core, name) is not None
+    assert set(core.__all__) <= set(dir(core))
+    with pytest.raises(AttributeError):
+        _ = core.no_such_name
+
+
+def test_model_choices_of_the_command_are_the_enum() -> None:
+    assert MODEL_CHOICES == tuple(m.value for m in ModelChoice)
