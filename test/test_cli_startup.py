@@ -9,6 +9,7 @@ interpreter has imported (deterministic), not on a time (the machine is shared).
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -67,3 +68,53 @@ def test_core_package_names_resolve_lazily() -> None:
 
 def test_model_choices_of_the_command_are_the_enum() -> None:
     assert MODEL_CHOICES == tuple(m.value for m in ModelChoice)
+
+
+_KERNEL = """
+from pmdc_ident.core._jit import njit
+
+
+@njit
+def add_one(x):
+    return x + 1.0
+"""
+
+_KERNEL_PROBE = """
+import json, os
+from pmdc_ident.core import _jit
+import kernel_module
+cache = _jit._numba.config.CACHE_DIR
+print(json.dumps({"value": kernel_module.add_one(1.0), "cache_dir": cache,
+                  "files": sorted(os.listdir(cache)) if cache else []}))
+"""
+
+
+def _kernel_probe(tmp_path, locators: str) -> dict:
+    """Compile a kernel through ``_jit.njit`` with only ``locators`` allowed to numba."""
+    (tmp_path / "kernel_module.py").write_text(_KERNEL)
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env.update(NUMBA_CACHE_LOCATOR_CLASSES=locators, TMPDIR=str(tmp_path))
+    env["PYTHONPATH"] = os.pathsep.join([str(tmp_path), env.get("PYTHONPATH", "")])
+    out = subprocess.run(
+        [sys.executable, "-c", _KERNEL_PROBE],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+        check=True,
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_kernels_are_cached_privately_when_no_cache_location_is_writable(tmp_path) -> None:
+    # As for a read-only installed package run by a user without a writable home:
+    # numba finds no cache location beside the source nor in the user's cache.
+    res = _kernel_probe(tmp_path, "UserProvidedCacheLocator,IPythonCacheLocator")
+    assert res["value"] == 2.0
+    assert res["cache_dir"] == str(tmp_path / f"pmdc_ident-numba-{os.getuid()}")
+    assert res["files"]  # the compiled kernel landed there
+
+
+def test_kernels_still_run_when_nothing_can_be_cached(tmp_path) -> None:
+    res = _kernel_probe(tmp_path, "IPythonCacheLocator")
+    assert res["value"] == 2.0
