@@ -126,7 +126,8 @@ def _exit_status(
 
 
 def _fail(prog: str, message: str) -> int:
-    print(f"{prog}: error: {message}", file=sys.stderr)
+    # one line, whatever a library put in the message
+    print(f"{prog}: error: {' '.join(message.split())}", file=sys.stderr)
     return EXIT_USER_ERROR
 
 

@@ -188,8 +188,8 @@ def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = N
         tv = None
         if term is not None and np.isfinite(term[sl]).all():
             tv = term[sl]
-        segments.append(
-            Segment(
+        try:
+            seg = Segment(
                 label=label,
                 t=(stamps[sl] - t0_ns) * 1e-9,
                 voltage=volt[sl],
@@ -198,7 +198,10 @@ def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = N
                 speed=None if spd is None else spd[sl],
                 terminal_voltage=tv,
             )
-        )
+        except DataError as exc:
+            msg = f"{source or 'data'}: {exc}"
+            raise DataError(msg) from None
+        segments.append(seg)
     if not segments:
         msg = f"{source or 'data'}: no segment holds 2 or more driver samples"
         raise DataError(msg)
@@ -236,6 +239,11 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
     from rosbags.rosbag2.errors import ReaderError
 
     p = Path(path)
+    if p.is_dir() and not (p / "metadata.yaml").is_file():
+        inside = sorted(p.glob("*.mcap"))
+        hint = f": give the file inside, {inside[0]}" if len(inside) == 1 else ""
+        msg = f"{p}: a folder without metadata.yaml is not a rosbag2 bag{hint}"
+        raise DataError(msg)
     ts = _typestore()
     cols: dict[str, list[Any]] = {k: [] for k in ("cur", "enc", "volt")}
     markers: list[Marker] = []
@@ -270,7 +278,8 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
                 else:
                     cols["volt"].append((stamp, e0, e1))
     except (ReaderError, KeyError, struct.error, DataError, FileNotFoundError) as exc:
-        msg = f"{p}: not a readable rosbag2/MCAP bag ({exc})"
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        msg = f"{p}: not a readable rosbag2/MCAP bag ({first})"
         raise DataError(msg) from None
 
     def arr(rows: list[Any], n: int) -> tuple[IntArray, NDArray[Any]]:
