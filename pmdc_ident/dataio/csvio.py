@@ -23,7 +23,10 @@ schema: each staircase level is a segment ``staircase_NN`` of a few constant
 rows, the retardation table a ``coast`` segment with empty voltage cells and
 the measured speeds (see ``test/fixtures/``).
 
-Lines starting with ``#`` are comments (provenance notes). Only an empty
+Lines starting with ``#`` are comments (provenance notes). Files from other
+tools keep their own headers: ``columns={"speed": "Speed_rpm"}`` reads the
+column headed ``Speed_rpm`` as ``speed`` (units are converted on top of this by
+:mod:`pmdc_ident.dataio.units`). Only an empty
 voltage cell means "open"; a NaN written anywhere, an empty cell in another
 column, a non-numeric cell, a row with more or fewer cells than the header
 (empty trailing cells aside), time that does not increase (across segment
@@ -36,7 +39,7 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TextIO
 
@@ -59,8 +62,13 @@ CSV_COLUMNS: tuple[str, ...] = (
 _NUMERIC = ("t", "voltage", "current", "position", "speed", "terminal_voltage")
 
 
-def read_csv(path: str | Path) -> Run:
-    """Read a CSV run (schema in the module docs) into a :class:`Run`."""
+def read_csv(path: str | Path, columns: Mapping[str, str] | None = None) -> Run:
+    """Read a CSV run (schema in the module docs) into a :class:`Run`.
+
+    ``columns`` maps a schema name (``t``, ``speed``...) to the file's own header
+    for it (case-insensitive); the file's column of that schema name, if any, is
+    then ignored.
+    """
     p = Path(path)
     rows, lines = _rows(p, _text(p))
     if not rows:
@@ -68,6 +76,7 @@ def read_csv(path: str | Path) -> Run:
         raise DataError(msg)
     header = [h.strip().lower() for h in rows[0]]
     _check_separator(p, header)
+    header = _rename(p, header, columns or {})
     cols = {name: k for k, name in enumerate(header) if name in CSV_COLUMNS}
     dupes = sorted({h for h in header if h and header.count(h) > 1})
     if dupes:
@@ -155,6 +164,25 @@ def _check_cells(p: Path, n_header: int, body: list[list[str]], where: list[int]
         what = "a cut-off line?" if len(row) < n_header else "which column are the extra for?"
         msg = f"{p}: line {where[k]}: {len(row)} cells, the header has {n_header} ({what})"
         raise DataError(msg)
+
+
+def _rename(p: Path, header: list[str], columns: Mapping[str, str]) -> list[str]:
+    """The header with each ``columns`` entry's HEADER renamed to its schema NAME."""
+    out = list(header)
+    for name, wanted in columns.items():
+        if name not in CSV_COLUMNS:
+            msg = f"--column {name}=...: {name!r} is not a column name ({', '.join(CSV_COLUMNS)})"
+            raise DataError(msg)
+        key = wanted.strip().lower()
+        if key not in header:
+            msg = (
+                f"{p}: no column {wanted!r} for {name!r} "
+                f"(header has: {', '.join(header) or 'nothing'})"
+            )
+            raise DataError(msg)
+        out = [f"(unused {h})" if h == name else h for h in out]
+        out[header.index(key)] = name
+    return out
 
 
 def _column(p: Path, body: list[list[str]], where: list[int], name: str, k: int) -> np.ndarray:

@@ -1,0 +1,485 @@
+"""Units and column names of recordings made by other tools, converted to SI.
+
+A layer over the raw columns :mod:`pmdc_ident.dataio.csvio` (or a bag) reads:
+an :class:`InputSpec` says which header holds which signal and in which unit
+(``--column speed=Speed_rpm --speed-unit rpm``, or the same keys in a sidecar
+YAML ``RUN.csv.yaml`` next to the recording) and :func:`load_input` returns the
+run in the SI units the core works in (s, V, A, rad, rad/s), with one note per
+conversion made.
+
+=================  ==============================================  =========================
+key                values                                          SI value
+=================  ==============================================  =========================
+``time_unit``      ``s`` ``ms`` ``us`` ``ns``                      t * 1, 1e-3, 1e-6, 1e-9
+``speed_unit``     ``rad/s`` ``rpm`` ``deg/s`` ``rev/s``           w * 1, pi/30, pi/180, 2 pi,
+                   ``counts/s``                                    2 pi / counts_per_rev
+``position_unit``  ``rad`` ``deg`` ``rev`` ``counts``              same factors
+``current_unit``   ``A`` ``mA``                                    i * 1, 1e-3
+``voltage_unit``   ``V`` ``mV`` ``duty`` (-1..1) ``duty%``         V * 1, 1e-3, supply_v,
+                                                                   supply_v / 100
+``supply_v``       V                                               for ``duty``/``duty%``
+``counts_per_rev`` encoder counts per shaft turn                   for ``counts``
+``gear_ratio``     motor turns per load turn (speed and position   w, theta * gear_ratio
+                   measured on the load side)
+``columns``        ``{NAME: HEADER}``; ``-HEADER`` negates         (wires the other way)
+=================  ==============================================  =========================
+
+Keys given on the command line override the sidecar's, one by one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import enum
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pmdc_ident.core.data import Run, Segment
+from pmdc_ident.core.errors import DataError
+
+__all__ = [
+    "CurrentUnit",
+    "InputSpec",
+    "LoadedInput",
+    "PositionUnit",
+    "SpeedUnit",
+    "TimeUnit",
+    "VoltageUnit",
+    "add_unit_arguments",
+    "convert_run",
+    "load_input",
+    "read_sidecar",
+    "sidecar_path",
+    "spec_from_args",
+]
+
+_TWO_PI = 2.0 * math.pi
+
+
+class TimeUnit(enum.Enum):
+    S = "s"
+    MS = "ms"
+    US = "us"
+    NS = "ns"
+
+
+class SpeedUnit(enum.Enum):
+    RAD_S = "rad/s"
+    RPM = "rpm"
+    DEG_S = "deg/s"
+    REV_S = "rev/s"
+    COUNTS_S = "counts/s"
+
+
+class PositionUnit(enum.Enum):
+    RAD = "rad"
+    DEG = "deg"
+    REV = "rev"
+    COUNTS = "counts"
+
+
+class CurrentUnit(enum.Enum):
+    A = "A"
+    MA = "mA"
+
+
+class VoltageUnit(enum.Enum):
+    V = "V"
+    MV = "mV"
+    DUTY = "duty"
+    DUTY_PERCENT = "duty%"
+
+
+_TIME_FACTOR = {TimeUnit.S: 1.0, TimeUnit.MS: 1e-3, TimeUnit.US: 1e-6, TimeUnit.NS: 1e-9}
+_ANGLE_FACTOR = {"rad": 1.0, "rpm": math.pi / 30.0, "deg": math.pi / 180.0, "rev": _TWO_PI}
+_ALIASES = {"µs": "us", "rad_s": "rad/s", "rads": "rad/s", "deg_s": "deg/s", "rps": "rev/s"}
+_UNIT_KEYS: dict[str, type[enum.Enum]] = {
+    "time_unit": TimeUnit,
+    "speed_unit": SpeedUnit,
+    "position_unit": PositionUnit,
+    "current_unit": CurrentUnit,
+    "voltage_unit": VoltageUnit,
+}
+_NUMBER_KEYS = ("supply_v", "counts_per_rev", "gear_ratio")
+_SIGNALS = ("t", "voltage", "current", "position", "speed", "terminal_voltage", "segment")
+
+
+def parse_unit(enum_type: type[enum.Enum], text: str, key: str) -> Any:
+    """``text`` as a member of ``enum_type`` (case-insensitive, a few aliases)."""
+    low = _ALIASES.get(str(text).strip().lower(), str(text).strip().lower())
+    for member in enum_type:
+        if member.value.lower() == low:
+            return member
+    choices = "|".join(m.value for m in enum_type)
+    msg = f"{key.replace('_', '-')}: {text!r} is not one of {choices}"
+    raise DataError(msg)
+
+
+def _positive(key: str, value: Any) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if not (math.isfinite(v) and v > 0):
+        msg = f"{key.replace('_', '-')} must be a positive number, got {value!r}"
+        raise DataError(msg)
+    return v
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    """What the columns of a recording are and their units (``None`` = the SI default)."""
+
+    columns: tuple[tuple[str, str], ...] = ()
+    time_unit: TimeUnit | None = None
+    speed_unit: SpeedUnit | None = None
+    position_unit: PositionUnit | None = None
+    current_unit: CurrentUnit | None = None
+    voltage_unit: VoltageUnit | None = None
+    supply_v: float | None = None
+    counts_per_rev: float | None = None
+    gear_ratio: float | None = None
+    origin: str = "command line"
+
+    def __post_init__(self) -> None:
+        for name, header in self.columns:
+            if name not in _SIGNALS:
+                msg = f"column {name!r} is not one of {', '.join(_SIGNALS)} (in {self.origin})"
+                raise DataError(msg)
+            if not header.lstrip("-").strip():
+                msg = f"column {name!r}: empty header name (in {self.origin})"
+                raise DataError(msg)
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any], origin: str) -> InputSpec:
+        """From the keys of a sidecar YAML (``-`` and ``_`` both accepted in key names)."""
+        kwargs: dict[str, Any] = {"origin": origin}
+        for raw_key, value in data.items():
+            key = str(raw_key).strip().replace("-", "_")
+            if key in _UNIT_KEYS:
+                kwargs[key] = parse_unit(_UNIT_KEYS[key], value, key)
+            elif key in _NUMBER_KEYS:
+                kwargs[key] = _positive(key, value)
+            elif key in ("columns", "column"):
+                if not isinstance(value, Mapping):
+                    msg = f"{origin}: 'columns' must map NAME: HEADER, got {value!r}"
+                    raise DataError(msg)
+                kwargs["columns"] = tuple((str(k), str(v)) for k, v in value.items())
+            else:
+                known = ", ".join([*_UNIT_KEYS, *_NUMBER_KEYS, "columns"])
+                msg = f"{origin}: unknown key {raw_key!r} (known: {known})"
+                raise DataError(msg)
+        return cls(**kwargs)
+
+    def merged_over(self, base: InputSpec | None) -> InputSpec:
+        """This spec's keys where given, else ``base``'s (columns merged by name)."""
+        if base is None:
+            return self
+        changes: dict[str, Any] = {}
+        for f in fields(self):
+            if f.name in ("columns", "origin"):
+                continue
+            if getattr(self, f.name) is None:
+                changes[f.name] = getattr(base, f.name)
+        cols = dict(base.columns)
+        cols.update(dict(self.columns))
+        changes["columns"] = tuple(cols.items())
+        changes["origin"] = f"{self.origin} over {base.origin}" if self.given else base.origin
+        return replace(self, **changes)
+
+    @property
+    def given(self) -> bool:
+        """True when any key was set."""
+        return bool(self.columns) or any(
+            getattr(self, f.name) is not None
+            for f in fields(self)
+            if f.name not in ("columns", "origin")
+        )
+
+    def column_map(self) -> dict[str, str]:
+        """Schema name -> the file's header (sign marks stripped; dropped columns left out)."""
+        return {
+            name: header.strip().lstrip("-").strip()
+            for name, header in self.columns
+            if name not in self.dropped()
+        }
+
+    def dropped(self) -> frozenset[str]:
+        """Signals to ignore although the file has them (``--column current=none``)."""
+        return frozenset(name for name, header in self.columns if header.strip().lower() == "none")
+
+    def declared(self) -> frozenset[str]:
+        """Signals whose unit the user stated (the gate then does not second-guess it)."""
+        keys = {
+            "time": self.time_unit,
+            "speed": self.speed_unit,
+            "position": self.position_unit,
+            "current": self.current_unit,
+            "voltage": self.voltage_unit,
+        }
+        return frozenset(k for k, v in keys.items() if v is not None)
+
+    def negated(self) -> frozenset[str]:
+        """Signals whose column is read with the opposite sign (``-HEADER``)."""
+        return frozenset(name for name, header in self.columns if header.strip().startswith("-"))
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name == "columns":
+                if v:
+                    out["columns"] = dict(v)
+            elif isinstance(v, enum.Enum):
+                out[f.name] = v.value
+            elif v is not None:
+                out[f.name] = v
+        return out
+
+
+@dataclass(frozen=True)
+class LoadedInput:
+    """One DATA argument in SI units, with what was done to get there."""
+
+    path: str
+    run: Run
+    spec: InputSpec
+    notes: tuple[str, ...]
+
+
+# -- command line ------------------------------------------------------------------
+def add_unit_arguments(parser: argparse.ArgumentParser) -> None:
+    """The column/unit options shared by identify, diagnose, check and export."""
+    g = parser.add_argument_group(
+        "columns and units (data from other tools; also in a sidecar DATA.yaml)"
+    )
+    g.add_argument(
+        "--column",
+        action="append",
+        default=[],
+        metavar="NAME=HEADER",
+        help="read the column headed HEADER as NAME (t, voltage, current, position, speed, "
+        "terminal_voltage, segment); -HEADER flips its sign; repeatable",
+    )
+    for key, enum_type in _UNIT_KEYS.items():
+        choices = "|".join(m.value for m in enum_type)
+        g.add_argument(
+            f"--{key.replace('_', '-')}",
+            metavar=choices.upper() if len(choices) < 12 else "UNIT",
+            default=None,
+            help=f"unit of the {key.split('_')[0]} column: {choices} (default SI)",
+        )
+    g.add_argument(
+        "--supply-v", default=None, metavar="V", help="supply voltage for --voltage-unit duty"
+    )
+    g.add_argument(
+        "--counts-per-rev",
+        default=None,
+        metavar="N",
+        help="encoder counts per shaft turn, for counts and counts/s",
+    )
+    g.add_argument(
+        "--gear-ratio",
+        default=None,
+        metavar="N",
+        help="motor turns per load turn: speed and position were measured on the load side; "
+        "parameters are reported on the motor side",
+    )
+
+
+def spec_from_args(args: argparse.Namespace) -> InputSpec:
+    """The :class:`InputSpec` of the command-line options (refuses malformed ones)."""
+    data: dict[str, Any] = {}
+    for key in (*_UNIT_KEYS, *_NUMBER_KEYS):
+        value = getattr(args, key, None)
+        if value is not None:
+            data[key] = value
+    cols: dict[str, str] = {}
+    for item in getattr(args, "column", None) or []:
+        name, sep, header = item.partition("=")
+        if not sep or not name.strip() or not header.strip():
+            msg = f"--column expects NAME=HEADER (e.g. speed=Speed_rpm), got {item!r}"
+            raise DataError(msg)
+        cols[name.strip().lower()] = header.strip()
+    if cols:
+        data["columns"] = cols
+    return InputSpec.from_mapping(data, "command line")
+
+
+# -- sidecar -----------------------------------------------------------------------
+def sidecar_path(data_path: str | Path) -> Path:
+    """``RUN.csv`` -> ``RUN.csv.yaml`` (a bag directory ``DIR`` -> ``DIR.yaml``)."""
+    return Path(str(Path(data_path)) + ".yaml")
+
+
+def read_sidecar(data_path: str | Path) -> InputSpec | None:
+    """The sidecar YAML of a recording, or ``None`` when it has none."""
+    side = sidecar_path(data_path)
+    if not side.is_file():
+        return None
+    import yaml
+
+    try:
+        data = yaml.safe_load(side.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        msg = f"{side}: not a readable YAML file ({first})"
+        raise DataError(msg) from None
+    if data is None:
+        return None
+    if not isinstance(data, Mapping):
+        msg = f"{side}: expected keys such as 'speed_unit: rpm', got {type(data).__name__}"
+        raise DataError(msg)
+    return InputSpec.from_mapping(data, str(side))
+
+
+# -- conversion --------------------------------------------------------------------
+def _angle_factor(
+    unit: SpeedUnit | PositionUnit | None,
+    cpr: float | None,
+    what: str,
+) -> tuple[float, str]:
+    if unit is None:
+        return 1.0, ""
+    value = unit.value.split("/")[0]
+    if value == "counts":
+        if cpr is None:
+            msg = (
+                f"--{what}-unit {unit.value} needs --counts-per-rev N "
+                "(`pmdc-ident check` estimates N from the data when it can)"
+            )
+            raise DataError(msg)
+        return _TWO_PI / cpr, f"{unit.value} at {cpr:g} counts/rev"
+    return _ANGLE_FACTOR[value], unit.value
+
+
+def _factors(spec: InputSpec) -> tuple[dict[str, float], list[str]]:
+    """SI factor per signal and the notes saying so (factor 1 is left out)."""
+    gear = spec.gear_ratio or 1.0
+    f = {"t": 1.0, "voltage": 1.0, "current": 1.0, "position": 1.0, "speed": 1.0}
+    notes: list[str] = []
+    if spec.time_unit is not None:
+        f["t"] = _TIME_FACTOR[spec.time_unit]
+    if spec.current_unit is CurrentUnit.MA:
+        f["current"] = 1e-3
+    if spec.voltage_unit is VoltageUnit.MV:
+        f["voltage"] = 1e-3
+    elif spec.voltage_unit in (VoltageUnit.DUTY, VoltageUnit.DUTY_PERCENT):
+        if spec.supply_v is None:
+            msg = f"--voltage-unit {spec.voltage_unit.value} needs --supply-v V"
+            raise DataError(msg)
+        scale = 1.0 if spec.voltage_unit is VoltageUnit.DUTY else 0.01
+        f["voltage"] = spec.supply_v * scale
+    f["speed"], speed_from = _angle_factor(spec.speed_unit, spec.counts_per_rev, "speed")
+    f["position"], pos_from = _angle_factor(spec.position_unit, spec.counts_per_rev, "position")
+    f["speed"] *= gear
+    f["position"] *= gear
+    units = {"t": "s", "voltage": "V", "current": "A", "position": "rad", "speed": "rad/s"}
+    origins = {
+        "t": spec.time_unit.value if spec.time_unit else "",
+        "current": spec.current_unit.value if spec.current_unit else "",
+        "voltage": spec.voltage_unit.value if spec.voltage_unit else "",
+        "speed": speed_from,
+        "position": pos_from,
+    }
+    for name, factor in f.items():
+        if origins[name] and factor != 1.0:
+            notes.append(
+                f"{name} converted from {origins[name]} (x {factor:.6g} -> {units[name]})"
+            )
+    if spec.voltage_unit in (VoltageUnit.DUTY, VoltageUnit.DUTY_PERCENT):
+        notes.append(f"voltage = duty x supply {spec.supply_v:g} V (no sag or dead time modelled)")
+    if spec.gear_ratio is not None:
+        notes.append(
+            f"gear ratio {gear:g}: speed and position measured on the load side, "
+            "converted to the motor side; parameters are the motor's"
+        )
+    return f, notes
+
+
+def convert_run(run: Run, spec: InputSpec) -> tuple[Run, tuple[str, ...]]:
+    """``run`` (raw columns) in SI units, and the notes of what was converted."""
+    f, notes = _factors(spec)
+    flip = spec.negated()
+    for name in sorted(flip):
+        notes.append(f"{name} sign flipped (column {dict(spec.columns)[name].strip()})")
+    drop = spec.dropped()
+    for name in sorted(drop):
+        notes.append(f"{name} column ignored (--column {name}=none)")
+    if drop:
+        run = _drop(run, drop)
+    if all(v == 1.0 for v in f.values()) and not flip:
+        return _unwrap(run, notes)
+    sign = {name: (-1.0 if name in flip else 1.0) for name in f}
+    tv_factor = f["voltage"] if spec.voltage_unit is VoltageUnit.MV else 1.0
+
+    def conv(seg: Segment) -> Segment:
+        def s(name: str, arr: np.ndarray | None, factor: float) -> np.ndarray | None:
+            return None if arr is None else arr * (factor * sign.get(name, 1.0))
+
+        hist_v = seg.history_voltage
+        heat = seg.history_heat_a2s
+        return replace(
+            seg,
+            t=seg.t * f["t"],
+            voltage=s("voltage", seg.voltage, f["voltage"]),
+            current=s("current", seg.current, f["current"]),
+            position=s("position", seg.position, f["position"]),
+            speed=s("speed", seg.speed, f["speed"]),
+            terminal_voltage=s("terminal_voltage", seg.terminal_voltage, tv_factor),
+            history_voltage=None if hist_v is None else hist_v * f["voltage"] * sign["voltage"],
+            history_heat_a2s=None if heat is None else heat * f["current"] ** 2 * f["t"],
+        )
+
+    return _unwrap(Run(tuple(conv(s) for s in run.segments), source=run.source), notes)
+
+
+def _unwrap(run: Run, notes: list[str]) -> tuple[Run, tuple[str, ...]]:
+    """Positions that wrap at one turn (2 pi, in SI already) made continuous."""
+    from pmdc_ident.core.quality.signals import find_wrap
+
+    segs = []
+    for s in run.segments:
+        found = find_wrap(s.position) if s.position is not None else None
+        if found is not None and abs(found[0] / _TWO_PI - 1.0) < 0.02:
+            notes.append(
+                f"position wraps at 2 pi in segment {s.label!r} ({found[1]} times): unwrapped"
+            )
+            s = replace(s, position=np.unwrap(s.position, period=_TWO_PI))
+        segs.append(s)
+    return Run(tuple(segs), source=run.source), tuple(notes)
+
+
+def _drop(run: Run, names: frozenset[str]) -> Run:
+    if "t" in names or "segment" in names:
+        msg = "--column t=none / segment=none: only signal columns can be ignored"
+        raise DataError(msg)
+    changes: dict[str, Any] = dict.fromkeys(names)
+    if "voltage" in names:
+        changes["history_voltage"] = None
+    if "current" in names:
+        changes["history_heat_a2s"] = None
+    try:
+        segs = tuple(replace(s, **changes) for s in run.segments)
+    except DataError as exc:
+        msg = f"{run.source}: cannot ignore {', '.join(sorted(names))}: {exc}"
+        raise DataError(msg) from None
+    return Run(segs, source=run.source)
+
+
+def load_input(path: str | Path, spec: InputSpec | None = None) -> LoadedInput:
+    """Read one DATA argument with its sidecar and ``spec`` (command line) applied."""
+    from pmdc_ident.dataio import load_data
+
+    side = read_sidecar(path)
+    full = (spec or InputSpec()).merged_over(side)
+    raw = load_data(path, columns=full.column_map() or None)
+    run, notes = convert_run(raw, full)
+    if side is not None:
+        notes = (f"units and columns from {sidecar_path(path)}", *notes)
+    return LoadedInput(str(path), run, full, notes)
