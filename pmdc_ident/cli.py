@@ -28,6 +28,7 @@ EXIT_INTERRUPTED = 130
 COMMANDS: dict[str, str] = {
     "identify": "identify",
     "diagnose": "diagnose",
+    "check": "check",
     "export": "export",
     "export-model": "export_model",
     "monitor": "monitor",

@@ -15,6 +15,13 @@ import sys
 import time
 from pathlib import Path
 
+from pmdc_ident.commands._inputs import (
+    add_gate_arguments,
+    add_unit_arguments,
+    gate,
+    input_json,
+    load_inputs,
+)
 from pmdc_ident.commands.outputs import (
     STDOUT,
     check_distinct,
@@ -64,13 +71,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="write an HTML page with plots into this folder (created; its parent must exist)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+    add_gate_arguments(parser)
+    add_unit_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from pmdc_ident.commands.identify import parse_fix
     from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
     from pmdc_ident.core.params import PARAMETER_NAMES
-    from pmdc_ident.dataio import load_data
 
     effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
     if not effects:
@@ -98,13 +106,20 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
-    runs = [load_data(p) for p in args.data]
+    inputs = load_inputs(args)
+    runs = [x.run for x in inputs]
+    for x in inputs:
+        for note in x.notes:
+            progress(f"{x.path}: {note}")
+    report = gate(args, inputs, show=lambda line: print(line, file=text_out))
     result = diagnose(runs, config=config, progress=progress)
     print("\n".join(result.summary_lines()), file=text_out)
     print("split: " + "; ".join(result.split.description), file=text_out)
     written: list[Path] = []
     if json_to is not None:
-        document = json.dumps(result.to_json(), indent=2) + "\n"
+        body = result.to_json()
+        body.update(input_json(inputs, report))
+        document = json.dumps(body, indent=2) + "\n"
         if json_to == STDOUT:
             print(document, end="")
         else:

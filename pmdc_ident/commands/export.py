@@ -24,11 +24,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--session", default=None, help="only this session of a bag (default: every session)"
     )
+    from pmdc_ident.commands._inputs import add_unit_arguments
+
+    add_unit_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    from pmdc_ident.dataio import load_data
+    from pmdc_ident.dataio.units import convert_run, load_input, read_sidecar, spec_from_args
 
+    spec = spec_from_args(args)
     src = Path(args.data)
     is_bag = src.is_dir() or src.suffix.lower() == ".mcap"
     if args.session is not None and not is_bag:
@@ -39,9 +43,16 @@ def run(args: argparse.Namespace) -> int:
     if is_bag:
         from pmdc_ident.dataio.bagio import read_bag
 
-        data = read_bag(src, session=args.session)
+        full = spec.merged_over(read_sidecar(src))
+        if full.columns:
+            msg = f"{src}: --column applies to CSV files only (a bag has fixed topics)"
+            raise DataError(msg)
+        data, notes = convert_run(read_bag(src, session=args.session), full)
     else:
-        data = load_data(src)
+        loaded = load_input(src, spec)
+        data, notes = loaded.run, loaded.notes
+    for note in notes:
+        print(f"{src}: {note}", file=sys.stderr)
     summary = f"{len(data.segments)} segment(s), {sum(s.n for s in data.segments)} samples"
     if csv_to == STDOUT:
         from pmdc_ident.dataio.csvio import write_csv

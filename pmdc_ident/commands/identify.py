@@ -15,6 +15,14 @@ import sys
 import time
 from pathlib import Path
 
+from pmdc_ident.commands._inputs import (
+    add_gate_arguments,
+    add_unit_arguments,
+    gate,
+    input_json,
+    load_inputs,
+    load_side,
+)
 from pmdc_ident.commands.outputs import (
     STDOUT,
     check_distinct,
@@ -92,6 +100,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-holdout", action="store_true", help="skip the held-out segment validation"
     )
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+    add_gate_arguments(parser)
+    add_unit_arguments(parser)
 
 
 def parse_fix(items: list[str], known: tuple[str, ...] | None = None) -> dict[str, float]:
@@ -192,6 +202,13 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path | str | None]:
     return targets
 
 
+def _write(path: Path | str, text: str) -> Path:
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(text)
+    return p
+
+
 def run(args: argparse.Namespace) -> int:
     fixed = parse_fix(args.fix)
     if args.bootstrap is not None and args.bootstrap < 0:
@@ -209,7 +226,6 @@ def run(args: argparse.Namespace) -> int:
     text_out = sys.stderr if to_stdout else sys.stdout
     from pmdc_ident.core.estimators.identify import identify, merge_runs
     from pmdc_ident.core.output_error import CLOSURE_KT_KE
-    from pmdc_ident.dataio import load_data
 
     t0 = time.perf_counter()
 
@@ -217,7 +233,12 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
-    runs = [load_data(p) for p in args.data]
+    inputs = load_inputs(args)
+    runs = [x.run for x in inputs]
+    for x in inputs:
+        for note in x.notes:
+            progress(f"{x.path}: {note}")
+    report = gate(args, inputs, show=lambda line: print(line, file=text_out))
     n_boot = args.bootstrap if args.bootstrap is not None else (10 if args.report else 0)
     segments = merge_runs(runs)
     added = _added_inertia(args.added_inertia, args.data, runs, segments)
@@ -233,12 +254,21 @@ def run(args: argparse.Namespace) -> int:
         added_inertia=added,
     )
     print(result.text_report(), file=text_out)
+    body = result.to_json_dict()
+    body.update(input_json(inputs, report))
+    gear = load_side({k: p.value for k, p in result.parameters.items()}, inputs)
+    if gear:
+        body["load_side"] = gear
+        print("load side: " + gear["note"], file=text_out)
+        values = ", ".join(f"{k} = {v:.6g}" for k, v in gear.items() if k != "note")
+        print(f"  {values}", file=text_out)
+    document = json.dumps(body, indent=2, allow_nan=False) + "\n"
     written: list[Path] = []
     json_to, yaml_to, report_to = targets["--json"], targets["--yaml"], targets["--report"]
     if json_to == STDOUT:
-        print(json.dumps(result.to_json_dict(), indent=2, allow_nan=False))
+        print(document, end="")
     elif json_to is not None:
-        written.append(result.write_json(json_to))
+        written.append(_write(json_to, document))
     if yaml_to == STDOUT:
         from pmdc_ident.core.motors import motor_to_yaml
 
@@ -251,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
         out = Path(report_to)
         written += write_report(result, segments, out)
         if json_to is None:
-            written.append(result.write_json(out / "identify.json"))
+            written.append(_write(out / "identify.json", document))
         if yaml_to is None:
             written.append(result.write_motor_yaml(out / "identified_motor.yaml"))
     for p in written:

@@ -29,7 +29,6 @@ Keys given on the command line override the sidecar's, one by one.
 
 from __future__ import annotations
 
-import argparse
 import enum
 import math
 from collections.abc import Mapping
@@ -50,7 +49,6 @@ __all__ = [
     "SpeedUnit",
     "TimeUnit",
     "VoltageUnit",
-    "add_unit_arguments",
     "convert_run",
     "load_input",
     "read_sidecar",
@@ -253,46 +251,7 @@ class LoadedInput:
 
 
 # -- command line ------------------------------------------------------------------
-def add_unit_arguments(parser: argparse.ArgumentParser) -> None:
-    """The column/unit options shared by identify, diagnose, check and export."""
-    g = parser.add_argument_group(
-        "columns and units (data from other tools; also in a sidecar DATA.yaml)"
-    )
-    g.add_argument(
-        "--column",
-        action="append",
-        default=[],
-        metavar="NAME=HEADER",
-        help="read the column headed HEADER as NAME (t, voltage, current, position, speed, "
-        "terminal_voltage, segment); -HEADER flips its sign; repeatable",
-    )
-    for key, enum_type in _UNIT_KEYS.items():
-        choices = "|".join(m.value for m in enum_type)
-        g.add_argument(
-            f"--{key.replace('_', '-')}",
-            metavar=choices.upper() if len(choices) < 12 else "UNIT",
-            default=None,
-            help=f"unit of the {key.split('_')[0]} column: {choices} (default SI)",
-        )
-    g.add_argument(
-        "--supply-v", default=None, metavar="V", help="supply voltage for --voltage-unit duty"
-    )
-    g.add_argument(
-        "--counts-per-rev",
-        default=None,
-        metavar="N",
-        help="encoder counts per shaft turn, for counts and counts/s",
-    )
-    g.add_argument(
-        "--gear-ratio",
-        default=None,
-        metavar="N",
-        help="motor turns per load turn: speed and position were measured on the load side; "
-        "parameters are reported on the motor side",
-    )
-
-
-def spec_from_args(args: argparse.Namespace) -> InputSpec:
+def spec_from_args(args: Any) -> InputSpec:
     """The :class:`InputSpec` of the command-line options (refuses malformed ones)."""
     data: dict[str, Any] = {}
     for key in (*_UNIT_KEYS, *_NUMBER_KEYS):

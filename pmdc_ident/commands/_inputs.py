@@ -1,0 +1,168 @@
+"""DATA arguments as the commands read them: columns and units applied (``dataio.units``),
+then the data-quality gate (``core.quality``) before any fit.
+
+Light at import time (the fast ``--help`` rule): numpy and the core load inside
+the functions.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from pmdc_ident.core.errors import DataError
+
+if TYPE_CHECKING:
+    from pmdc_ident.core.quality import QualityReport
+    from pmdc_ident.dataio.units import LoadedInput
+
+__all__ = [
+    "add_gate_arguments",
+    "add_unit_arguments",
+    "gate",
+    "input_json",
+    "load_inputs",
+    "load_side",
+    "quality",
+    "show_quality",
+    "stop_on_errors",
+]
+
+_UNITS = {
+    "--time-unit": ("s|ms|us|ns", "time"),
+    "--speed-unit": ("rad/s|rpm|deg/s|rev/s|counts/s", "speed"),
+    "--position-unit": ("rad|deg|rev|counts", "position"),
+    "--current-unit": ("A|mA", "current"),
+    "--voltage-unit": ("V|mV|duty|duty%", "voltage"),
+}
+
+
+def add_unit_arguments(parser: argparse.ArgumentParser) -> None:
+    """The column/unit options shared by identify, diagnose, check and export."""
+    g = parser.add_argument_group(
+        "columns and units (data from other tools; also in a sidecar DATA.yaml)"
+    )
+    g.add_argument(
+        "--column",
+        action="append",
+        default=[],
+        metavar="NAME=HEADER",
+        help="read the column headed HEADER as NAME (t, voltage, current, position, speed, "
+        "terminal_voltage, segment); -HEADER flips its sign, HEADER 'none' ignores the "
+        "file's NAME column; repeatable",
+    )
+    for flag, (choices, what) in _UNITS.items():
+        g.add_argument(
+            flag, metavar="UNIT", default=None, help=f"unit of the {what} column: {choices}"
+        )
+    g.add_argument("--supply-v", default=None, metavar="V", help="supply voltage for duty units")
+    g.add_argument(
+        "--counts-per-rev",
+        default=None,
+        metavar="N",
+        help="encoder counts per shaft turn, for counts and counts/s",
+    )
+    g.add_argument(
+        "--gear-ratio",
+        default=None,
+        metavar="N",
+        help="motor turns per load turn: speed and position were measured on the load side; "
+        "parameters are reported on the motor side",
+    )
+
+
+def add_gate_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--ignore",
+        action="append",
+        default=[],
+        metavar="CODE",
+        help="turn the data-quality error CODE (e.g. time-unit, current-unit) into a warning "
+        "and go on; repeatable",
+    )
+
+
+def load_inputs(args: argparse.Namespace) -> list[LoadedInput]:
+    """Every DATA argument in SI units (command-line keys over each file's sidecar)."""
+    from pmdc_ident.dataio.units import load_input, spec_from_args
+
+    spec = spec_from_args(args)
+    return [load_input(p, spec) for p in args.data]
+
+
+def quality(args: argparse.Namespace, inputs: list[LoadedInput]) -> QualityReport:
+    """The gate's findings on ``inputs`` (``--ignore CODE`` errors turned into warnings)."""
+    from pmdc_ident.core.quality import GateInput, check_inputs
+
+    return check_inputs(
+        [GateInput(x.path, x.run, x.spec.declared(), x.notes) for x in inputs]
+    ).downgraded(getattr(args, "ignore", []) or [])
+
+
+def show_quality(
+    report: QualityReport, *, show: Callable[[str], None] = print, info: bool = False
+) -> None:
+    """Print the findings (errors and warnings; ``info`` adds the measurements)."""
+    lines = report.lines(info=info)
+    if lines:
+        show("data quality:")
+        for line in lines:
+            show(f"  {line}")
+
+
+def stop_on_errors(report: QualityReport) -> None:
+    """Refuse to go on (:class:`DataError`, exit 2) when an error remains."""
+    if report.errors:
+        n = len(report.errors)
+        msg = (
+            f"the data-quality gate found {n} error(s) (listed above); nothing was fitted. "
+            "Apply the fixes, or --ignore CODE to go on anyway"
+        )
+        raise DataError(msg)
+
+
+def gate(
+    args: argparse.Namespace,
+    inputs: list[LoadedInput],
+    *,
+    show: Callable[[str], None] = print,
+    info: bool = False,
+) -> QualityReport:
+    """:func:`quality`, :func:`show_quality`, :func:`stop_on_errors`: the gate before a fit."""
+    report = quality(args, inputs)
+    show_quality(report, show=show, info=info)
+    stop_on_errors(report)
+    return report
+
+
+# load-side value = motor-side value * gear_ratio ** power (N motor turns per load turn)
+_REFLECT = {"Ke": 1, "Kt": 1, "J": 2, "B": 2, "coulomb_friction.torque_nm": 1}
+
+
+def load_side(values: dict[str, float], inputs: list[LoadedInput]) -> dict[str, Any]:
+    """The parameters seen from the load side of the gear (``--gear-ratio N``), else {}."""
+    gears = {x.spec.gear_ratio for x in inputs}
+    if gears == {None}:
+        return {}
+    if len(gears) != 1:
+        return {"note": "inputs have different gear ratios: no load-side values"}
+    (n,) = gears
+    assert n is not None
+    out: dict[str, Any] = {
+        name: values[name] * n**power for name, power in _REFLECT.items() if name in values
+    }
+    out["gear_ratio"] = n
+    out["note"] = (
+        f"seen from the load side of a {n:g}:1 gear (Ke, Kt, torques x {n:g}; J, B x {n:g}^2; "
+        "gear losses not included)"
+    )
+    return out
+
+
+def input_json(inputs: list[LoadedInput], report: QualityReport) -> dict[str, Any]:
+    """The ``quality`` and ``inputs`` (units applied per file) keys of a command's JSON."""
+    return {
+        "quality": report.to_json(),
+        "inputs": {x.path: {"units": x.spec.to_json(), "notes": list(x.notes)} for x in inputs},
+    }

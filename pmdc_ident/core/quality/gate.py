@@ -1,0 +1,128 @@
+"""The data-quality gate: every check over every input, before any fit.
+
+:func:`check_inputs` takes the runs already in SI units (``dataio.units``) and
+returns a :class:`QualityReport`; errors stop ``identify``/``diagnose`` with exit
+status 2, warnings are printed and kept in the JSON under ``quality``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from pmdc_ident.core.data import Run, Segment
+from pmdc_ident.core.quality.findings import Finding, QualityReport, Severity
+from pmdc_ident.core.quality.physics import (
+    check_delay,
+    check_direction,
+    check_power_balance,
+)
+from pmdc_ident.core.quality.scales import check_magnitudes, check_speed_position
+from pmdc_ident.core.quality.signals import (
+    check_clipping,
+    check_columns,
+    check_quantisation,
+    check_wrap,
+)
+from pmdc_ident.core.quality.timing import check_time_unit, check_timing
+
+__all__ = ["GateInput", "check_inputs"]
+
+
+@dataclass(frozen=True)
+class GateInput:
+    """One DATA argument in SI units, with the signals whose unit the user declared."""
+
+    name: str
+    run: Run
+    declared: frozenset[str] = frozenset()
+    notes: tuple[str, ...] = ()
+
+
+def _fingerprint(run: Run) -> str:
+    """Hash of the samples (time left out: a re-export shifted in time is the same data)."""
+    h = hashlib.blake2b(digest_size=16)
+    for s in run.segments:
+        for name in ("voltage", "current", "position", "speed"):
+            arr = getattr(s, name)
+            h.update(name.encode())
+            if arr is not None:
+                h.update(np.ascontiguousarray(arr).tobytes())
+    return h.hexdigest()
+
+
+def _duplicates(inputs: Sequence[GateInput]) -> list[Finding]:
+    seen: dict[str, str] = {}
+    out: list[Finding] = []
+    for x in inputs:
+        key = _fingerprint(x.run)
+        if key in seen:
+            same_path = seen[key] == x.name
+            what = "passed twice" if same_path else f"holds the same samples as {seen[key]}"
+            out.append(
+                Finding(
+                    "duplicate",
+                    Severity.ERROR,
+                    x.name,
+                    f"{what}: counting one recording twice shrinks every interval by sqrt(2)",
+                    "pass each recording once",
+                )
+            )
+        else:
+            seen[key] = x.name
+    return out
+
+
+def _per_input(x: GateInput) -> list[Finding]:
+    segs: tuple[Segment, ...] = x.run.segments
+    d = x.declared
+    out = [Finding("units", Severity.INFO, x.name, note) for note in x.notes]
+    time_unit, factor = check_time_unit(x.name, segs, declared="time" in d)
+    out += time_unit
+    # the speed/position check in the time unit the gate suggests (else it blames the speed)
+    in_s = segs if factor == 1.0 else tuple(replace(s, t=s.t * factor) for s in segs)
+    checks: list[Callable[[], list[Finding]]] = [
+        lambda: check_timing(x.name, segs),
+        lambda: check_columns(x.name, segs),
+        lambda: check_magnitudes(x.name, segs, d),
+        lambda: check_speed_position(x.name, in_s, declared=bool({"speed", "position"} & d)),
+        lambda: check_quantisation(x.name, segs, position_declared="position" in d),
+        lambda: check_clipping(x.name, segs),
+        lambda: check_power_balance(x.name, segs),
+        lambda: check_delay(x.name, segs),
+    ]
+    for seg in segs:
+        checks.append(lambda seg=seg: check_wrap(x.name, seg, position_declared="position" in d))
+    for check in checks:
+        out += check()
+    return out
+
+
+def check_inputs(inputs: Sequence[GateInput]) -> QualityReport:
+    """All findings over ``inputs`` (each a file already converted to SI units)."""
+    findings: list[Finding] = []
+    findings += _duplicates(inputs)
+    for x in inputs:
+        findings += _per_input(x)
+    segs = [s for x in inputs for s in x.run.segments]
+    if segs:
+        names = ", ".join(x.name for x in inputs)
+        findings += check_direction(names, segs)
+        has_v = [s for s in segs if s.voltage is not None]
+        if has_v and all(s.open_mask.all() for s in has_v) and len(has_v) == len(segs):
+            findings.append(
+                Finding(
+                    "no-drive",
+                    Severity.ERROR,
+                    names,
+                    "the voltage is empty in every row of every input: all of it is an "
+                    "open-armature coast, which tells B/J and the friction over J but not "
+                    "R, L, Ke or J itself",
+                    "record the voltage command (or --column voltage=HEADER for its column), "
+                    "or add a driven run",
+                )
+            )
+    return QualityReport.of(findings)

@@ -1,0 +1,138 @@
+"""Quick least-squares looks at a record, for the gate (no fit, no simulation).
+
+Each helper works over the samples of several segments at once and returns the
+coefficients with their standard errors, so a check can ask "is this sign
+certain?" before it speaks. The equations are the motor's, written over one
+sample interval (ZOH voltage, trapezoidal current and speed)::
+
+    V dt       = R ibar dt + L (i[k+1] - i[k]) + Ke wbar dt            (electrical)
+    w[k+1]-w[k] = (a ibar - b wbar - c sign(wbar) - d) dt              (mechanical)
+
+with ``a = Kt/J``, ``b = B/J``, ``c = Tc/J``, ``d = T_load/J``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pmdc_ident.core.data import Segment
+
+__all__ = ["MIN_DYNAMIC", "LinearFit", "arx_pole", "dynamic", "electrical_fit", "mechanical_fit"]
+
+FloatArray = NDArray[np.float64]
+# A segment with fewer samples is a table row group (steady-state levels), not a time series.
+MIN_DYNAMIC = 20
+
+
+def dynamic(segments: Sequence[Segment]) -> list[Segment]:
+    """The segments that are time series (not steady-state table rows)."""
+    return [s for s in segments if s.n >= MIN_DYNAMIC]
+
+
+@dataclass(frozen=True)
+class LinearFit:
+    """Coefficients of a least-squares fit, their standard errors and the sample count."""
+
+    names: tuple[str, ...]
+    coef: FloatArray
+    stderr: FloatArray
+    n: int
+    rms: float
+
+    def __getitem__(self, name: str) -> float:
+        return float(self.coef[self.names.index(name)])
+
+    def t(self, name: str) -> float:
+        """The coefficient over its standard error (inf when exact)."""
+        k = self.names.index(name)
+        se = float(self.stderr[k])
+        return float(self.coef[k]) / se if se > 0 else float(np.sign(self.coef[k])) * np.inf
+
+
+def _lstsq(names: tuple[str, ...], a: FloatArray, y: FloatArray) -> LinearFit | None:
+    keep = np.isfinite(a).all(axis=1) & np.isfinite(y)
+    a, y = a[keep], y[keep]
+    n, p = a.shape
+    if n <= p + 2:
+        return None
+    scale = np.sqrt((a * a).sum(axis=0))
+    used = scale > 0
+    if not used.any():
+        return None
+    a_s = a[:, used] / scale[used]
+    coef_s, *_ = np.linalg.lstsq(a_s, y, rcond=None)
+    resid = y - a_s @ coef_s
+    dof = max(n - int(used.sum()), 1)
+    s2 = float(resid @ resid) / dof
+    try:
+        cov = np.linalg.pinv(a_s.T @ a_s) * s2
+    except np.linalg.LinAlgError:
+        return None
+    coef = np.zeros(p)
+    se = np.full(p, np.inf)
+    coef[used] = coef_s / scale[used]
+    se[used] = np.sqrt(np.clip(np.diag(cov), 0.0, None)) / scale[used]
+    return LinearFit(names, coef, se, n, float(np.sqrt(s2)))
+
+
+def electrical_fit(segments: Sequence[Segment]) -> LinearFit | None:
+    """``V dt = R ibar dt + L di + Ke wbar dt + c dt`` over the driven intervals."""
+    rows: list[FloatArray] = []
+    ys: list[FloatArray] = []
+    for s in dynamic(segments):
+        if s.voltage is None or s.current is None:
+            continue
+        dt = np.diff(s.t)
+        w = s.speed_or_derivative()
+        driven = ~np.isnan(s.voltage[:-1])
+        ib = 0.5 * (s.current[1:] + s.current[:-1])
+        wb = 0.5 * (w[1:] + w[:-1])
+        cols = np.column_stack([ib * dt, np.diff(s.current), wb * dt, dt])
+        rows.append(cols[driven])
+        ys.append((s.voltage[:-1] * dt)[driven])
+    if not rows:
+        return None
+    return _lstsq(("R", "L", "Ke", "offset"), np.vstack(rows), np.concatenate(ys))
+
+
+def mechanical_fit(segments: Sequence[Segment], *, coulomb: bool = True) -> LinearFit | None:
+    """``dw = (a ibar - b wbar - c sign(wbar) - d) dt`` over all intervals (open: i = 0)."""
+    rows: list[FloatArray] = []
+    ys: list[FloatArray] = []
+    for s in dynamic(segments):
+        if s.current is None:
+            continue
+        dt = np.diff(s.t)
+        w = s.speed_or_derivative()
+        i = np.where(s.open_mask, 0.0, s.current)
+        ib = 0.5 * (i[1:] + i[:-1])
+        wb = 0.5 * (w[1:] + w[:-1])
+        cols = [ib * dt, -wb * dt]
+        if coulomb:
+            cols.append(-np.sign(wb) * dt)
+        cols.append(-dt)
+        rows.append(np.column_stack(cols))
+        ys.append(np.diff(w))
+    if not rows:
+        return None
+    names = ("a", "b", "c", "d") if coulomb else ("a", "b", "d")
+    return _lstsq(names, np.vstack(rows), np.concatenate(ys))
+
+
+def arx_pole(
+    y: FloatArray, inputs: Sequence[FloatArray], mask: NDArray[np.bool_] | None = None
+) -> float | None:
+    """Pole ``a`` of ``y[k+1] = a y[k] + sum b_j u_j[k] + c`` (per sample), or ``None``."""
+    cols = [y[:-1], *[u[:-1] for u in inputs], np.ones(y.size - 1)]
+    a = np.column_stack(cols)
+    target = y[1:]
+    if mask is not None:
+        a, target = a[mask[:-1]], target[mask[:-1]]
+    fit = _lstsq(tuple(f"x{k}" for k in range(a.shape[1])), a, target)
+    if fit is None or not np.isfinite(fit.stderr[0]) or abs(fit.t("x0")) < 5:
+        return None
+    return float(fit.coef[0])

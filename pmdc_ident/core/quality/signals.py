@@ -1,0 +1,272 @@
+"""Per-signal checks: position wrap, quantisation (encoder counts per turn), clipping,
+and columns that were not really recorded (all empty, all zero).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pmdc_ident.core.data import Segment
+from pmdc_ident.core.quality.findings import Finding, Severity
+from pmdc_ident.core.quality.regress import dynamic
+
+__all__ = [
+    "Quantum",
+    "check_clipping",
+    "check_columns",
+    "check_quantisation",
+    "check_wrap",
+    "find_wrap",
+    "quantum",
+]
+
+FloatArray = NDArray[np.float64]
+_TWO_PI = 2.0 * math.pi
+# position wrap periods: what they mean when the column was read as radians
+_WRAP_UNITS = ((_TWO_PI, "rad", ""), (360.0, "deg", "--position-unit deg"), (1.0, "rev", ""))
+
+
+def find_wrap(position: FloatArray) -> tuple[float, int] | None:
+    """``(period, count)`` when ``position`` jumps back by one period as it turns, else None.
+
+    A wrap is a step at least half the column's range, and at least 20 times
+    the 90th percentile of the other steps, against the direction of motion.
+    """
+    d = np.diff(position)
+    if d.size < 10:
+        return None
+    span = float(np.ptp(position))
+    ad = np.abs(d)
+    small = float(np.percentile(ad, 90))
+    jumps = ad > max(0.5 * span, 20.0 * small)
+    if span <= 0 or not jumps.any() or jumps.sum() > 0.2 * d.size:
+        return None
+    motion = float(np.median(d[~jumps])) if (~jumps).any() else 0.0
+    period = float(np.median(np.abs(d[jumps] - motion)))
+    return period, int(jumps.sum())
+
+
+def check_wrap(where: str, seg: Segment, *, position_declared: bool = False) -> list[Finding]:
+    """A position that still wraps after conversion (its period says the unit)."""
+    if seg.position is None or seg.n < 20:
+        return []
+    found = find_wrap(seg.position)
+    if found is None:
+        return []
+    period, count = found
+    unit = next((u for p, u, _ in _WRAP_UNITS if abs(period / p - 1.0) < 0.02), None)
+    cpr = round(period)
+    if unit is None and period > 8 and abs(period - cpr) < 0.02 * period:
+        unit = "counts"
+    if unit == "rad":
+        return []  # the reader unwraps 2 pi wraps itself (a note says so)
+    fixes = {
+        "deg": "--position-unit deg",
+        "rev": "--position-unit rev",
+        "counts": f"--position-unit counts --counts-per-rev {cpr}",
+    }
+    sev = Severity.WARNING if position_declared else Severity.ERROR
+    text = f"position wraps {count} time(s) with a period of {period:.6g}"
+    if unit is not None and not position_declared:
+        text += f" ({'one turn in ' + unit})"
+    return [
+        Finding(
+            "position-wrap",
+            sev,
+            f"{where} [{seg.label}]",
+            text + ": as radians the shaft would jump back by that much",
+            fixes.get(unit or "", "give the position unwrapped, or in rad/deg/rev/counts"),
+            value=period,
+        )
+    ]
+
+
+class Quantum:
+    """The step of a quantised signal and how many distinct levels it visits."""
+
+    def __init__(self, step: float, levels: int) -> None:
+        self.step = step
+        self.levels = levels
+
+
+def quantum(x: FloatArray) -> Quantum | None:
+    """The step ``q`` when every change of ``x`` is a whole multiple of one ``q``."""
+    d = np.abs(np.diff(x))
+    span = float(np.ptp(x))
+    d = d[(d > 1e-12 * max(span, 1e-300)) & (d < 0.5 * span)]
+    if d.size < 20:
+        return None
+    q0 = float(np.min(d))
+    r = d / q0
+    if float(np.median(r)) > 1e4:
+        return None
+    k = np.round(r)
+    err = np.abs(r - k)
+    if float(np.percentile(err, 95)) > 0.02:
+        return None
+    q = float(np.sum(d * k) / np.sum(k * k))
+    levels = int(np.unique(np.round(x / q)).size)
+    return Quantum(q, levels)
+
+
+def check_quantisation(
+    where: str, segments: Sequence[Segment], *, position_declared: bool = False
+) -> list[Finding]:
+    """Encoder counts per turn from the position's step; a step that is no encoder in rad."""
+    pos = [s.position for s in dynamic(segments) if s.position is not None]
+    out: list[Finding] = []
+    if pos:
+        q = quantum(np.concatenate([p - p[0] for p in pos]))
+        if q is not None:
+            out += _position_quantum(where, q.step, position_declared)
+    speeds = [s.speed for s in dynamic(segments) if s.speed is not None]
+    if speeds:
+        q = quantum(np.concatenate(speeds))
+        if q is not None:
+            out.append(
+                Finding(
+                    "speed-quantised",
+                    Severity.INFO,
+                    where,
+                    f"speed moves in steps of {q.step:.4g} rad/s ({q.levels} levels): its "
+                    "noise is at least the step / sqrt(12)",
+                    value=q.step,
+                    unit="rad/s",
+                )
+            )
+    return out
+
+
+def _position_quantum(where: str, step: float, declared: bool) -> list[Finding]:
+    cpr = _TWO_PI / step
+    whole = abs(cpr - round(cpr)) <= 1e-3 * cpr
+    alternatives = []
+    if abs(step - 1.0) < 1e-6:
+        alternatives.append("--position-unit counts --counts-per-rev N")
+    for scale, unit in ((360.0, "deg"), (1.0, "rev")):
+        c = scale / step
+        if c >= 4 and abs(c - round(c)) <= 1e-3 * c:
+            alternatives.append(f"--position-unit {unit} (then {round(c)} counts/rev)")
+    if whole or declared or not alternatives:
+        odd = "" if whole else " (not a whole number: a gear between encoder and shaft?)"
+        return [
+            Finding(
+                "encoder",
+                Severity.INFO,
+                where,
+                f"position moves in steps of {step:.6g} rad: an encoder of "
+                f"{cpr:.6g} counts/rev{odd} (its noise, step / sqrt(12), enters the noise model)",
+                value=cpr,
+                unit="counts/rev",
+            )
+        ]
+    return [
+        Finding(
+            "position-unit",
+            Severity.ERROR,
+            where,
+            f"position moves in steps of {step:.6g}: as radians that is {cpr:.5g} counts per "
+            "turn, which no encoder has (pass --position-unit rad if it really is radians)",
+            " or ".join(alternatives),
+            value=step,
+        )
+    ]
+
+
+def _pile_up(x: FloatArray, other: FloatArray | None) -> tuple[float, int] | None:
+    """``(level, count)`` of a pile-up at the signal's max or min |value| (a rail)."""
+    if x.size < 100:
+        return None
+    for level in (float(x.max()), float(x.min())):
+        at = x == level
+        count = int(at.sum())
+        if count < max(5, 0.002 * x.size) or level == 0.0:
+            continue
+        values, counts = np.unique(x, return_counts=True)
+        if values.size < 50:
+            return None  # coarsely quantised: repeated levels are normal
+        k = int(np.searchsorted(values, level))
+        near = counts[max(k - 5, 0) : k] if level == values[-1] else counts[k + 1 : k + 6]
+        if near.size and count < 5 * float(near.mean()):
+            continue
+        if other is not None and float(np.ptp(other[at])) <= 1e-9 * max(float(np.ptp(other)), 1):
+            continue  # everything constant there: a steady state, not a rail
+        return level, count
+    return None
+
+
+def check_clipping(where: str, segments: Sequence[Segment]) -> list[Finding]:
+    """Measured signals that pile up at one extreme value while the others still move."""
+    dyn = dynamic(segments)
+    out: list[Finding] = []
+    for name, other in (
+        ("current", "speed"),
+        ("speed", "current"),
+        ("terminal_voltage", "current"),
+    ):
+        arrs = [getattr(s, name) for s in dyn if getattr(s, name) is not None]
+        if not arrs:
+            continue
+        x = np.concatenate(arrs)
+        o = [
+            getattr(s, other) if getattr(s, other) is not None else s.speed_or_derivative()
+            for s in dyn
+            if getattr(s, name) is not None
+        ]
+        found = _pile_up(x, np.concatenate(o))
+        if found is None:
+            continue
+        level, count = found
+        out.append(
+            Finding(
+                "clipping",
+                Severity.WARNING,
+                where,
+                f"{name} sits at {level:.6g} in {count} samples ({count / x.size:.1%}) while "
+                f"the {other} still changes: a sensor or the drive saturates there, and the "
+                "clipped samples bias the fit",
+                "keep the test inside the sensor's range (lower voltage steps) or widen it",
+                value=level,
+            )
+        )
+    return out
+
+
+def check_columns(where: str, segments: Sequence[Segment]) -> list[Finding]:
+    """Columns that exist but hold nothing: current all zero, voltage all zero."""
+    dyn = dynamic(segments) or list(segments)
+    out: list[Finding] = []
+    w = np.concatenate([s.speed_or_derivative() for s in dyn])
+    moving = float(np.max(np.abs(w))) > 0 and float(np.ptp(w)) > 0
+    volts = [s.voltage[~s.open_mask] for s in dyn if s.voltage is not None]
+    v = np.concatenate(volts) if volts else np.zeros(0)
+    cur = [s.current[~s.open_mask] for s in dyn if s.current is not None]
+    i = np.concatenate(cur) if cur else None
+    if i is not None and i.size and float(np.max(np.abs(i))) == 0.0 and v.size and moving:
+        out.append(
+            Finding(
+                "current-missing",
+                Severity.ERROR,
+                where,
+                f"current is 0 in every driven row while the voltage reaches "
+                f"{float(np.max(np.abs(v))):.4g} V and the rotor turns: the current sensor "
+                "was not recorded",
+                "record the current, or drop the column: --column current=none",
+            )
+        )
+    if v.size and float(np.max(np.abs(v))) == 0.0 and moving and i is not None and i.any():
+        out.append(
+            Finding(
+                "voltage-missing",
+                Severity.ERROR,
+                where,
+                "voltage is 0 in every driven row while current flows and the rotor turns: "
+                "the command was not recorded",
+                "record the voltage command (or --column voltage=HEADER for its column)",
+            )
+        )
+    return out

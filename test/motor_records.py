@@ -1,0 +1,142 @@
+"""Recordings of a DC motor made without the project's simulator (for the gate's tests).
+
+An explicit RK4 integration of ``L di/dt = V - R i - Ke w`` and
+``J dw/dt = Kt i - B w - Tc sign(w) - T_load`` with many sub-steps per sample
+(the voltage held over each sample, an empty cell = armature open: i = 0), so
+the tests do not only check the package's model against itself. Written to CSV
+with any headers and unit factors a logger might use.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Motor:
+    R: float = 2.0
+    L: float = 2e-3
+    Ke: float = 0.05
+    Kt: float = 0.05
+    J: float = 2e-5
+    B: float = 2e-6
+    Tc: float = 0.0
+    T_load: float = 0.0
+
+
+@dataclass
+class Record:
+    t: np.ndarray
+    voltage: np.ndarray
+    current: np.ndarray
+    speed: np.ndarray
+    position: np.ndarray
+    labels: list[str] = field(default_factory=list)
+
+    def columns(self) -> dict[str, np.ndarray]:
+        return {
+            "t": self.t,
+            "voltage": self.voltage,
+            "current": self.current,
+            "position": self.position,
+            "speed": self.speed,
+        }
+
+
+def _deriv(m: Motor, v: float, i: float, w: float, is_open: bool) -> tuple[float, float]:
+    di = 0.0 if is_open else (v - m.R * i - m.Ke * w) / m.L
+    drive = (0.0 if is_open else m.Kt * i) - m.T_load
+    if abs(w) > 1e-9:
+        fric = m.Tc * math.copysign(1.0, w)
+    else:
+        fric = math.copysign(min(abs(drive), m.Tc), drive) if m.Tc else 0.0
+    return di, (drive - m.B * w - fric) / m.J
+
+
+def simulate(
+    m: Motor,
+    voltage: np.ndarray,
+    rate_hz: float,
+    *,
+    substeps: int = 20,
+    noise_current: float = 0.0,
+    noise_speed: float = 0.0,
+    counts_per_rev: int | None = None,
+    seed: int = 0,
+    labels: list[str] | None = None,
+) -> Record:
+    """RK4 over ``voltage`` (NaN = open armature) from rest; measured signals with noise."""
+    dt = 1.0 / rate_hz
+    h = dt / substeps
+    n = voltage.size
+    i_out, w_out, th_out = np.empty(n), np.empty(n), np.empty(n)
+    i = w = th = 0.0
+    for k in range(n):
+        i_out[k], w_out[k], th_out[k] = i, w, th
+        v = float(voltage[k])
+        is_open = math.isnan(v)
+        if is_open:
+            i = 0.0
+        for _ in range(substeps):
+            a1 = _deriv(m, v, i, w, is_open)
+            a2 = _deriv(m, v, i + 0.5 * h * a1[0], w + 0.5 * h * a1[1], is_open)
+            a3 = _deriv(m, v, i + 0.5 * h * a2[0], w + 0.5 * h * a2[1], is_open)
+            a4 = _deriv(m, v, i + h * a3[0], w + h * a3[1], is_open)
+            w_new = w + h / 6 * (a1[1] + 2 * a2[1] + 2 * a3[1] + a4[1])
+            th += 0.5 * h * (w + w_new)
+            i += h / 6 * (a1[0] + 2 * a2[0] + 2 * a3[0] + a4[0])
+            if m.Tc and w != 0.0 and w * w_new < 0:
+                w_new = 0.0  # friction stops the rotor; it does not reverse it
+            w = w_new
+    rng = np.random.default_rng(seed)
+    cur = i_out + rng.normal(0.0, noise_current, n) if noise_current else i_out
+    spd = w_out + rng.normal(0.0, noise_speed, n) if noise_speed else w_out
+    if counts_per_rev:
+        q = 2 * math.pi / counts_per_rev
+        th_out = np.floor(th_out / q) * q
+    return Record(np.arange(n) * dt, voltage.astype(float), cur, spd, th_out, labels or [])
+
+
+def steps(levels: list[float | None], seconds_each: float, rate_hz: float) -> np.ndarray:
+    """A staircase of held voltages (``None`` = armature open)."""
+    n = int(round(seconds_each * rate_hz))
+    return np.concatenate([np.full(n, np.nan if v is None else v) for v in levels])
+
+
+def prbs(n: int, amplitude: float, hold: int, seed: int = 1) -> np.ndarray:
+    """A pseudo-random binary voltage (+- amplitude, held for whole multiples of ``hold``)."""
+    rng = np.random.default_rng(seed)
+    bits = rng.integers(0, 2, size=n // hold + 1) * 2 - 1
+    return np.repeat(bits * amplitude, hold)[:n].astype(float)
+
+
+def write_csv(
+    path: Path,
+    record: Record,
+    *,
+    headers: dict[str, str] | None = None,
+    scale: dict[str, float] | None = None,
+    drop: tuple[str, ...] = (),
+) -> Path:
+    """The record as CSV; ``headers`` renames columns, ``scale`` multiplies them (a slip)."""
+    headers = headers or {}
+    scale = scale or {}
+    cols = {k: v * scale.get(k, 1.0) for k, v in record.columns().items() if k not in drop}
+    names = list(cols)
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        row = [headers.get(k, k) for k in names]
+        if record.labels:
+            row.append(headers.get("segment", "segment"))
+        w.writerow(row)
+        for k in range(record.t.size):
+            vals = ["" if math.isnan(cols[c][k]) else repr(float(cols[c][k])) for c in names]
+            if record.labels:
+                vals.append(record.labels[k])
+            w.writerow(vals)
+    return path
