@@ -11,18 +11,23 @@ from pmdc_ident.core.errors import DataError
 __all__ = ["load_data"]
 
 
-def load_data(path: str | Path, columns: Mapping[str, str] | None = None) -> Run:
+def load_data(
+    path: str | Path,
+    columns: Mapping[str, str] | None = None,
+    scale: Mapping[str, float] | None = None,
+) -> Run:
     """Load one DATA argument: a CSV file, an ``.mcap`` file or a rosbag2 directory.
 
-    ``columns`` (CSV only) maps schema names to the file's own headers.
+    ``columns`` and ``scale`` (CSV only, see :func:`~pmdc_ident.dataio.csvio.read_csv`)
+    map schema names to the file's own headers and multiply columns to SI.
     """
     p = Path(path)
     if not p.exists():
         msg = f"{p}: no such file or directory"
         raise DataError(msg)
     if p.is_dir() or p.suffix.lower() == ".mcap":
-        if columns:
-            msg = f"{p}: --column applies to CSV files only (a bag has fixed topics)"
+        if columns or scale:
+            msg = f"{p}: --column and unit scales apply to CSV files only (a bag is in SI)"
             raise DataError(msg)
         from pmdc_ident.dataio.bagio import read_bag
 
@@ -30,6 +35,6 @@ def load_data(path: str | Path, columns: Mapping[str, str] | None = None) -> Run
     if p.suffix.lower() in (".csv", ".txt"):
         from pmdc_ident.dataio.csvio import read_csv
 
-        return read_csv(p, columns=columns)
+        return read_csv(p, columns=columns, scale=scale)
     msg = f"{p}: unknown data format (expected .csv, .mcap or a rosbag2 directory)"
     raise DataError(msg)

@@ -62,12 +62,18 @@ CSV_COLUMNS: tuple[str, ...] = (
 _NUMERIC = ("t", "voltage", "current", "position", "speed", "terminal_voltage")
 
 
-def read_csv(path: str | Path, columns: Mapping[str, str] | None = None) -> Run:
+def read_csv(
+    path: str | Path,
+    columns: Mapping[str, str] | None = None,
+    scale: Mapping[str, float] | None = None,
+) -> Run:
     """Read a CSV run (schema in the module docs) into a :class:`Run`.
 
     ``columns`` maps a schema name (``t``, ``speed``...) to the file's own header
-    for it (case-insensitive); the file's column of that schema name, if any, is
-    then ignored.
+    for it (case-insensitive; ``"none"`` ignores the file's column of that name);
+    the file's column of that schema name, if any, is then ignored. ``scale``
+    multiplies a column by a factor to SI before the run is built (the unit
+    layer :mod:`pmdc_ident.dataio.units` computes it).
     """
     p = Path(path)
     rows, lines = _rows(p, _text(p))
@@ -101,6 +107,9 @@ def read_csv(path: str | Path, columns: Mapping[str, str] | None = None) -> Run:
         if name in cols:
             data[name] = _column(p, body, where, name, cols[name])
     _check_time(p, data["t"], where)
+    for name, factor in (scale or {}).items():
+        if name in data and factor != 1.0:
+            data[name] = data[name] * factor
     labels = (
         [r[cols["segment"]].strip() for r in body] if "segment" in cols else ["run"] * len(body)
     )
@@ -174,6 +183,9 @@ def _rename(p: Path, header: list[str], columns: Mapping[str, str]) -> list[str]
             msg = f"--column {name}=...: {name!r} is not a column name ({', '.join(CSV_COLUMNS)})"
             raise DataError(msg)
         key = wanted.strip().lower()
+        if key == "none":
+            out = [f"(unused {h})" if h == name else h for h in out]
+            continue
         if key not in header:
             msg = (
                 f"{p}: no column {wanted!r} for {name!r} "

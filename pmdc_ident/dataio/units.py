@@ -200,12 +200,8 @@ class InputSpec:
         )
 
     def column_map(self) -> dict[str, str]:
-        """Schema name -> the file's header (sign marks stripped; dropped columns left out)."""
-        return {
-            name: header.strip().lstrip("-").strip()
-            for name, header in self.columns
-            if name not in self.dropped()
-        }
+        """Schema name -> the file's header (sign marks stripped; ``none`` = ignore it)."""
+        return {name: header.strip().lstrip("-").strip() for name, header in self.columns}
 
     def dropped(self) -> frozenset[str]:
         """Signals to ignore although the file has them (``--column current=none``)."""
@@ -361,37 +357,44 @@ def _factors(spec: InputSpec) -> tuple[dict[str, float], list[str]]:
     return f, notes
 
 
-def convert_run(run: Run, spec: InputSpec) -> tuple[Run, tuple[str, ...]]:
-    """``run`` (raw columns) in SI units, and the notes of what was converted."""
+def scales(spec: InputSpec) -> tuple[dict[str, float], list[str]]:
+    """SI factor (sign included) per column, and the notes of what is converted."""
     f, notes = _factors(spec)
     flip = spec.negated()
     for name in sorted(flip):
         notes.append(f"{name} sign flipped (column {dict(spec.columns)[name].strip()})")
-    drop = spec.dropped()
-    for name in sorted(drop):
+    for name in sorted(spec.dropped()):
         notes.append(f"{name} column ignored (--column {name}=none)")
+    f["terminal_voltage"] = f["voltage"] if spec.voltage_unit is VoltageUnit.MV else 1.0
+    out = {name: factor * (-1.0 if name in flip else 1.0) for name, factor in f.items()}
+    return out, notes
+
+
+def convert_run(run: Run, spec: InputSpec) -> tuple[Run, tuple[str, ...]]:
+    """``run`` (read in its own units, e.g. a bag) in SI units, with the notes."""
+    f, notes = scales(spec)
+    drop = spec.dropped()
     if drop:
         run = _drop(run, drop)
-    if all(v == 1.0 for v in f.values()) and not flip:
+    if all(v == 1.0 for v in f.values()):
         return _unwrap(run, notes)
-    sign = {name: (-1.0 if name in flip else 1.0) for name in f}
-    tv_factor = f["voltage"] if spec.voltage_unit is VoltageUnit.MV else 1.0
 
     def conv(seg: Segment) -> Segment:
-        def s(name: str, arr: np.ndarray | None, factor: float) -> np.ndarray | None:
-            return None if arr is None else arr * (factor * sign.get(name, 1.0))
+        def s(name: str) -> np.ndarray | None:
+            arr = getattr(seg, name)
+            return None if arr is None else arr * f[name]
 
         hist_v = seg.history_voltage
         heat = seg.history_heat_a2s
         return replace(
             seg,
             t=seg.t * f["t"],
-            voltage=s("voltage", seg.voltage, f["voltage"]),
-            current=s("current", seg.current, f["current"]),
-            position=s("position", seg.position, f["position"]),
-            speed=s("speed", seg.speed, f["speed"]),
-            terminal_voltage=s("terminal_voltage", seg.terminal_voltage, tv_factor),
-            history_voltage=None if hist_v is None else hist_v * f["voltage"] * sign["voltage"],
+            voltage=s("voltage"),
+            current=s("current"),
+            position=s("position"),
+            speed=s("speed"),
+            terminal_voltage=s("terminal_voltage"),
+            history_voltage=None if hist_v is None else hist_v * f["voltage"],
             history_heat_a2s=None if heat is None else heat * f["current"] ** 2 * f["t"],
         )
 
@@ -431,14 +434,49 @@ def _drop(run: Run, names: frozenset[str]) -> Run:
     return Run(segs, source=run.source)
 
 
+_UNIT_HINT = {
+    "t": "--time-unit ms|us|ns",
+    "voltage": "--voltage-unit mV",
+    "current": "--current-unit mA",
+    "speed": "--speed-unit rpm|deg/s|counts/s",
+    "position": "--position-unit deg|counts",
+    "terminal_voltage": "--voltage-unit mV",
+}
+
+
 def load_input(path: str | Path, spec: InputSpec | None = None) -> LoadedInput:
-    """Read one DATA argument with its sidecar and ``spec`` (command line) applied."""
+    """Read one DATA argument with its sidecar and ``spec`` (command line) applied.
+
+    A CSV is scaled to SI while it is read (before the range checks of
+    :class:`~pmdc_ident.core.data.Segment`); a bag is converted after.
+    """
     from pmdc_ident.dataio import load_data
 
     side = read_sidecar(path)
     full = (spec or InputSpec()).merged_over(side)
-    raw = load_data(path, columns=full.column_map() or None)
-    run, notes = convert_run(raw, full)
+    p = Path(path)
+    if p.is_dir() or p.suffix.lower() == ".mcap":
+        if full.columns and any(n not in full.dropped() for n, _ in full.columns):
+            msg = f"{p}: --column applies to CSV files only (a bag has fixed topics)"
+            raise DataError(msg)
+        run, notes = convert_run(load_data(path), full)
+    else:
+        factors, note_list = scales(full)
+        try:
+            raw = load_data(path, columns=full.column_map() or None, scale=factors)
+        except DataError as exc:
+            raise DataError(_with_unit_hint(str(exc))) from None
+        run, notes = _unwrap(raw, note_list)
     if side is not None:
         notes = (f"units and columns from {sidecar_path(path)}", *notes)
     return LoadedInput(str(path), run, full, notes)
+
+
+def _with_unit_hint(message: str) -> str:
+    """A 'beyond any motor test' refusal, with the option that states the column's unit."""
+    if "beyond any motor test" not in message:
+        return message
+    for name, hint in _UNIT_HINT.items():
+        if f": {name} = " in message:
+            return f"{message} (if the column is in other units, say which: {hint})"
+    return message
