@@ -11,8 +11,6 @@ import argparse
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from pmdc_ident.core.errors import DataError
-
 if TYPE_CHECKING:
     from pmdc_ident.core.quality import QualityReport
     from pmdc_ident.dataio.units import LoadedInput
@@ -113,6 +111,8 @@ def show_quality(
 
 def stop_on_errors(report: QualityReport) -> None:
     """Refuse to go on (:class:`DataError`, exit 2) when an error remains."""
+    from pmdc_ident.core.errors import DataError
+
     if report.errors:
         n = len(report.errors)
         msg = (
