@@ -96,6 +96,8 @@ ARGS_BAD = {
         ["export", "bag", "--csv", "s.csv", "--session", "nosuch"],
         "no session 'nosuch' (sessions in it: s1)",
     ),
+    "the same DATA twice": (["identify", "run.csv", "./run.csv"], "given twice"),
+    "diagnose: the same bag twice": (["diagnose", "bag", "bag/"], "given twice"),
     # parameters given by the user
     "--fix conflicting repeats": (
         ["identify", "run.csv", "--fix", "R=1", "--fix", "R=2"],

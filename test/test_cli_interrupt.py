@@ -79,3 +79,19 @@ def test_ctrl_c_while_the_modules_are_imported(long_run):
     lines = [s for s in rest.splitlines() if not s.startswith("import time:")]
     assert rc == 130, rest
     assert lines == ["pmdc-ident identify: interrupted"], rest
+
+
+def test_reader_closing_the_pipe_is_not_an_error(long_run):
+    # `pmdc-ident export RUN --csv - | head -1`: the reader goes away mid-write
+    proc = subprocess.Popen(
+        [sys.executable, "-c", ENTRY, "export", str(long_run), "--csv", "-"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    assert proc.stdout.readline().startswith("t,")
+    proc.stdout.close()
+    err = proc.stderr.read()
+    assert proc.wait(timeout=120) == 0, err
+    assert err == "", err

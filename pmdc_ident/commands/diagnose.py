@@ -27,6 +27,7 @@ from pmdc_ident.commands.outputs import (
     check_distinct,
     check_file_output,
     check_folder_output,
+    check_inputs_distinct,
 )
 from pmdc_ident.core.effects import EFFECT_NAMES
 from pmdc_ident.core.errors import ParameterError
@@ -92,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
         "--report": check_folder_output("--report", args.report, args.data),
     }
     check_distinct(targets)
+    check_inputs_distinct(args.data)
     json_to, report_to = targets["--json"], targets["--report"]
     text_out = sys.stderr if json_to == STDOUT else sys.stdout
     config = DiagnosisConfig(

@@ -28,6 +28,7 @@ from pmdc_ident.commands.outputs import (
     check_distinct,
     check_file_output,
     check_folder_output,
+    check_inputs_distinct,
 )
 from pmdc_ident.core.errors import ParameterError
 
@@ -199,6 +200,7 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path | str | None]:
         "--report": check_folder_output("--report", args.report, inputs),
     }
     check_distinct(targets)
+    check_inputs_distinct(args.data)
     return targets
 
 

@@ -21,7 +21,14 @@ from pathlib import Path
 
 from pmdc_ident.core.errors import PmdcError
 
-__all__ = ["STDOUT", "OutputError", "check_file_output", "check_folder_output"]
+__all__ = [
+    "STDOUT",
+    "OutputError",
+    "check_distinct",
+    "check_file_output",
+    "check_folder_output",
+    "check_inputs_distinct",
+]
 
 STDOUT = "-"
 
@@ -144,3 +151,20 @@ def check_distinct(targets: dict[str, Path | str | None]) -> None:
             msg = f"{seen[key]} and {option} both write to {what}"
             raise OutputError(msg)
         seen[key] = option
+
+
+def check_inputs_distinct(inputs: Sequence[str | Path]) -> None:
+    """No DATA given twice (under any spelling): its samples would count twice."""
+    seen: dict[str, str] = {}
+    for src in map(str, inputs):
+        try:
+            key = str(Path(src).resolve())
+        except (OSError, RuntimeError):
+            key = src
+        if key in seen:
+            msg = (
+                f"{src} is given twice (as {seen[key]!r} and {src!r}): "
+                "its samples would count twice and the intervals shrink"
+            )
+            raise OutputError(msg)
+        seen[key] = src
