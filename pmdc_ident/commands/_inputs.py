@@ -89,12 +89,17 @@ def load_inputs(args: argparse.Namespace) -> list[LoadedInput]:
     return [load_input(p, spec) for p in args.data]
 
 
-def quality(args: argparse.Namespace, inputs: list[LoadedInput]) -> QualityReport:
-    """The gate's findings on ``inputs`` (``--ignore CODE`` errors turned into warnings)."""
+def quality(
+    args: argparse.Namespace,
+    inputs: list[LoadedInput],
+    fixed: dict[str, float] | None = None,
+) -> QualityReport:
+    """The gate's findings on ``inputs`` (``--ignore CODE`` errors turned into warnings);
+    ``fixed`` parameters are left out of the expected uncertainties."""
     from pmdc_ident.core.quality import GateInput, check_inputs
 
     return check_inputs(
-        [GateInput(x.path, x.run, x.spec.declared(), x.notes) for x in inputs]
+        [GateInput(x.path, x.run, x.spec.declared(), x.notes) for x in inputs], fixed=fixed
     ).downgraded(getattr(args, "ignore", []) or [])
 
 
@@ -128,9 +133,10 @@ def gate(
     *,
     show: Callable[[str], None] = print,
     info: bool = False,
+    fixed: dict[str, float] | None = None,
 ) -> QualityReport:
     """:func:`quality`, :func:`show_quality`, :func:`stop_on_errors`: the gate before a fit."""
-    report = quality(args, inputs)
+    report = quality(args, inputs, fixed)
     show_quality(report, show=show, info=info)
     stop_on_errors(report)
     return report

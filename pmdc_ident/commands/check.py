@@ -31,6 +31,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--json", metavar="PATH", help="write the findings as JSON (.json; - for stdout)"
     )
+    parser.add_argument(
+        "--fix",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a parameter the fit will hold (SI units): left out of the expected uncertainties",
+    )
     add_gate_arguments(parser)
     add_unit_arguments(parser)
 
@@ -38,8 +45,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     json_to = check_file_output("--json", args.json, args.data, suffixes=(".json",))
     text_out = sys.stderr if json_to == STDOUT else sys.stdout
+    from pmdc_ident.commands.identify import parse_fix
+
+    fixed = parse_fix(args.fix)
     inputs = load_inputs(args)
-    report = quality(args, inputs)
+    report = quality(args, inputs, fixed)
     show_quality(report, info=True, show=lambda line: print(line, file=text_out))
     if json_to is not None:
         body = {"sources": [x.path for x in inputs], "quality": report.to_json()}

@@ -113,7 +113,9 @@ def run(args: argparse.Namespace) -> int:
     for x in inputs:
         for note in x.notes:
             progress(f"{x.path}: {note}")
-    report = gate(args, inputs, show=lambda line: print(line, file=text_out))
+    report = gate(
+        args, inputs, show=lambda line: print(line, file=text_out), fixed=dict(config.fixed)
+    )
     result = diagnose(runs, config=config, progress=progress)
     print("\n".join(result.summary_lines()), file=text_out)
     print("split: " + "; ".join(result.split.description), file=text_out)

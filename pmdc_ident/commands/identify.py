@@ -240,7 +240,7 @@ def run(args: argparse.Namespace) -> int:
     for x in inputs:
         for note in x.notes:
             progress(f"{x.path}: {note}")
-    report = gate(args, inputs, show=lambda line: print(line, file=text_out))
+    report = gate(args, inputs, show=lambda line: print(line, file=text_out), fixed=fixed)
     n_boot = args.bootstrap if args.bootstrap is not None else (10 if args.report else 0)
     segments = merge_runs(runs)
     added = _added_inertia(args.added_inertia, args.data, runs, segments)

@@ -8,7 +8,7 @@ status 2, warnings are printed and kept in the JSON under ``quality``.
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -101,8 +101,14 @@ def _per_input(x: GateInput) -> list[Finding]:
     return out
 
 
-def check_inputs(inputs: Sequence[GateInput]) -> QualityReport:
-    """All findings over ``inputs`` (each a file already converted to SI units)."""
+def check_inputs(
+    inputs: Sequence[GateInput], *, fixed: Mapping[str, float] | None = None
+) -> QualityReport:
+    """All findings over ``inputs`` (each a file already converted to SI units).
+
+    ``fixed``: parameters the fit will hold (``--fix``), left out of the
+    expected-uncertainty estimate.
+    """
     findings: list[Finding] = []
     findings += _duplicates(inputs)
     for x in inputs:
@@ -125,4 +131,10 @@ def check_inputs(inputs: Sequence[GateInput]) -> QualityReport:
                     "or add a driven run",
                 )
             )
-    return QualityReport.of(findings)
+    rsd: dict[str, float] = {}
+    if segs and not any(f.severity is Severity.ERROR for f in findings):
+        from pmdc_ident.core.quality.information import information_findings
+
+        more, rsd = information_findings(names, segs, fixed or {})
+        findings += more
+    return QualityReport.of(findings, rsd)
