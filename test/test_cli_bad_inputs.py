@@ -190,7 +190,7 @@ def test_ctrl_c_anywhere_in_a_command_is_one_line_and_130(exc, work, capsys, mon
             raise exc from KeyboardInterrupt()
         raise exc
 
-    monkeypatch.setattr(cmd, "load_data", interrupted)
+    monkeypatch.setattr(cmd, "load_inputs", interrupted)
     assert main(["identify", "run.csv"]) == EXIT_INTERRUPTED
     assert capsys.readouterr().err == "pmdc-ident identify: interrupted\n"
 
@@ -201,7 +201,7 @@ def test_a_bug_of_ours_is_one_line_exit_1_and_debug_shows_the_traceback(work, ca
     def broken(*_a, **_k):
         raise RuntimeError("boom\nsecond line")
 
-    monkeypatch.setattr(cmd, "load_data", broken)
+    monkeypatch.setattr(cmd, "load_inputs", broken)
     assert main(["identify", "run.csv"]) == EXIT_INTERNAL_ERROR
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "internal error: RuntimeError: boom" in err
