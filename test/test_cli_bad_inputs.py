@@ -98,6 +98,11 @@ ARGS_BAD = {
     ),
     "the same DATA twice": (["identify", "run.csv", "./run.csv"], "given twice"),
     "diagnose: the same bag twice": (["diagnose", "bag", "bag/"], "given twice"),
+    "benchmark --json into a missing folder (before the long run)": (
+        ["benchmark", "--json", "nodir/b.json"],
+        "folder nodir does not exist",
+    ),
+    "benchmark --keep onto a file": (["benchmark", "--keep", "f"], "not a folder"),
     # parameters given by the user
     "--fix conflicting repeats": (
         ["identify", "run.csv", "--fix", "R=1", "--fix", "R=2"],

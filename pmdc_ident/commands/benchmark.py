@@ -387,11 +387,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pmdc_ident.commands.outputs import check_file_output, check_folder_output
     from pmdc_ident.core.diagnosis import DiagnosisConfig
 
     if min(args.runs_per_effect, args.clean, args.pairs) < 0:
         msg = "--runs-per-effect, --clean and --pairs must be >= 0"
         raise ParameterError(msg)
+    # checked before the (long) run, not after it
+    check_file_output("--json", args.json, [], suffixes=(".json",), stdout_ok=False)
+    check_folder_output("--keep", args.keep, [])
     only = [e.strip() for e in args.effects.split(",") if e.strip()]
     unknown = [e for e in only if e not in EFFECT_NAMES]
     if unknown:
