@@ -244,6 +244,9 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
         hint = f": give the file inside, {inside[0]}" if len(inside) == 1 else ""
         msg = f"{p}: a folder without metadata.yaml is not a rosbag2 bag{hint}"
         raise DataError(msg)
+    fast = _read_driver_arrays_fast(p)
+    if fast is not None:
+        return fast
     ts = _typestore()
     cols: dict[str, list[Any]] = {k: [] for k in ("cur", "enc", "volt")}
     markers: list[Marker] = []
@@ -286,26 +289,92 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
         # stamps stay integers: as float64 seconds-since-1970 they would lose ~0.2 us
         stamps = np.array([r[0] for r in rows], dtype=np.int64)
         values = np.array([r[1:] for r in rows], dtype=float).reshape(-1, n - 1)
-        return stamps, np.column_stack([np.zeros(len(rows)), values])
+        return stamps, values
 
     (cur_ns, cur), (enc_ns, enc), (volt_ns, volt) = (
         arr(cols["cur"], 2),
         arr(cols["enc"], 3),
         arr(cols["volt"], 3),
     )
-    speed = enc[:, 2] if enc.size and np.isfinite(enc[:, 2]).all() else None
-    position = enc[:, 1] if enc.size and np.isfinite(enc[:, 1]).all() else None
-    term = volt[:, 2] if volt.size and np.isfinite(volt[:, 2]).any() else None
+    return _driver_arrays(
+        (cur_ns, cur[:, 0]),
+        (enc_ns, enc[:, 0], enc[:, 1]),
+        (volt_ns, volt[:, 0], volt[:, 1]),
+        markers,
+    )
+
+
+def _driver_arrays(
+    current: tuple[IntArray, FloatArray],
+    encoder: tuple[IntArray, FloatArray, FloatArray],
+    voltage: tuple[IntArray, FloatArray, FloatArray],
+    markers: list[Marker],
+) -> DriverArrays:
+    """DriverArrays from (stamps, values...) per topic: NaN-holding encoder columns are absent."""
+    enc_ns, pos, vel = encoder
+    volt_ns, volt, term = voltage
     return DriverArrays(
-        current_ns=cur_ns,
-        current_a=cur[:, 1],
+        current_ns=current[0],
+        current_a=current[1],
         encoder_ns=enc_ns,
-        position_rad=position,
-        speed_rad_s=speed,
+        position_rad=pos if pos.size and np.isfinite(pos).all() else None,
+        speed_rad_s=vel if vel.size and np.isfinite(vel).all() else None,
         voltage_ns=volt_ns,
-        voltage_v=volt[:, 1],
-        terminal_v=term,
+        voltage_v=volt,
+        terminal_v=term if term.size and np.isfinite(term).any() else None,
         markers=markers,
+    )
+
+
+def _mcap_files(p: Path) -> list[Path] | None:
+    """The MCAP files of a bag directory or an ``.mcap`` path; None for other storage."""
+    if p.is_file():
+        return [p] if p.suffix.lower() == ".mcap" else None
+    meta = p / "metadata.yaml"
+    if not meta.is_file():
+        return None
+    import yaml
+
+    try:
+        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+        if info.get("storage_identifier") != "mcap" or info.get("compression_format"):
+            return None
+        files = [p / f for f in info["relative_file_paths"]]
+    except (yaml.YAMLError, KeyError, TypeError, UnicodeDecodeError):
+        return None
+    return files if files and all(f.is_file() for f in files) else None
+
+
+def _read_driver_arrays_fast(p: Path) -> DriverArrays | None:
+    """read_driver_arrays by one compiled pass over complete MCAP files (mcap_scan), or None.
+
+    None (the caller then reads with rosbags) for other storage, unfinished or
+    compressed files, missing driver topics and anything else the scan does not read.
+    """
+    from pmdc_ident.dataio import mcap_scan as ms
+
+    files = _mcap_files(p)
+    if files is None:
+        return None
+    try:
+        scan = ms.scan_driver_topics(files)
+    except ValueError as exc:
+        msg = f"{p}: not a readable rosbag2/MCAP bag ({exc})"
+        raise DataError(msg) from None
+    if scan is None or not {ms.ROLE_ENCODER, ms.ROLE_VOLTAGE} <= scan.roles:
+        return None
+    markers = []
+    for text in scan.segment_texts:
+        try:
+            markers.append(Marker.from_json(text))
+        except PmdcError:
+            continue
+    cur, enc, volt = (scan.values[r] for r in (ms.ROLE_CURRENT, ms.ROLE_ENCODER, ms.ROLE_VOLTAGE))
+    return _driver_arrays(
+        (scan.stamps[ms.ROLE_CURRENT], cur[:, 2]),
+        (scan.stamps[ms.ROLE_ENCODER], enc[:, 0], enc[:, 1]),
+        (scan.stamps[ms.ROLE_VOLTAGE], volt[:, 2], volt[:, 3]),
+        markers,
     )
 
 
