@@ -23,6 +23,7 @@ __all__ = [
     "load_inputs",
     "load_side",
     "quality",
+    "segment_inputs",
     "show_quality",
     "stop_on_errors",
 ]
@@ -72,6 +73,12 @@ def add_unit_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_gate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
+        "--no-auto-segments",
+        action="store_true",
+        help="keep a log without a segment column as one segment (default: its steps, "
+        "plateaus, coasts, sweeps and PRBS stretches are found and labelled)",
+    )
+    parser.add_argument(
         "--ignore",
         action="append",
         default=[],
@@ -87,6 +94,28 @@ def load_inputs(args: argparse.Namespace) -> list[LoadedInput]:
 
     spec = spec_from_args(args)
     return [load_input(p, spec) for p in args.data]
+
+
+def segment_inputs(
+    args: argparse.Namespace, inputs: list[LoadedInput], show: Callable[[str], None] = print
+) -> list[LoadedInput]:
+    """Unlabeled logs cut into their experiments (printed; usable as --holdout labels)."""
+    if getattr(args, "no_auto_segments", False):
+        return inputs
+    from dataclasses import replace
+
+    from pmdc_ident.core.segmentation import segment_run
+
+    out = []
+    for x in inputs:
+        run, lines = segment_run(x.run)
+        if lines:
+            show(f"segments found in {x.path} (no segment column; --no-auto-segments keeps one):")
+            for line in lines:
+                show(f"  {line}")
+            x = replace(x, run=run, notes=(*x.notes, f"segments found: {len(lines)}"))
+        out.append(x)
+    return out
 
 
 def quality(

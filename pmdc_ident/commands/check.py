@@ -16,6 +16,7 @@ from pmdc_ident.commands._inputs import (
     add_unit_arguments,
     load_inputs,
     quality,
+    segment_inputs,
     show_quality,
     stop_on_errors,
 )
@@ -51,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     inputs = load_inputs(args)
     report = quality(args, inputs, fixed)
     show_quality(report, info=True, show=lambda line: print(line, file=text_out))
+    segment_inputs(args, inputs, show=lambda line: print(line, file=text_out))
     if json_to is not None:
         body = {"sources": [x.path for x in inputs], "quality": report.to_json()}
         document = json.dumps(body, indent=2, allow_nan=False) + "\n"

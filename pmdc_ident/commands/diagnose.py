@@ -21,6 +21,7 @@ from pmdc_ident.commands._inputs import (
     gate,
     input_json,
     load_inputs,
+    segment_inputs,
 )
 from pmdc_ident.commands.outputs import (
     STDOUT,
@@ -116,6 +117,8 @@ def run(args: argparse.Namespace) -> int:
     report = gate(
         args, inputs, show=lambda line: print(line, file=text_out), fixed=dict(config.fixed)
     )
+    inputs = segment_inputs(args, inputs, show=lambda line: print(line, file=text_out))
+    runs = [x.run for x in inputs]
     result = diagnose(runs, config=config, progress=progress)
     print("\n".join(result.summary_lines()), file=text_out)
     print("split: " + "; ".join(result.split.description), file=text_out)

@@ -22,6 +22,7 @@ from pmdc_ident.commands._inputs import (
     input_json,
     load_inputs,
     load_side,
+    segment_inputs,
 )
 from pmdc_ident.commands.outputs import (
     STDOUT,
@@ -241,6 +242,8 @@ def run(args: argparse.Namespace) -> int:
         for note in x.notes:
             progress(f"{x.path}: {note}")
     report = gate(args, inputs, show=lambda line: print(line, file=text_out), fixed=fixed)
+    inputs = segment_inputs(args, inputs, show=lambda line: print(line, file=text_out))
+    runs = [x.run for x in inputs]
     n_boot = args.bootstrap if args.bootstrap is not None else (10 if args.report else 0)
     segments = merge_runs(runs)
     added = _added_inertia(args.added_inertia, args.data, runs, segments)

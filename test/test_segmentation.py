@@ -1,0 +1,89 @@
+"""Automatic segmentation of one continuous, unlabeled log (independent RK4 records)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from motor_records import Motor, prbs, simulate, steps, write_csv
+
+from pmdc_ident.cli import main
+from pmdc_ident.core.data import TestKind
+from pmdc_ident.core.segmentation import find_segments, segment_run
+from pmdc_ident.dataio.units import load_input
+
+RATE = 1000
+
+
+@pytest.fixture(scope="module")
+def continuous(tmp_path_factory):
+    """Rest, two steps, a chirp, a PRBS, a hold, an open-armature coast, a step to 0 V."""
+    t = np.arange(3000) / RATE
+    chirp = 6 * np.sin(2 * np.pi * (t + 0.5 * 19 / 3 * t**2))
+    v = np.concatenate(
+        [
+            np.zeros(300),
+            np.full(800, 6.0),
+            np.full(800, 12.0),
+            chirp,
+            prbs(2000, 6.0, 15, seed=2),
+            np.full(800, 10.0),
+            np.full(1500, np.nan),
+            np.zeros(600),
+        ]
+    )
+    rec = simulate(Motor(Tc=0.002), v, RATE, substeps=10, noise_current=0.005, noise_speed=0.05)
+    return write_csv(tmp_path_factory.mktemp("seg") / "log.csv", rec)
+
+
+def test_a_continuous_log_is_cut_into_its_experiments(continuous):
+    seg = load_input(continuous).run.segments[0]
+    pieces = find_segments(seg)
+    got = [(p.label, p.start, p.stop) for p in pieces]
+    assert [g[0] for g in got] == [
+        "plateau_1",
+        "step_up_1",
+        "step_up_2",
+        "sweep_1",
+        "prbs_1",
+        "step_up_3",
+        "coast_1",
+        "step_up_4",
+    ]
+    # boundaries at the command's edges, to the sample
+    assert [g[1] for g in got] == [0, 300, 1100, 1900, 4900, 6900, 7700, 9200]
+    run, lines = segment_run(load_input(continuous).run)
+    assert len(lines) == 8 and lines[3].startswith("sweep_1 1.9-4.899 s (3000 samples")
+    kinds = [s.kind for s in run.segments]
+    assert kinds[1] is TestKind.STEP and kinds[3] is TestKind.SWEEP and kinds[6] is TestKind.COAST
+    # each piece carries the commands before it (the fit simulates it from its start)
+    assert run.segments[2].history_voltage is not None
+    assert run.segments[2].history_voltage.size == 1100
+
+
+def test_identify_prints_the_segments_and_recovers_the_motor(continuous, capsys):
+    rc = main(["identify", str(continuous), "--quiet", "--no-holdout", "--json", "-"])
+    cap = capsys.readouterr()
+    assert rc == 0
+    assert "segments found in" in cap.err and "  prbs_1 4.9-6.899 s" in cap.err
+    import json
+
+    data = json.loads(cap.out)
+    truth = {"R": 2.0, "L": 2e-3, "Ke": 0.05, "J": 2e-5}
+    for name, value in truth.items():
+        assert data["parameters"][name]["value"] == pytest.approx(value, rel=0.005), name
+
+
+def test_a_step_already_on_at_the_first_sample_is_a_step(tmp_path):
+    rec = simulate(Motor(), np.full(600, 8.0), RATE, substeps=10, noise_current=0.005)
+    run, lines = segment_run(load_input(write_csv(tmp_path / "on.csv", rec)).run)
+    assert [s.label for s in run.segments] == ["step_up_1"]
+    assert lines == ["step_up_1 0-0.599 s (600 samples, 8 V)"]
+
+
+def test_labelled_files_and_the_option_keep_their_segments(continuous, tmp_path, capsys):
+    rec = simulate(Motor(), steps([6, 12], 0.3, RATE), RATE, substeps=10)
+    rec.labels = ["a"] * 300 + ["b"] * 300
+    labelled = load_input(write_csv(tmp_path / "lab.csv", rec)).run
+    assert segment_run(labelled)[0] is labelled
+    rc = main(["check", str(continuous), "--no-auto-segments"])
+    assert rc == 0 and "segments found" not in capsys.readouterr().out
