@@ -127,7 +127,7 @@ def test_identify_stops_before_the_fit_on_a_slip(base, tmp_path, capsys):
     out = capsys.readouterr()
     assert rc == EXIT_USER_ERROR
     assert "error: speed-position" in out.out and "--speed-unit rpm" in out.out
-    assert "nothing was fitted" in out.err
+    assert "nothing was fitted" in out.err and "speed-position" in out.err
     assert not js.exists()
 
 
@@ -225,3 +225,14 @@ def test_no_false_alarm_on_a_synthesised_session(tmp_path, capsys):
     assert q["errors"] == 0 and q["warnings"] == 0
     enc = next(f for f in q["findings"] if f["code"] == "encoder")
     assert enc["value"] == pytest.approx(4096, rel=1e-6)
+
+
+def test_ignore_takes_only_known_codes_and_turns_the_error_into_a_warning(base, tmp_path, capsys):
+    path = write_csv(tmp_path / "ms.csv", base, scale={"t": 1e3})
+    assert main(["check", str(path), "--ignore", "nosuch"]) == EXIT_USER_ERROR
+    err = capsys.readouterr().err
+    assert "--ignore nosuch: not a finding code (codes: clipping," in err
+    assert err.count("\n") == 1
+    rc, out = check(path, "--ignore", "time-unit", capsys=capsys)
+    assert rc == 0
+    assert "warning: time-unit:" in out and "(ignored by the user)" in out

@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 __all__ = [
     "add_gate_arguments",
     "add_unit_arguments",
+    "check_ignore",
     "gate",
     "input_json",
     "load_inputs",
@@ -143,15 +144,30 @@ def show_quality(
             show(f"  {line}")
 
 
+def check_ignore(args: argparse.Namespace) -> None:
+    """``--ignore CODE`` names a finding code (checked before any work)."""
+    from pmdc_ident.core.errors import ParameterError
+    from pmdc_ident.core.quality.findings import CODES
+
+    bad = [c for c in getattr(args, "ignore", []) or [] if c not in CODES]
+    if bad:
+        msg = f"--ignore {bad[0]}: not a finding code (codes: {', '.join(CODES)})"
+        raise ParameterError(msg)
+
+
 def stop_on_errors(report: QualityReport) -> None:
-    """Refuse to go on (:class:`DataError`, exit 2) when an error remains."""
+    """Refuse to go on (:class:`DataError`, exit 2) when an error remains; the line
+    carries the first error itself (the others are listed above it)."""
     from pmdc_ident.core.errors import DataError
 
     if report.errors:
-        n = len(report.errors)
+        first = report.errors[0]
+        more = len(report.errors) - 1
+        fix = f"; fix: {first.fix}" if first.fix else ""
+        also = f" (and {more} more above)" if more else ""
         msg = (
-            f"the data-quality gate found {n} error(s) (listed above); nothing was fitted. "
-            "Apply the fixes, or --ignore CODE to go on anyway"
+            f"data quality: {first.code}: {first.where}: {first.message}{fix}{also}; "
+            "nothing was fitted (--ignore CODE goes on anyway)"
         )
         raise DataError(msg)
 
@@ -165,6 +181,7 @@ def gate(
     fixed: dict[str, float] | None = None,
 ) -> QualityReport:
     """:func:`quality`, :func:`show_quality`, :func:`stop_on_errors`: the gate before a fit."""
+    check_ignore(args)
     report = quality(args, inputs, fixed)
     show_quality(report, show=show, info=info)
     stop_on_errors(report)

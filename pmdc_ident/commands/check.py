@@ -14,6 +14,7 @@ from pathlib import Path
 from pmdc_ident.commands._inputs import (
     add_gate_arguments,
     add_unit_arguments,
+    check_ignore,
     load_inputs,
     quality,
     segment_inputs,
@@ -48,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     text_out = sys.stderr if json_to == STDOUT else sys.stdout
     from pmdc_ident.commands.identify import parse_fix
 
+    check_ignore(args)
     fixed = parse_fix(args.fix)
     inputs = load_inputs(args)
     report = quality(args, inputs, fixed)

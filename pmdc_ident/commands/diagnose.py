@@ -18,6 +18,7 @@ from pathlib import Path
 from pmdc_ident.commands._inputs import (
     add_gate_arguments,
     add_unit_arguments,
+    check_ignore,
     gate,
     input_json,
     load_inputs,
@@ -78,6 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_ignore(args)
     from pmdc_ident.commands.identify import parse_fix
     from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
     from pmdc_ident.core.params import PARAMETER_NAMES

@@ -18,6 +18,7 @@ from pathlib import Path
 from pmdc_ident.commands._inputs import (
     add_gate_arguments,
     add_unit_arguments,
+    check_ignore,
     gate,
     input_json,
     load_inputs,
@@ -213,6 +214,7 @@ def _write(path: Path | str, text: str) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_ignore(args)
     fixed = parse_fix(args.fix)
     if args.bootstrap is not None and args.bootstrap < 0:
         msg = f"--bootstrap must be >= 0, got {args.bootstrap}"

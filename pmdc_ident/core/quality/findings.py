@@ -8,7 +8,35 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-__all__ = ["Finding", "QualityReport", "Severity"]
+__all__ = ["CODES", "Finding", "QualityReport", "Severity"]
+
+# Every finding code the gate emits (``--ignore CODE`` accepts these).
+CODES: tuple[str, ...] = (
+    "clipping",
+    "current-missing",
+    "current-unit",
+    "delay",
+    "duplicate",
+    "encoder",
+    "expected-rsd",
+    "gaps",
+    "identifiability",
+    "jitter",
+    "no-drive",
+    "one-direction",
+    "position-unit",
+    "position-wrap",
+    "power-balance",
+    "sample-period",
+    "sign",
+    "speed-position",
+    "speed-quantised",
+    "speed-unit",
+    "time-unit",
+    "units",
+    "voltage-missing",
+    "voltage-unit",
+)
 
 
 class Severity(enum.Enum):
@@ -34,6 +62,11 @@ class Finding:
     fix: str = ""
     value: float | None = None
     unit: str = ""
+
+    def __post_init__(self) -> None:
+        if self.code not in CODES:  # a new check must be listed (and documented)
+            msg = f"finding code {self.code!r} is not in quality.findings.CODES"
+            raise ValueError(msg)
 
     def line(self) -> str:
         fix = f"; fix: {self.fix}" if self.fix else ""
