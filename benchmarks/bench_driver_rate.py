@@ -40,7 +40,7 @@ NAIVE = r"""
 import sys, rclpy
 from rclpy.executors import ExternalShutdownException
 from sensor_msgs.msg import JointState
-from pmdc_ident.nodes.driver_node import sample_qos
+from pmdc_ident.nodes.qos import sample_qos
 rate = float(sys.argv[1])
 rclpy.init()
 node = rclpy.create_node("naive_driver")
@@ -85,7 +85,7 @@ def _measure(name: str, pid: int, rate_hz: float, seconds: float, node, executor
 
     from sensor_msgs.msg import JointState
 
-    from pmdc_ident.nodes.driver_node import sample_qos
+    from pmdc_ident.nodes.qos import sample_qos
 
     stamps: list[int] = []
     recv: list[int] = []
@@ -146,7 +146,7 @@ def main() -> int:
     from rclpy.experimental import EventsExecutor
     from std_msgs.msg import Float64
 
-    from pmdc_ident.nodes.driver_node import COMMAND_QOS
+    from pmdc_ident.nodes.qos import COMMAND_QOS
 
     rclpy.init()
     node = rclpy.create_node("bench_driver_rate")

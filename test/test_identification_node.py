@@ -52,7 +52,7 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from pmdc_ident.dataio.bagio import parse_joint_state
-from pmdc_ident.nodes.identification_node import LATCHED_QOS, SEGMENT_QOS, sample_qos
+from pmdc_ident.nodes.qos import LATCHED_QOS, SEGMENT_QOS, sample_qos
 
 rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
 stop = []
@@ -62,6 +62,8 @@ node = rclpy.create_node("probe")
 out = {"v": [], "markers": [], "status": [], "result": None}
 def on_v(raw):
     ns, _, _, v, _ = parse_joint_state(raw)
+    if not out["v"]:
+        print("probe receiving", file=sys.stderr, flush=True)
     out["v"].append([ns, v])
 node.create_subscription(JointState, "voltage_applied", on_v, sample_qos(1000), raw=True)
 node.create_subscription(String, "segment", lambda m: out["markers"].append(m.data), SEGMENT_QOS)
@@ -83,6 +85,13 @@ ex.add_node(node)
 print("probe ready", file=sys.stderr, flush=True)
 deadline = time.monotonic() + float(sys.argv[1])
 while not stop and time.monotonic() < deadline:
+    ex.spin_once(timeout_sec=0.05)
+# stopped: take what is still queued for us (nothing new for 0.3 s), then report
+seen, quiet_since, end = -1, time.monotonic(), time.monotonic() + 10.0
+while time.monotonic() < end and time.monotonic() - quiet_since < 0.3:
+    n = len(out["v"]) + len(out["status"]) + len(out["markers"])
+    if n != seen:
+        seen, quiet_since = n, time.monotonic()
     ex.spin_once(timeout_sec=0.05)
 out["v"] = [[a, None if v != v else v] for a, v in out["v"]]
 print(json.dumps(out), flush=True)
@@ -112,11 +121,21 @@ def _session(
         stderr=subprocess.PIPE,
         text=True,
     )
+
+    def probe_receiving() -> None:  # the whole session is seen by the probe
+        assert probe.stderr is not None
+        deadline = time.monotonic() + 120.0
+        for line in probe.stderr:
+            if "probe receiving" in line or time.monotonic() > deadline:
+                return
+        raise AssertionError("the probe exited before receiving a driver sample")
+
     try:
         res = run_session(
             output_dir=tmp_path / "out",
             motor=motor,
             domain_id=domain,
+            before_identification=probe_receiving,
             identification_params={**(SHORT if short else {}), **(ident or {})},
             driver_params={"watchdog_s": 1.5, **(driver or {})},
             recorder_params={"margin_s": 0.0, **(recorder or {})},
@@ -125,9 +144,8 @@ def _session(
             during=during,
         )
     finally:
-        time.sleep(0.3)
-        probe.send_signal(signal.SIGINT)
-        out, err = probe.communicate(timeout=30)
+        probe.send_signal(signal.SIGINT)  # it takes what is still queued, then reports
+        out, err = probe.communicate(timeout=60)
     assert probe.returncode == 0, err
     data = json.loads(out.strip().splitlines()[-1])
     data["markers"] = [json.loads(m) for m in data["markers"]]
@@ -479,7 +497,7 @@ import json, sys, time
 import rclpy
 from std_srvs.srv import Trigger
 from std_msgs.msg import String
-from pmdc_ident.nodes.identification_node import LATCHED_QOS
+from pmdc_ident.nodes.qos import LATCHED_QOS
 
 rclpy.init()
 node = rclpy.create_node("caller")

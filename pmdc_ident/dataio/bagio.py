@@ -431,6 +431,10 @@ class BagWriter:
         self._writer.write(self._conns[topic], int(timestamp_ns), data)
         self.counts[topic] += 1
 
+    def set_custom_data(self, key: str, value: str) -> None:
+        """A ``custom_data`` entry of ``metadata.yaml`` (written at :meth:`close`)."""
+        self._writer.set_custom_data(key, value)
+
     def write_msg(self, topic: str, timestamp_ns: int, msg: Any) -> None:
         data = self.typestore.serialize_cdr(msg, self._topics[topic])
         self.write_raw(topic, timestamp_ns, data)

@@ -157,8 +157,13 @@ def run_session(
     with_recorder: bool = True,
     nice: int = -5,
     during: Callable[[dict[str, subprocess.Popen[bytes]], float], None] | None = None,
+    before_identification: Callable[[], None] | None = None,
 ) -> BringupResult:
     """Start the three nodes, run one session, stop them in the safe order.
+
+    ``before_identification()`` runs once the driver and the recorder are started
+    and before the identification node is (a test waits there until its own
+    observer receives the driver's samples, so it sees the whole session).
 
     ``during(processes, elapsed_s)`` is called about every 50 ms while the
     session runs (tests use it to break things on purpose). ``nice`` is applied to
@@ -228,6 +233,8 @@ def run_session(
                 files["recorder"],
                 nice,
             )
+        if before_identification is not None:
+            before_identification()
         procs["identification"] = _Proc(
             "identification",
             "pmdc_ident.nodes.identification_node",

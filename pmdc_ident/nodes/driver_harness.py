@@ -33,7 +33,7 @@ from pmdc_ident.core.model import simulate
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.nodes.bringup import node_env as ros_env
 from pmdc_ident.nodes.dds_domain import HELD_ENV, lock_domain
-from pmdc_ident.nodes.driver_node import COMMAND_QOS, sample_qos
+from pmdc_ident.nodes.qos import COMMAND_QOS, sample_qos
 
 __all__ = [
     "DriverClient",

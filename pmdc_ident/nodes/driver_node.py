@@ -23,12 +23,10 @@ One message of each sample topic per backend sample, all three with the same
 at which it started, so stamps are comparable to ROS time and exactly on the
 sample grid (a recorder aligns the topics by stamp).
 
-QoS choices (see :data:`SAMPLE_QOS`): sample topics are RELIABLE, KEEP_LAST
-with a depth of one second of samples, VOLATILE, so a recorder that keeps up
-on average loses nothing during a hiccup; ``voltage_cmd`` is RELIABLE
-KEEP_LAST(10) (the ROS default a controller publishes with: a reliable
-subscription would not match a best-effort publisher, publish commands with
-the default QoS); ``/diagnostics`` uses the usual RELIABLE KEEP_LAST(10).
+QoS: :mod:`pmdc_ident.nodes.qos` (sample topics RELIABLE, KEEP_LAST ten seconds of
+samples, VOLATILE, so a reader stalled on a loaded machine has its missed samples
+re-sent instead of lost; ``voltage_cmd`` RELIABLE KEEP_LAST(10), the ROS default a
+controller publishes with; ``/diagnostics`` RELIABLE KEEP_LAST(10)).
 
 No algorithm lives here: the plant is :class:`pmdc_ident.backends.sim.SimBackend`,
 the trips and the watchdog are :class:`pmdc_ident.backends.safety.SafetyMonitor`.
@@ -54,7 +52,6 @@ from rcl_interfaces.msg import (
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
@@ -63,8 +60,9 @@ from pmdc_ident.backends.base import Backend, BackendError, Fault, SafeMode, Tel
 from pmdc_ident.backends.safety import SafetyMonitor
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec, load_motor
+from pmdc_ident.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, sample_qos
 
-__all__ = ["PARAMETERS", "DriverConfigError", "DriverNode", "main", "sample_qos"]
+__all__ = ["PARAMETERS", "DriverConfigError", "DriverNode", "main"]
 
 NODE_NAME = "driver_node"
 
@@ -138,24 +136,6 @@ PARAMETERS: dict[str, ParamDef] = {
 
 BACKENDS = ("sim", "serial")
 SAFE_MODES = tuple(m.value for m in SafeMode)
-
-
-def sample_qos(rate_hz: float) -> QoSProfile:
-    """Sample topics: reliable, one second of samples deep, volatile."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=max(10, int(math.ceil(rate_hz))),
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.VOLATILE,
-    )
-
-
-COMMAND_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
-)
-DIAGNOSTICS_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
-)
 
 
 def _descriptor(name: str, p: ParamDef) -> ParameterDescriptor:

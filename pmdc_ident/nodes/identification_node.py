@@ -44,10 +44,10 @@ from typing import Any
 import numpy as np
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.duration import Duration
 from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter_client import AsyncParameterClient
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
@@ -67,44 +67,20 @@ from pmdc_ident.core.session import (
     check_plan,
 )
 from pmdc_ident.dataio.bagio import DriverArrays, assemble_run, parse_joint_state
+from pmdc_ident.dataio.completeness import Completeness, completeness
 from pmdc_ident.nodes.identify_call import identify_session_run, parse_fix
+from pmdc_ident.nodes.qos import (
+    COMMAND_QOS,
+    LATCHED_QOS,
+    SAMPLE_BUFFER_S,
+    SEGMENT_QOS,
+    sample_qos,
+)
 
 __all__ = ["IdentificationNode", "main"]
 
 NODE_NAME = "identification_node"
 EXIT_ABORTED = 3
-
-SEGMENT_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1000,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
-LATCHED_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
-COMMAND_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE
-)
-
-
-def sample_qos(rate_hz: float, seconds: float = 10.0) -> QoSProfile:
-    """Subscriptions to the driver's sample topics: reliable, ``seconds`` of samples deep.
-
-    DDS acknowledges samples as its own thread receives them; the reader history
-    then holds them until Python takes them. Ten seconds of depth (the driver's
-    writer keeps one) let a node that is held up for a while lose nothing.
-    """
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=max(10, int(math.ceil(rate_hz * seconds))),
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.VOLATILE,
-    )
-
 
 # name -> (default, description, lower, upper); sequence.* and steady_state.* come from
 # the core dataclasses below.
@@ -266,6 +242,7 @@ class IdentificationNode(Node):
         self._last_progress = 0.0
         self._flush_deadline = 0.0
         self._recorder_seen = -math.inf
+        self._recorder_receiving = False  # the recorder has driver samples on every topic
         self._recorder_paths: dict[str, str] = {}
         self._session_count = 0
         self._worker: threading.Thread | None = None
@@ -409,6 +386,8 @@ class IdentificationNode(Node):
             return
         if d.get("session") and d.get("path"):
             self._recorder_paths[str(d["session"])] = str(d["path"])
+        got = d.get("receiving") or {}
+        self._recorder_receiving = len(got) == 3 and min(got.values()) >= 0
 
     # -- commands to the driver ---------------------------------------------------------------
     def _apply(self, step: SessionStep) -> None:
@@ -493,6 +472,8 @@ class IdentificationNode(Node):
                 why = f"the driver sent no samples within {waited}"
             elif self._last_lag_ns > float(self._p("max_start_latency_s")) * 1e9:
                 why = f"driver samples still arrive late after {waited}"
+            elif now - self._recorder_seen <= float(self._p("peer_timeout_s")):
+                why = f"the recorder received no driver samples within {waited}"
             else:
                 why = (
                     f"no recorder within {waited} (start recorder_node, or run without "
@@ -530,9 +511,10 @@ class IdentificationNode(Node):
         self._settled_since = min(self._settled_since, now)
         if now - self._settled_since < float(self._p("settle_s")):
             return
-        if self._p("require_recorder") and now - self._recorder_seen > float(
-            self._p("peer_timeout_s")
-        ):
+        if self._p("require_recorder") and (
+            now - self._recorder_seen > float(self._p("peer_timeout_s"))
+            or not self._recorder_receiving  # its subscriptions must match first: the
+        ):  # driver's samples are volatile, so any it missed before would be lost
             return
         try:
             session = self._build_session()
@@ -724,7 +706,8 @@ class IdentificationNode(Node):
         self._make_safe()
         self.pub_progress.publish(String(data=s.progress().to_json()))
         self.phase = Phase.FLUSHING
-        self._flush_deadline = time.monotonic() + 2.0
+        # every sample up to the end is on its way (reliable, 10 s deep): wait for it
+        self._flush_deadline = time.monotonic() + SAMPLE_BUFFER_S + 5.0
         lag_ms = self._lag.ns[: self._lag.n] * 1e-6
         self.get_logger().info(
             f"session {s.name} complete: {s.progress().samples} samples; driver-to-node "
@@ -738,8 +721,8 @@ class IdentificationNode(Node):
         assert s is not None
         end_ns = round(s.markers[-1].t_s * 1e9)
         have = min(self._cur.last_ns(), self._volt.last_ns(), self._enc.last_ns())
-        if have < end_ns and now < self._flush_deadline:
-            return
+        if have < end_ns and now < self._flush_deadline and now - self._last_sample_wall < 2.0:
+            return  # still arriving (a backlog on a loaded machine); else the driver is gone
         arrays = DriverArrays(
             current_ns=self._cur.ns[: self._cur.n].copy(),
             current_a=self._cur.v[: self._cur.n, 0].copy(),
@@ -765,7 +748,11 @@ class IdentificationNode(Node):
             run = assemble_run(arrays, source=source, session=s.name)
             n = sum(seg.n for seg in run.segments)
             out = self._output_dir(s.name)
-            result = identify_session_run(run, self.fixed, name=s.name)
+            found = _completeness(arrays, s)
+            (log.warning if found.missing else log.info)(f"session {s.name}: {found.line()}")
+            result = identify_session_run(
+                run, self.fixed, name=s.name, extra={"driver_samples": found.to_dict()}
+            )
             out.mkdir(parents=True, exist_ok=True)
             (out / "parameters.json").write_text(result.json_text)
             (out / "parameters.yaml").write_text(result.yaml_text)
@@ -783,6 +770,20 @@ class IdentificationNode(Node):
             self.exit_code = 1
         self.phase = Phase.FINISHED
 
+    def wait_delivered(self, timeout_s: float) -> bool:
+        """Until every reader acknowledged our last command, markers, status and result.
+
+        A reader whose receive thread was held up on a busy machine gets lost datagrams
+        re-sent only while this node lives: a recorder must not miss the session's end.
+        """
+        end = time.monotonic() + timeout_s
+        pubs = (self.pub_cmd, self.pub_segment, self.pub_status, self.pub_progress)
+        done = True
+        for pub in (*pubs, self.pub_result):
+            left = max(0.0, end - time.monotonic())
+            done = pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and done
+        return done
+
     def _output_dir(self, session: str) -> Path:
         path = self._recorder_paths.get(session)
         if path:
@@ -795,6 +796,20 @@ class IdentificationNode(Node):
         if self.session is not None:
             d["bag"] = self._recorder_paths.get(self.session.name, "")
         self.pub_status.publish(String(data=json.dumps(d)))
+
+
+def _completeness(arrays: DriverArrays, s: Session) -> Completeness:
+    """The session's driver samples this node received vs the stamp grid."""
+    enc = np.unique(arrays.encoder_ns)
+    dt_ns = int(np.median(np.diff(enc))) if enc.size > 2 else 1_000_000
+    stamps = {
+        "current": arrays.current_ns,
+        "encoder": arrays.encoder_ns,
+        "voltage_applied": arrays.voltage_ns,
+    }
+    return completeness(
+        stamps, round(s.markers[0].t_s * 1e9), round(s.markers[-1].t_s * 1e9), dt_ns
+    )
 
 
 def make_executor() -> Executor:
@@ -829,13 +844,12 @@ def main(args: list[str] | None = None) -> int:
         executor.add_node(node)
         while rclpy.ok() and not node.finished:
             executor.spin_once(timeout_sec=0.05)
-        # let the last command, markers and status leave before the node goes, and see
-        # the safe state confirmed by the driver (a Ctrl-C ends here)
-        t_end = time.monotonic() + 0.3
-        while rclpy.ok() and (time.monotonic() < t_end or node.confirming):
+        # see the safe state confirmed by the driver (a Ctrl-C ends here)
+        while rclpy.ok() and node.confirming:
             executor.spin_once(timeout_sec=0.02)
             if node.confirming:
                 node._confirm_tick(time.monotonic())
+        node.wait_delivered(timeout_s=5.0)
         status = node.exit_code
     except PmdcError as exc:
         print(f"{NODE_NAME}: {exc}", file=sys.stderr, flush=True)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from pmdc_ident.core.data import Run
 from pmdc_ident.core.motors import motor_to_yaml
@@ -36,9 +37,16 @@ def parse_fix(items: Sequence[str]) -> dict[str, float]:
 
 
 def identify_session_run(
-    run: Run, fixed: Mapping[str, float] | None = None, name: str = "identified"
+    run: Run,
+    fixed: Mapping[str, float] | None = None,
+    name: str = "identified",
+    extra: Mapping[str, Any] | None = None,
 ) -> IdentifyOutput:
-    """Identify a session's run exactly as ``pmdc-ident identify DATA --fix ...`` does."""
+    """Identify a session's run exactly as ``pmdc-ident identify DATA --fix ...`` does.
+
+    ``extra`` entries are added to the JSON document (the node adds how complete its
+    driver samples were).
+    """
     from pmdc_ident.core.estimators.identify import ModelChoice, identify, merge_runs
     from pmdc_ident.core.output_error import CLOSURE_KT_KE
 
@@ -53,7 +61,8 @@ def identify_session_run(
     )
     header = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
     return IdentifyOutput(
-        json_text=json.dumps(result.to_json_dict(), indent=2, allow_nan=False) + "\n",
+        json_text=json.dumps({**result.to_json_dict(), **(extra or {})}, indent=2, allow_nan=False)
+        + "\n",
         yaml_text=header + motor_to_yaml(result.motor_spec(name)),
         table=result.text_report(),
         values={k: p.value for k, p in result.parameters.items()},

@@ -17,6 +17,7 @@ heartbeat at 5 Hz with the state, session, bag path and samples written.
 from __future__ import annotations
 
 import json
+import math
 import signal
 import sys
 import time
@@ -24,6 +25,7 @@ from collections import deque
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.node import Node
@@ -35,13 +37,9 @@ from std_msgs.msg import Float64, String
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.session import Marker, MarkerEvent
 from pmdc_ident.dataio.bagio import TOPIC_TYPES, BagWriter, header_stamp_ns
-from pmdc_ident.nodes.identification_node import (
-    COMMAND_QOS,
-    LATCHED_QOS,
-    SEGMENT_QOS,
-    make_executor,
-    sample_qos,
-)
+from pmdc_ident.dataio.completeness import Completeness, completeness
+from pmdc_ident.nodes.identification_node import make_executor
+from pmdc_ident.nodes.qos import COMMAND_QOS, LATCHED_QOS, SEGMENT_QOS, sample_qos
 
 __all__ = ["RecorderNode", "main"]
 
@@ -94,11 +92,15 @@ class RecorderNode(Node):
         self.start_ns = 0
         self.end_ns: int | None = None
         self.last_ns = dict.fromkeys(DRIVER_TOPICS, -1)
+        self._last_arrival = -math.inf  # monotonic time the last driver sample arrived
+        self._lag_base_ns = math.inf  # smallest arrival - stamp seen
+        self._lag_ns = dict.fromkeys(DRIVER_TOPICS, math.inf)  # of each topic's newest sample
+        self._written: dict[str, list[int]] = {t: [] for t in DRIVER_TOPICS}  # stamps, ns
         self.samples = 0
         self.bags: list[str] = []
         self.finished = False
         self.stop_requested = False
-        self._end_wall = 0.0
+        self.last_missing = 0  # driver samples missing from the last bag closed
         from rosbags.typesys import Stores, get_typestore
 
         self._typestore = get_typestore(Stores.ROS2_JAZZY)
@@ -126,6 +128,10 @@ class RecorderNode(Node):
         def cb(raw: bytes) -> None:
             ns = header_stamp_ns(raw)
             self.last_ns[topic] = ns
+            self._last_arrival = time.monotonic()
+            raw_lag = time.time_ns() - ns  # arrival - stamp (a board's clock may be offset)
+            self._lag_base_ns = min(self._lag_base_ns, raw_lag)
+            self._lag_ns[topic] = raw_lag - self._lag_base_ns
             self.ring.append((topic, ns, raw, time.time_ns()))
             if self.writer is not None:
                 self._drain(ns - self.hold_ns)
@@ -153,9 +159,13 @@ class RecorderNode(Node):
         while ring and (before_ns is None or ring[0][1] < before_ns):
             topic, ns, raw, log_ns = ring.popleft()
             if w is not None and self._in_window(ns):
-                w.write_raw(self._name[topic], log_ns, raw)
-                if topic == "encoder":
-                    self.samples += 1
+                self._write_sample(w, topic, ns, raw, log_ns)
+
+    def _write_sample(self, w: BagWriter, topic: str, ns: int, raw: bytes, log_ns: int) -> None:
+        w.write_raw(self._name[topic], log_ns, raw)
+        self._written[topic].append(ns)
+        if topic == "encoder":
+            self.samples += 1
 
     def _drain_rest_and_close(self, why: str) -> None:
         """Write every held sample inside the window (the ring is in arrival order, not
@@ -165,9 +175,7 @@ class RecorderNode(Node):
             keep: deque[tuple[str, int, bytes, int]] = deque(maxlen=self.ring.maxlen)
             for topic, ns, raw, log_ns in self.ring:
                 if self._in_window(ns):
-                    w.write_raw(self._name[topic], log_ns, raw)
-                    if topic == "encoder":
-                        self.samples += 1
+                    self._write_sample(w, topic, ns, raw, log_ns)
                 elif self.end_ns is not None and ns >= self.end_ns:
                     keep.append((topic, ns, raw, log_ns))
             self.ring = keep
@@ -195,7 +203,6 @@ class RecorderNode(Node):
             self.writer.write_raw(self._name["segment"], time.time_ns(), raw)
             if m.event is MarkerEvent.SESSION_END:
                 self.end_ns = round(m.t_s * 1e9)
-                self._end_wall = time.monotonic()
 
     # -- bag ----------------------------------------------------------------------------------
     def _open(self, m: Marker) -> None:
@@ -215,6 +222,7 @@ class RecorderNode(Node):
             None,
             0,
         )
+        self._written = {t: [] for t in DRIVER_TOPICS}
         # held samples from before the start marker arrived are written by _drain
         self.get_logger().info(f"recording session {m.session} into {path}")
         self._heartbeat()
@@ -224,17 +232,35 @@ class RecorderNode(Node):
         if w is None:
             return
         self.writer = None
+        found = self._completeness()
+        w.set_custom_data("pmdc_ident.driver_samples", json.dumps(found.to_dict()))
         w.close()
         self.bags.append(str(w.path))
-        self.get_logger().info(
+        self.last_missing = found.missing
+        log = self.get_logger().warning if found.missing else self.get_logger().info
+        log(
             f"bag closed ({why}): {w.path} with {self.samples} driver samples, "
             + ", ".join(f"{t} {n}" for t, n in w.counts.items())
+            + f"; {found.line()}"
         )
         self._heartbeat(closed=str(w.path))
 
+    def _completeness(self) -> Completeness:
+        """The session's driver samples written vs the stamp grid (interrupted: up to the last)."""
+        stamps = {t: np.asarray(v, dtype=np.int64) for t, v in self._written.items()}
+        enc = np.unique(stamps["encoder"])
+        dt_ns = int(np.median(np.diff(enc))) if enc.size > 2 else self.half_dt_ns * 2
+        end = self.end_ns
+        if end is None:  # interrupted: the session ran up to the newest sample written
+            end = max((int(v.max()) for v in stamps.values() if v.size), default=self.start_ns)
+            end += dt_ns
+        return completeness(stamps, self.start_ns, end, dt_ns)
+
     def _heartbeat(self, closed: str = "") -> None:
         if self.end_ns is not None and self.writer is not None:
-            if time.monotonic() - self._end_wall > self.hold_ns * 1e-9 + 2.0:  # driver stopped
+            # The driver stopped: no sample arrived for a while (a recorder working
+            # through a backlog still receives, so it is not closed early).
+            if time.monotonic() - self._last_arrival > self.hold_ns * 1e-9 + 2.0:
                 self._drain_rest_and_close("session ended (driver samples stopped)")
                 return
         d = {
@@ -243,8 +269,25 @@ class RecorderNode(Node):
             "path": str(self.writer.path) if self.writer is not None else closed,
             "samples": self.samples,
             "bags": self.bags[-5:],
+            # newest driver stamp received per topic (-1: none yet): the identification
+            # node starts a session only once all three arrive here
+            "receiving": dict(self.last_ns),
+            "missing_last_bag": self.last_missing,
         }
         self.pub_status.publish(String(data=json.dumps(d)))
+
+    def caught_up(self) -> bool:
+        """Every driver sample of the open bag that was published before now is taken.
+
+        True when the session's end passed on every topic, when the newest sample of
+        every topic arrived within 0.1 s of its stamp (no backlog queued in DDS), or
+        when nothing arrived for 0.5 s (the driver is gone).
+        """
+        if self.writer is None or time.monotonic() - self._last_arrival > 0.5:
+            return True
+        if self.end_ns is not None and min(self.last_ns.values()) >= self.end_ns + self.margin_ns:
+            return True
+        return max(self._lag_ns.values()) < 100_000_000
 
     def shutdown(self) -> None:
         if self.writer is not None:
@@ -268,6 +311,11 @@ def main(args: list[str] | None = None) -> int:
         executor.add_node(node)
         while rclpy.ok() and not flag:
             executor.spin_once(timeout_sec=0.1)
+        # Stopped (Ctrl-C, SIGTERM): first take the samples still queued for us, so a
+        # recorder that fell behind on a loaded machine writes them before closing.
+        deadline = time.monotonic() + 8.0  # bringup waits 10 s before SIGTERM
+        while rclpy.ok() and not node.caught_up() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
     except PmdcError as exc:
         print(f"{NODE_NAME}: {exc}", file=sys.stderr, flush=True)
         status = 2
