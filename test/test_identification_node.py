@@ -196,6 +196,15 @@ def test_short_session_completes_and_the_bag_holds_every_driver_sample(short_ses
     assert "abort" not in events
     expected = round((ms[-1].t_s - ms[0].t_s) / DT)
     _assert_every_published_sample(arrays, expected, probe)
+    # what is missing (only samples the driver skipped may be) is said in the bag's
+    # metadata and in parameters.json, in the same words
+    meta = yaml.safe_load((res.bag / "metadata.yaml").read_text())
+    said = json.loads(
+        meta["rosbag2_bagfile_information"]["custom_data"]["pmdc_ident.driver_samples"]
+    )
+    assert said["missing_max"] == expected - arrays.encoder_ns.size, said
+    assert said["topics"]["encoder"]["expected"] == expected
+    assert res.result is not None and res.result["driver_samples"] == said
     run = read_bag(res.bag)
     spec = load_motor("seed001_110v")
     plan = plan_for_motor(
