@@ -25,11 +25,11 @@ import json, sys
 from pmdc_ident import cli
 argv = sys.argv[1:]
 try:
-    cli.main(argv)
-except SystemExit:
-    pass
+    rc = cli.main(argv)
+except SystemExit as exc:
+    rc = exc.code
 heavy = {heavy!r}
-print(json.dumps(sorted({{m.split(".")[0] for m in sys.modules}} & set(heavy))))
+print(json.dumps([rc, sorted({{m.split(".")[0] for m in sys.modules}} & set(heavy))]))
 """
 
 
@@ -39,6 +39,12 @@ print(json.dumps(sorted({{m.split(".")[0] for m in sys.modules}} & set(heavy))))
         ["--help"],
         ["identify", "--help"],
         ["diagnose", "--help"],
+        ["export", "--help"],
+        ["check", "--help"],
+        ["export-model", "--help"],
+        ["monitor", "--help"],
+        ["benchmark", "--help"],
+        ["virtual-board", "--help"],
         ["identify", "--bootstrap"],  # an argument error
         ["identify", "run.csv", "--bootstrap", "-1"],  # a value error found before loading
         ["no-such-command"],
@@ -53,7 +59,9 @@ def test_help_and_argument_errors_import_no_numerical_stack(argv: list[str]) -> 
         timeout=120,
         check=True,
     )
-    assert json.loads(out.stdout.strip().splitlines()[-1]) == []
+    rc, heavy = json.loads(out.stdout.strip().splitlines()[-1])
+    assert heavy == []
+    assert rc == (0 if "--help" in argv else 2), out.stderr  # help, or one line + exit 2
 
 
 def test_core_package_names_resolve_lazily() -> None:

@@ -54,7 +54,10 @@ def add_unit_arguments(parser: argparse.ArgumentParser) -> None:
     )
     for flag, (choices, what) in _UNITS.items():
         g.add_argument(
-            flag, metavar="UNIT", default=None, help=f"unit of the {what} column: {choices}"
+            flag,
+            metavar="UNIT",
+            default=None,
+            help=f"unit of the {what} column: {choices}".replace("%", "%%"),
         )
     g.add_argument("--supply-v", default=None, metavar="V", help="supply voltage for duty units")
     g.add_argument(
