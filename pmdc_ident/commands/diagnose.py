@@ -14,6 +14,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from pmdc_ident.commands._inputs import (
     add_gate_arguments,
@@ -24,6 +25,7 @@ from pmdc_ident.commands._inputs import (
     load_inputs,
     segment_inputs,
 )
+from pmdc_ident.commands.batch import add_batch_arguments, format_table
 from pmdc_ident.commands.outputs import (
     STDOUT,
     check_distinct,
@@ -76,6 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     add_gate_arguments(parser)
     add_unit_arguments(parser)
+    add_batch_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -91,6 +94,10 @@ def run(args: argparse.Namespace) -> int:
     if args.max_effects < 1:
         msg = f"--max-effects must be >= 1 (effects combined at most), got {args.max_effects}"
         raise ParameterError(msg)
+    if args.batch is not None:
+        from pmdc_ident.commands.batch import run_batch
+
+        return run_batch(args, __name__, batch_table, forbidden=("--json", "--report"))
     targets = {
         "--json": check_file_output("--json", args.json, args.data, suffixes=(".json",)),
         "--report": check_folder_output("--report", args.report, args.data),
@@ -142,3 +149,32 @@ def run(args: argparse.Namespace) -> int:
     for p in written:
         print(f"wrote {p}", file=text_out)
     return 0
+
+
+def batch_summary(json_path: Path) -> dict[str, Any]:
+    """Verdict, effects and held-out shrink of one input's JSON (for the batch table)."""
+    body = json.loads(Path(json_path).read_text())
+    verdict = body.get("verdict", {})
+    return {
+        "verdict": verdict.get("status", ""),
+        "effects": "+".join(verdict.get("effects", [])),
+        "shrink": body.get("holdout", {}).get("shrink"),
+    }
+
+
+def batch_table(outcomes: list[Any]) -> str:
+    rows = []
+    for o in outcomes:
+        s = o.summary
+        shrink = s.get("shrink")
+        rows.append(
+            [
+                str(o.item.path),
+                "ok" if o.ok else "FAILED",
+                s.get("verdict", "-"),
+                s.get("effects") or "-",
+                "-" if shrink is None else f"{shrink:.0%}",
+                f"{o.elapsed_s:.1f}",
+            ]
+        )
+    return format_table(["input", "status", "verdict", "effects", "shrink", "s"], rows)

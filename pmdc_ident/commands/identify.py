@@ -14,6 +14,7 @@ import math
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from pmdc_ident.commands._inputs import (
     add_gate_arguments,
@@ -25,6 +26,7 @@ from pmdc_ident.commands._inputs import (
     load_side,
     segment_inputs,
 )
+from pmdc_ident.commands.batch import add_batch_arguments, format_table
 from pmdc_ident.commands.outputs import (
     STDOUT,
     check_distinct,
@@ -105,6 +107,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     add_gate_arguments(parser)
     add_unit_arguments(parser)
+    add_batch_arguments(parser)
 
 
 def parse_fix(items: list[str], known: tuple[str, ...] | None = None) -> dict[str, float]:
@@ -225,6 +228,10 @@ def run(args: argparse.Namespace) -> int:
             "current and speed: give --fix Kt=..., --fix J=... or --added-inertia DATA=KG_M2"
         )
         raise ParameterError(msg)
+    if args.batch is not None:
+        from pmdc_ident.commands.batch import run_batch
+
+        return run_batch(args, __name__, batch_table, forbidden=("--json", "--yaml", "--report"))
     targets = _outputs(args)
     to_stdout = STDOUT in targets.values()
     # with a document on standard output, the human-readable report goes to stderr
@@ -294,3 +301,32 @@ def run(args: argparse.Namespace) -> int:
     for p in written:
         print(f"wrote {p}", file=text_out)
     return 0
+
+
+# --batch: what the summary table shows of each input's JSON
+_BATCH_COLUMNS = {
+    "R": "R ohm",
+    "L": "L H",
+    "Ke": "Ke V*s/rad",
+    "J": "J kg*m^2",
+    "B": "B N*m*s/rad",
+    "coulomb_friction.torque_nm": "Tc N*m",
+}
+
+
+def batch_summary(json_path: Path) -> dict[str, Any]:
+    """The model and the main parameter values of one input's JSON (for the batch table)."""
+    body = json.loads(Path(json_path).read_text())
+    params = body.get("parameters", {})
+    values = {k: params[k]["value"] for k in _BATCH_COLUMNS if k in params}
+    return {"model": body.get("model", ""), **values}
+
+
+def batch_table(outcomes: list[Any]) -> str:
+    rows = []
+    for o in outcomes:
+        s = o.summary
+        cells = [f"{s[k]:.5g}" if k in s else "-" for k in _BATCH_COLUMNS]
+        status = "ok" if o.ok else "FAILED"
+        rows.append([str(o.item.path), status, s.get("model", "-"), *cells, f"{o.elapsed_s:.1f}"])
+    return format_table(["input", "status", "model", *_BATCH_COLUMNS.values(), "s"], rows)

@@ -1,0 +1,286 @@
+"""Many inputs at once: ``identify --batch DIR`` and ``diagnose --batch DIR``.
+
+Each input (a bag, an ``.mcap`` or a CSV; a folder stands for the bags and CSVs
+in it, a quoted glob for its matches) is processed on its own by the command's
+own ``run`` - the same gate, options and numbers as one call per input - in
+``--jobs`` worker processes. Each input's JSON (and its text report) goes to the
+batch folder; a failure is one line in the final list and never stops the
+batch. A progress bar is drawn on a terminal; the summary table goes to stdout.
+
+Light at import time (the fast ``--help`` rule): workers import the numerical
+core themselves.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import glob
+import importlib
+import io
+import os
+import re
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+from pmdc_ident.core.errors import ParameterError, PmdcError
+
+__all__ = [
+    "BatchItem",
+    "Outcome",
+    "add_batch_arguments",
+    "expand_inputs",
+    "run_batch",
+]
+
+DATA_SUFFIXES = (".csv", ".txt", ".mcap")
+_GLOB = re.compile(r"[*?\[]")
+
+
+def add_batch_arguments(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("batch (many recordings, one result each)")
+    g.add_argument(
+        "--batch",
+        metavar="DIR",
+        help="process each DATA on its own (a folder: every bag, .mcap and CSV in it; a "
+        "quoted glob: its matches) and write DIR/<input>.json and .txt per input; one "
+        "summary table on stdout; a failed input is listed and the batch goes on",
+    )
+    g.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        metavar="N",
+        help="worker processes for --batch (default: the number of CPUs)",
+    )
+
+
+def _is_bag_dir(p: Path) -> bool:
+    return p.is_dir() and (p / "metadata.yaml").is_file()
+
+
+def _inputs_in(folder: Path) -> list[Path]:
+    found = [
+        c
+        for c in sorted(folder.iterdir())
+        if _is_bag_dir(c) or (c.is_file() and c.suffix.lower() in DATA_SUFFIXES)
+    ]
+    # a sidecar (run.csv + run.yaml) and bag internals are not inputs of their own
+    return [c for c in found if not (c.suffix.lower() == ".mcap" and _is_bag_dir(c.parent))]
+
+
+def expand_inputs(items: Sequence[str]) -> list[Path]:
+    """The inputs the DATA arguments name, in order, each once."""
+    out: list[Path] = []
+    for item in items:
+        p = Path(item)
+        if not p.exists() and _GLOB.search(item):
+            matches = [Path(m) for m in sorted(glob.glob(item))]
+            if not matches:
+                msg = f"{item}: no file matches this pattern"
+                raise ParameterError(msg)
+            for m in matches:
+                out += _inputs_in(m) if m.is_dir() and not _is_bag_dir(m) else [m]
+        elif p.is_dir() and not _is_bag_dir(p):
+            inside = _inputs_in(p)
+            if not inside:
+                msg = f"{p}: a folder with no bag, .mcap or CSV in it"
+                raise ParameterError(msg)
+            out += inside
+        else:
+            out.append(p)  # a missing file is the worker's one-line failure
+    seen: set[Path] = set()
+    unique = []
+    for p in out:
+        key = p.resolve()
+        if key not in seen:
+            seen.add(key)
+            unique.append(p)
+    return unique
+
+
+def _names(paths: Sequence[Path]) -> list[str]:
+    """One file name per input (its stem; a number added when two stems collide)."""
+    stems = [p.stem if p.suffix else p.name for p in paths]
+    out = []
+    for k, s in enumerate(stems):
+        out.append(s if stems.count(s) == 1 else f"{s}_{k + 1:03d}")
+    return out
+
+
+@dataclass(frozen=True)
+class BatchItem:
+    """One input of a batch and where its results go."""
+
+    path: Path
+    json_path: Path
+    text_path: Path
+
+
+@dataclass
+class Outcome:
+    item: BatchItem
+    ok: bool
+    error: str = ""
+    elapsed_s: float = 0.0
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+def _run_one(
+    module_name: str, options: dict[str, Any], item: BatchItem, summarize_name: str
+) -> Outcome:
+    """Worker: the command's own run() on one input, its output into the item's files."""
+    module = importlib.import_module(module_name)
+    args = argparse.Namespace(**options)
+    args.data = [str(item.path)]
+    args.json = str(item.json_path)
+    args.quiet = True
+    buf = io.StringIO()
+    t0 = time.perf_counter()
+    try:
+        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+            rc = int(module.run(args) or 0)
+    except PmdcError as exc:
+        line = str(exc).strip().splitlines()[0].removeprefix(f"{item.path}: ")
+        return Outcome(item, False, line, time.perf_counter() - t0)
+    except OSError as exc:
+        what = exc.strerror or type(exc).__name__
+        return Outcome(item, False, f"{what}: {exc.filename}", time.perf_counter() - t0)
+    except Exception as exc:  # noqa: BLE001 - one input's bug must not stop the batch
+        return Outcome(item, False, f"internal error: {type(exc).__name__}: {exc}", 0.0)
+    finally:
+        item.text_path.write_text(buf.getvalue())
+    elapsed = time.perf_counter() - t0
+    if rc != 0:
+        return Outcome(item, False, f"exit status {rc}", elapsed)
+    summarize: Callable[[Path], dict[str, Any]] = getattr(module, summarize_name)
+    return Outcome(item, True, "", elapsed, summarize(item.json_path))
+
+
+class _Progress:
+    """A one-line progress bar on a terminal; one line per input otherwise (unless quiet)."""
+
+    def __init__(self, total: int, stream: TextIO, quiet: bool) -> None:
+        self.total, self.stream, self.quiet = total, stream, quiet
+        self.tty = stream.isatty()
+        self.done = self.failed = 0
+        self.t0 = time.perf_counter()
+
+    def update(self, o: Outcome) -> None:
+        self.done += 1
+        self.failed += not o.ok
+        elapsed = time.perf_counter() - self.t0
+        if self.tty:
+            width = 30
+            fill = round(width * self.done / self.total)
+            eta = elapsed / self.done * (self.total - self.done)
+            self.stream.write(
+                f"\r[{'#' * fill}{'.' * (width - fill)}] {self.done}/{self.total} "
+                f"({self.failed} failed) {elapsed:5.0f} s, ~{eta:4.0f} s left "
+            )
+            if self.done == self.total:
+                self.stream.write("\n")
+        elif not self.quiet:
+            state = "ok" if o.ok else f"FAILED: {o.error}"
+            self.stream.write(
+                f"[{self.done}/{self.total} {elapsed:6.1f} s] {o.item.path}: {state}\n"
+            )
+        self.stream.flush()
+
+
+def _outcomes(
+    module_name: str, options: dict[str, Any], items: list[BatchItem], jobs: int, summarize: str
+) -> Iterator[Outcome]:
+    if jobs <= 1 or len(items) == 1:
+        for item in items:
+            yield _run_one(module_name, options, item, summarize)
+        return
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    # forkserver: workers start from a clean interpreter (no inherited threads or locks)
+    ctx = multiprocessing.get_context("forkserver")
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+        pending = {pool.submit(_run_one, module_name, options, item, summarize) for item in items}
+        try:
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for f in done:
+                    yield f.result()
+        except BaseException:
+            for f in pending:
+                f.cancel()
+            raise
+
+
+def run_batch(
+    args: argparse.Namespace,
+    module_name: str,
+    table: Callable[[list[Outcome]], str],
+    *,
+    summarize: str = "batch_summary",
+    forbidden: Sequence[str] = (),
+) -> int:
+    """Process every input of ``args.data`` on its own; the summary table; the exit status.
+
+    0 when every input succeeded, 2 when any failed (each failure listed).
+    """
+    for option in forbidden:
+        if getattr(args, option.lstrip("-").replace("-", "_"), None):
+            msg = f"{option} is per run: not with --batch (each input's JSON goes to the folder)"
+            raise ParameterError(msg)
+    jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
+    if jobs < 1:
+        msg = f"--jobs must be >= 1, got {jobs}"
+        raise ParameterError(msg)
+    paths = expand_inputs(args.data)
+    out = Path(args.batch)
+    if out.exists() and not out.is_dir():
+        msg = f"--batch {out}: exists and is not a folder"
+        raise ParameterError(msg)
+    out.mkdir(parents=True, exist_ok=True)
+    items = [
+        BatchItem(p, out / f"{name}.json", out / f"{name}.txt")
+        for p, name in zip(paths, _names(paths), strict=True)
+    ]
+    options = {k: v for k, v in vars(args).items() if not k.startswith("_")}
+    options.update(batch=None, jobs=None)
+    progress = _Progress(len(items), sys.stderr, bool(getattr(args, "quiet", False)))
+    outcomes: list[Outcome] = []
+    t0 = time.perf_counter()
+    for o in _outcomes(module_name, options, items, min(jobs, len(items)), summarize):
+        outcomes.append(o)
+        progress.update(o)
+    wall = time.perf_counter() - t0
+    order = {item.path: k for k, item in enumerate(items)}
+    outcomes.sort(key=lambda o: order[o.item.path])
+    print(table(outcomes))
+    failed = [o for o in outcomes if not o.ok]
+    n_ok = len(outcomes) - len(failed)
+    rate = 60.0 * len(outcomes) / wall if wall > 0 else float("inf")
+    print(
+        f"{n_ok} of {len(outcomes)} inputs done in {wall:.1f} s with {jobs} job(s) "
+        f"({rate:.1f} per minute); results in {out}"
+    )
+    for o in failed:
+        print(f"FAILED {o.item.path}: {o.error}")
+    return 2 if failed else 0
+
+
+def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A plain aligned text table (first column left, the rest right)."""
+    widths = [
+        max(len(h), *(len(r[k]) for r in rows)) if rows else len(h) for k, h in enumerate(headers)
+    ]
+
+    def line(cells: Sequence[str]) -> str:
+        return "  ".join(
+            c.ljust(w) if k == 0 else c.rjust(w)
+            for k, (c, w) in enumerate(zip(cells, widths, strict=True))
+        )
+
+    return "\n".join([line(headers), *(line(r) for r in rows)])
