@@ -1,0 +1,139 @@
+"""The benchmark's report: tables as text (markdown) and figures (matplotlib, Agg)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from pmdc_ident.benchmark.scoring import VISIBLE, Score
+
+__all__ = ["confusion_text", "summary_table", "write_figures"]
+
+
+def _pct(x: float) -> str:
+    return "-" if not math.isfinite(x) else f"{x:.0%}"
+
+
+def summary_table(sc: Score) -> str:
+    fa, n_clean = sc.false_attribution
+    oov = sc.oov_verdicts
+    n_oov = sum(oov.values())
+    both, one, n_comp = sc.compounds
+    vis, hid = sc.visible, sc.hidden
+    lines = [
+        "| effect | top-1 | tie-honest | visible runs | below noise | detection limit |",
+        "|---|---:|---:|---:|---:|---|",
+    ]
+    limits = {lim.name: lim for lim in sc.limits()}
+    for name, (t1, th, n, h) in sc.per_effect().items():
+        lim = limits[name].text() if name in limits else "-"
+        lines.append(
+            f"| {name} | {_pct(t1 / n if n else math.nan)} | {_pct(th / n if n else math.nan)} "
+            f"| {n} | {h} | {lim} |"
+        )
+    lines += [
+        f"| **all visible effect runs** | **{_pct(sc.top1())}** | **{_pct(sc.tie_honest())}** "
+        f"| {len(vis)} | {len(hid)} | |",
+        f"| all effect runs (visible or not) | {_pct(sc.top1(sc.effect_runs))} | "
+        f"{_pct(sc.tie_honest(sc.effect_runs))} | {len(sc.effect_runs)} | | |",
+        "",
+        "| check | result | runs |",
+        "|---|---:|---:|",
+        f"| effect-free runs: false attribution | {fa} ({_pct(fa / n_clean if n_clean else math.nan)}) | {n_clean} |",  # noqa: E501
+        f"| out-of-vocabulary runs -> unexplained | {_pct(oov['unexplained'] / n_oov if n_oov else math.nan)} | {n_oov} |",  # noqa: E501
+        f"| out-of-vocabulary runs -> an effect named | {_pct(oov['explained'] / n_oov if n_oov else math.nan)} | {n_oov} |",  # noqa: E501
+        f"| out-of-vocabulary runs -> no_gap | {_pct(oov['no_gap'] / n_oov if n_oov else math.nan)} | {n_oov} |",  # noqa: E501
+        f"| median held-out shrink where the name is right | {_pct(sc.median_shrink_right)} | |",
+        f"| two effects: both named (or tied) | {_pct(both / n_comp if n_comp else math.nan)} | {n_comp} |",  # noqa: E501
+        f"| two effects: first named is one of them | {_pct(one / n_comp if n_comp else math.nan)} | {n_comp} |",  # noqa: E501
+    ]
+    secs = sc.seconds
+    if secs:
+        lines.append(
+            f"| diagnose wall time per run (median / max) | {np.median(secs):.1f} s / "
+            f"{max(secs):.1f} s | {len(secs)} |"
+        )
+    errors = sum(1 for o in sc.outcomes if o.status == "error")
+    if errors:
+        lines.append(f"| runs the diagnosis failed on (error) | {errors} | |")
+    lines.append("")
+    lines.append(
+        f"Visible: the effect moves the logged current or speed by >= {VISIBLE:g} noise "
+        "RMS; tie-honest: right, or tied with the truth and the separating test named."
+    )
+    return "\n".join(lines)
+
+
+def confusion_text(sc: Score) -> str:
+    rows = sc.confusion()
+    cols = sorted({c for r in rows.values() for c in r})
+    width = 9
+    head = "truth \\ named".ljust(22) + "".join(c[:width].rjust(width + 1) for c in cols)
+    out = [head]
+    for truth, row in rows.items():
+        out.append(truth[:22].ljust(22) + "".join(str(row.get(c, 0) or ".").rjust(width + 1)
+                                                  for c in cols))  # fmt: skip
+    return "\n".join(out)
+
+
+def detail_text(sc: Score) -> str:
+    out = ["| effect | equation | tie-honest | runs |", "|---|---|---:|---:|"]
+    for (name, eq), (ok, n) in sc.per_equation().items():
+        out.append(f"| {name} | {eq} | {_pct(ok / n)} | {n} |")
+    out += ["", "| effect | size | named (tie-honest) / runs |", "|---|---|---|"]
+    for lim in sc.limits():
+        cells = ", ".join(f"{s:g}: {ok}/{n}" for s, ok, n in lim.by_level)
+        out.append(f"| {lim.name} | {lim.unit} | {cells} |")
+    return "\n".join(out)
+
+
+def write_figures(sc: Score, directory: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    directory.mkdir(parents=True, exist_ok=True)
+    rows = sc.confusion()
+    cols = sorted({c for r in rows.values() for c in r})
+    mat = np.array([[rows[r].get(c, 0) for c in cols] for r in rows], dtype=float)
+    fig, ax = plt.subplots(figsize=(1.0 + 0.55 * len(cols), 1.0 + 0.45 * len(rows)))
+    frac = mat / np.maximum(mat.sum(axis=1, keepdims=True), 1)
+    ax.imshow(frac, cmap="Blues", vmin=0, vmax=1, aspect="auto")
+    for (i, j), v in np.ndenumerate(mat):
+        if v:
+            ax.text(j, i, f"{int(v)}", ha="center", va="center", fontsize=8)
+    ax.set_xticks(range(len(cols)), cols, rotation=60, ha="right", fontsize=8)
+    ax.set_yticks(range(len(rows)), list(rows), fontsize=8)
+    ax.set_xlabel("named by the diagnosis (first effect; '(tie)' = truth in a named tie)")
+    ax.set_ylabel("truth")
+    ax.set_title("Confusion (visible effect runs, effect-free, out-of-vocabulary)")
+    fig.tight_layout()
+    p1 = directory / "confusion.png"
+    fig.savefig(p1, dpi=110)
+    plt.close(fig)
+
+    lims = sc.limits()
+    fig, axes = plt.subplots(
+        int(math.ceil(len(lims) / 4)) or 1, 4, figsize=(13, 2.6 * math.ceil(len(lims) / 4))
+    )
+    for ax, lim in zip(np.ravel(axes), lims, strict=False):
+        sizes = [s for s, _, n in lim.by_level if n]
+        rates = [ok / n for _, ok, n in lim.by_level if n]
+        ax.plot(sizes, rates, "o-")
+        ax.axhline(0.9, color="grey", lw=0.8, ls="--")
+        if lim.limit is not None:
+            ax.axvline(lim.limit, color="green", lw=0.8)
+        ax.set_xscale("log")
+        ax.set_ylim(-0.05, 1.05)
+        ax.set_title(f"{lim.name}\nlimit {lim.text()}", fontsize=8)
+        ax.set_xlabel(lim.unit, fontsize=8)
+    for ax in np.ravel(axes)[len(lims) :]:
+        ax.axis("off")
+    fig.tight_layout()
+    p2 = directory / "detection_limits.png"
+    fig.savefig(p2, dpi=110)
+    plt.close(fig)
+    return [p1, p2]

@@ -1,0 +1,137 @@
+"""Run the benchmark: write each case as a CSV run file, diagnose it from the file.
+
+The diagnosis sees only the file (no truth, no label but the session's segment
+names). Cases run in worker processes (``jobs``), each diagnosis single-threaded
+then, so the full benchmark uses the machine's cores without oversubscribing.
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from pmdc_ident.benchmark.cases import Case, Recording, record
+
+__all__ = ["Outcome", "run_cases", "write_recording"]
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What the diagnosis said about one case."""
+
+    case: Case
+    status: str  # no_gap / explained / unexplained / error
+    effects: tuple[str, ...]
+    ties: tuple[tuple[tuple[str, ...], str], ...] = ()  # (effects, separating test)
+    shrink: float = float("nan")
+    seconds: float = 0.0
+    message: str = ""
+    extra: dict[str, object] = field(default_factory=dict)
+
+    @property
+    def top1(self) -> str:
+        return self.effects[0] if self.effects else self.status
+
+
+def write_recording(rec: Recording, path: Path) -> Path:
+    """The recording as a CSV run file of the project's schema (segments contiguous)."""
+    from pmdc_ident.core.data import Run, Segment, link_history
+    from pmdc_ident.dataio.csvio import write_csv
+
+    t = np.arange(rec.current.size) * rec.dt_s
+    segs = []
+    for label, (a, b) in zip(rec.labels, rec.bounds, strict=True):
+        segs.append(
+            Segment(
+                label=label,
+                t=t[a:b],
+                voltage=rec.voltage[a:b],
+                current=rec.current[a:b],
+                position=rec.position[a:b],
+                speed=None if rec.speed is None else rec.speed[a:b],
+            )
+        )
+    return write_csv(Run(link_history(segs), "benchmark"), path)
+
+
+def _cpu_s() -> float:
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
+
+
+def run_one(case: Case, directory: str, workers: int = 1) -> Outcome:
+    """Generate, write and diagnose one case (in whatever process calls it)."""
+    from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
+    from pmdc_ident.core.errors import PmdcError
+    from pmdc_ident.dataio import load_data
+
+    rec, vis = record(case)
+    if vis is not None:
+        case = replace(case, visibility=vis.residual, visibility_raw=vis.raw)
+    path = write_recording(rec, Path(directory) / f"run_{case.seed:010d}.csv")
+    t0, c0 = time.perf_counter(), _cpu_s()
+    try:
+        res = diagnose(load_data(path), config=DiagnosisConfig(workers=workers)).to_json()
+    except (PmdcError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        return Outcome(case, "error", (), message=f"{type(exc).__name__}: {exc}")
+    v = res["verdict"]
+    ties = tuple((tuple(t["effects"]), str(t["separating_test"])) for t in v["ties"])
+    shrink = res["holdout"]["shrink"]
+    return Outcome(
+        case,
+        str(v["status"]),
+        tuple(v["effects"]),
+        ties,
+        float("nan") if shrink is None else float(shrink),
+        time.perf_counter() - t0,
+        str(v["message"]),
+        {"cpu_s": _cpu_s() - c0, "samples": int(rec.current.size)},
+    )
+
+
+def run_cases(
+    cases: Sequence[Case],
+    *,
+    jobs: int = 1,
+    keep: Path | None = None,
+    progress: Callable[[int, int, Outcome], None] | None = None,
+) -> list[Outcome]:
+    """Diagnose every case; outcomes in the order of ``cases``."""
+    with tempfile.TemporaryDirectory(prefix="pmdc_bench_") as tmp:
+        directory = keep or Path(tmp)
+        directory.mkdir(parents=True, exist_ok=True)
+        out: list[Outcome | None] = [None] * len(cases)
+        if jobs <= 1:
+            for k, c in enumerate(cases):
+                out[k] = run_one(c, str(directory), workers=2)
+                if progress:
+                    progress(k + 1, len(cases), out[k])  # type: ignore[arg-type]
+        else:
+            # longest first keeps both workers busy to the end
+            order = sorted(range(len(cases)), key=lambda k: -_cost(cases[k]))
+            with ProcessPoolExecutor(max_workers=jobs) as pool:
+                futures = {pool.submit(run_one, cases[k], str(directory), 1): k for k in order}
+                done = 0
+                for fut in as_completed(futures):
+                    k = futures[fut]
+                    out[k] = fut.result()
+                    done += 1
+                    if progress:
+                        progress(done, len(cases), out[k])  # type: ignore[arg-type]
+    return [o for o in out if o is not None]
+
+
+def _cost(case: Case) -> float:
+    return case.rate_hz * case.bench_motor.params.mechanical_time_constant_s
+
+
+def default_jobs() -> int:
+    return max(1, min(2, os.cpu_count() or 1))

@@ -1,0 +1,179 @@
+"""The independent benchmark generator: independence, physics, sizes, scoring, CLI."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmdc_ident.benchmark import plant as pl
+from pmdc_ident.benchmark.cases import (
+    Case,
+    build_cases,
+    command,
+    context,
+    record,
+    sensor_vector,
+)
+from pmdc_ident.benchmark.motors import MOTORS
+from pmdc_ident.benchmark.runner import Outcome, write_recording
+from pmdc_ident.benchmark.scoring import right_tie_honest, score
+from pmdc_ident.benchmark.sensors import SensorSetup
+from pmdc_ident.benchmark.truth import EQUATIONS, VOCABULARY, TrueEffect, draw_effect
+from pmdc_ident.benchmark.visibility import linear_signals
+from pmdc_ident.cli import main
+
+GENERATOR = ("motors", "plant", "truth", "sensors", "cases", "visibility")
+ALLOWED = {
+    "pmdc_ident.core.params",  # the base motor parameters
+    "pmdc_ident.core.excitation",  # the session's test plan (the user's shapes)
+    "pmdc_ident.core.motors",  # the plan's Limits
+    "pmdc_ident.core._jit",  # numba compilation, no equation
+}
+
+
+def test_generator_imports_nothing_of_the_candidate_library():
+    root = Path(__file__).resolve().parents[1] / "pmdc_ident" / "benchmark"
+    for mod in GENERATOR:
+        tree = ast.parse((root / f"{mod}.py").read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("pmdc_ident"):
+                assert node.module.startswith("pmdc_ident.benchmark") or node.module in ALLOWED
+                if node.module == "pmdc_ident.core.excitation":
+                    assert {a.name for a in node.names} <= {"SequenceConfig", "default_plan"}
+                if node.module == "pmdc_ident.core.motors":
+                    assert {a.name for a in node.names} == {"Limits"}
+
+
+def test_motors_span_three_decades_geared_and_direct_and_every_name_has_two_equations():
+    powers = [m.power_rated_w for m in MOTORS.values()]
+    assert min(powers) < 1.0 and max(powers) > 1000.0 and len(MOTORS) >= 5
+    assert {m.geared for m in MOTORS.values()} == {True, False}
+    rates = [r for m in MOTORS.values() for r in m.rates_hz]
+    assert min(rates) == 250.0 and max(rates) == 10000.0
+    assert all(len(EQUATIONS[n]) >= 2 for n in VOCABULARY)
+
+
+def _linear(m):  # type: ignore[no-untyped-def]
+    p = m.params
+    return pl.new_params(p.R, p.L, p.Ke, p.Kt, p.J, p.B)
+
+
+def test_rk4_plant_matches_the_exact_zoh_solution_of_the_linear_motor():
+    m = MOTORS["industrial_180v"]
+    dt = 1e-3
+    v = np.full(600, 90.0)
+    v[400:] = np.nan  # armature open: no current, coasting
+    p = _linear(m)
+    sim = pl.simulate_plant(v, dt, p)
+    s = SensorSetup(1.0, 12, 0.0, 0.0, 1, 1000.0, "position", 0.0, 0.0)
+    i, w = linear_signals(v, dt, p, s)
+    assert np.max(np.abs(sim.speed - w)) < 1e-6 * np.max(np.abs(w))
+    assert np.max(np.abs(sim.current - i)) < 1e-6 * np.max(np.abs(i))
+    assert np.all(sim.current[401:] == 0.0)
+
+
+def test_karnopp_rotor_sticks_below_breakaway_and_turns_above_it():
+    m = MOTORS["servo_24v"]
+    p = _linear(m)
+    p[pl.P_FRIC], p[pl.P_TC] = 1.0, 0.1  # N*m
+    i_hold = 0.09 / m.params.Kt  # drive torque 0.09 N*m < 0.1 at stall
+    v = np.full(300, i_hold * m.params.R)
+    assert np.all(pl.simulate_plant(v, 1e-3, p).speed == 0.0)
+    assert pl.simulate_plant(v * 1.3, 1e-3, p).speed[-1] > 0.0
+
+
+@pytest.mark.parametrize("eq", EQUATIONS["inductance_saturation"])
+def test_inductance_falls_by_the_graded_size_at_the_peak_current(eq):
+    ctx = context(MOTORS["industrial_180v"], 500.0, False)
+    e = draw_effect("inductance_saturation", 1, ctx, np.random.default_rng(3), eq)
+    p = dict(e.settings)
+    q = pl.new_params(1, 1, 1, 1, 1, 1)
+    for k, v in p.items():
+        q[k] = v
+    ratio = pl._inductance(ctx.peak_current_a, q)  # L0 = 1
+    assert ratio == pytest.approx(1 - e.size / 100, abs=1e-6)
+
+
+def test_resistance_rises_by_about_the_graded_size_over_the_session():
+    ctx = context(MOTORS["gearmotor_12v"], 1000.0, False)
+    for eq in EQUATIONS["resistance_drift"]:
+        e = draw_effect("resistance_drift", 2, ctx, np.random.default_rng(1), eq)
+        case = Case("x", "effect", ctx.motor.name, 1000.0, False, (e,), _sensors(ctx.motor), 5)
+        labels, _, v = command(ctx.motor, 1000.0, False)
+        sim = pl.simulate_plant(v, 1e-3, sensor_vector(case, case.effects))
+        rise = 100 * 0.00393 * float(np.max(sim.winding_rise_k))
+        assert rise == pytest.approx(e.size, rel=0.3), eq
+        assert labels[0].startswith("staircase")
+
+
+def _sensors(m):  # type: ignore[no-untyped-def]
+    return SensorSetup(1.0, 12, 1e-3, 0.0, 1, m.counts_per_rev, "position", 0.0, 0.0)
+
+
+def test_run_file_holds_no_truth_and_hidden_effects_are_measured(tmp_path):
+    cases = build_cases(1, 0, 0, 0, seed=2, effects=("dead_zone",), max_samples=4000)
+    rec, vis = record(cases[0])
+    text = write_recording(rec, tmp_path / "run.csv").read_text()
+    assert "dead" not in text and "zone" not in text and cases[0].name not in text
+    assert "step_up" in text and "coast" in text
+    assert vis is not None and vis.raw >= vis.residual >= 0.0
+
+
+def _outcome(truth, effects, ties=(), kind="effect", vis=5.0, level=0):  # type: ignore[no-untyped-def]
+    effs = tuple(TrueEffect(n, "x", level, 1.0, "u") for n in truth)
+    case = Case("c", kind, "servo_24v", 1000.0, False, effs, _sensors(MOTORS["servo_24v"]), 0, vis)
+    status = "explained" if effects else ("unexplained" if kind == "oov" else "no_gap")
+    return Outcome(case, status, tuple(effects), tuple(ties), 0.9, 1.0)
+
+
+def test_score_counts_ties_only_with_the_truth_and_a_separating_test():
+    test = "run the motor in reverse"
+    lt, cf = ("load_torque",), ("coulomb_friction",)
+    outs = [
+        _outcome(lt, cf, (((cf[0], lt[0]), test),)),
+        _outcome(lt, cf, (((cf[0], lt[0]), ""),)),  # no separating test: no credit
+        _outcome(lt, cf, (((cf[0], "delay"), test),)),  # truth not in the tie
+        _outcome(lt, lt),
+        _outcome(("delay",), (), vis=0.5),  # below the noise: counted apart
+        _outcome((), (), kind="clean"),
+        _outcome((), ("delay",), kind="clean"),
+        _outcome(("backlash",), (), kind="oov"),
+    ]  # fmt: skip
+    assert [right_tie_honest(o) for o in outs[:4]] == [True, False, False, True]
+    sc = score(outs)
+    assert sc.top1() == pytest.approx(0.25) and sc.tie_honest() == pytest.approx(0.5)
+    assert len(sc.visible) == 4 and len(sc.hidden) == 1
+    assert sc.false_attribution == (1, 2)
+    assert sc.oov_verdicts["unexplained"] == 1
+    assert sc.confusion()["load_torque"]["(tie)"] == 1
+    lim = {x.name: x for x in sc.limits()}["load_torque"]
+    assert lim.by_level[0] == (3.0, 2, 4) and lim.limit is None
+
+
+def test_quick_benchmark_command_prints_the_table_and_draws_the_report(tmp_path, capsys):
+    rc = main(
+        [
+            "benchmark",
+            "--quick",
+            "--effects",
+            "coulomb_friction,delay",
+            "--clean",
+            "1",
+            "--jobs",
+            "2",
+            "--quiet",
+            "--report",
+            str(tmp_path),
+            "--json",
+            str(tmp_path / "runs.json"),
+        ]
+    )
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "| effect-free runs: false attribution |" in out and "detection limit" in out
+    assert (tmp_path / "confusion.png").stat().st_size > 1000
+    assert (tmp_path / "detection_limits.png").stat().st_size > 1000
+    assert main(["benchmark", "--effects", "nope"]) == 2
