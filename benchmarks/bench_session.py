@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 import tempfile
 import time
@@ -67,6 +68,39 @@ def _cpu_probe(log: Path, marks: dict) -> object:
     return during
 
 
+_LOG_LINE = re.compile(r"^\[\w+\] \[(\d+\.\d+)\] \[\w+\]: (.*)$")
+# (node log, first line starting with, what it marks)
+_EVENTS = (
+    ("recorder", "recorder ready", "recorder node ready"),
+    ("driver", "driver started", "driver node ready (publishing)"),
+    ("identification", "identification ready", "identification node ready"),
+    ("identification", "session ", "session started (plan sent, driver found)"),
+    ("identification", "session ", "session complete (last segment ended)"),
+    ("identification", "session ", "identified, result published"),
+)
+
+
+def _timeline(logs: dict, t0: float, t1: float) -> list[tuple[str, float]]:
+    """Start-up, session and identification milestones from the nodes' log stamps."""
+    lines: dict[str, list[tuple[float, str]]] = {}
+    for node, path in logs.items():
+        found = (_LOG_LINE.match(line) for line in Path(path).read_text().splitlines())
+        lines[node] = [(float(m.group(1)), m.group(2)) for m in found if m]
+    needles = {
+        "session started (plan sent, driver found)": " segments, nominal ",
+        "session complete (last segment ended)": " complete: ",
+        "identified, result published": ": identified from ",
+    }
+    out = []
+    for node, start, label in _EVENTS:
+        needle = needles.get(label, start)
+        hit = next((t for t, text in lines.get(node, []) if needle in text), None)
+        if hit is not None:
+            out.append((label, hit - t0))
+    out.append(("nodes stopped, bring-up returned", t1 - t0))
+    return sorted(out, key=lambda e: e[1])
+
+
 def session(name: str, motor: str, params: dict, domain: int) -> None:
     spec = load_motor(motor)
     # A shared 2-core machine stalls processes now and then: tolerate 1.5 s (as the demo)
@@ -92,6 +126,7 @@ def session(name: str, motor: str, params: dict, domain: int) -> None:
             for k, p in res.logs.items():
                 print(f"--- {k}\n{p.read_text()[-2000:]}")
             return
+        events = _timeline(res.logs, t0, t1)
         a = read_driver_arrays(res.bag)
         ms = a.markers
         t_start, t_end = ms[0].t_s, ms[-1].t_s
@@ -110,6 +145,11 @@ def session(name: str, motor: str, params: dict, domain: int) -> None:
         f"session {session_s:.2f} s, identify + shut-down {t1 - t_end:.2f} s"
     )
     print(f"  overhead vs nominal         {(t1 - t0) / plan.duration_s:8.2f} x")
+    print("  where the wall time goes (node log stamps, s after launch):")
+    last = 0.0
+    for label, t in events:
+        print(f"    {t:7.2f}  (+{t - last:5.2f})  {label}")
+        last = t
     print(
         f"  samples recorded / expected {recorded} / {expected} "
         f"({100.0 * recorded / expected:.2f} %, {gaps} gaps); "
