@@ -20,6 +20,7 @@ from pmdc_ident.core.quality.physics import (
     check_direction,
     check_power_balance,
 )
+from pmdc_ident.core.quality.regress import memo
 from pmdc_ident.core.quality.scales import check_magnitudes, check_speed_position
 from pmdc_ident.core.quality.signals import (
     check_clipping,
@@ -109,6 +110,11 @@ def check_inputs(
     ``fixed``: parameters the fit will hold (``--fix``), left out of the
     expected-uncertainty estimate.
     """
+    with memo():
+        return _check_inputs(inputs, fixed)
+
+
+def _check_inputs(inputs: Sequence[GateInput], fixed: Mapping[str, float] | None) -> QualityReport:
     findings: list[Finding] = []
     findings += _duplicates(inputs)
     for x in inputs:

@@ -256,7 +256,10 @@ def _noise(segments: Sequence[Segment]) -> dict[str, float]:
             if x is None:
                 continue
             est = noise_level(x)
-            arx = _arx_residual(s, x) if name != "position" else None
+            # a well-sampled signal's second differences are its noise; only a signal
+            # that changes within a sample needs the (costlier) prediction residual
+            resolved = est < 0.01 * float(np.ptp(x))
+            arx = _arx_residual(s, x) if name != "position" and not resolved else None
             if arx is not None:
                 est = min(est, arx)
             vals.append(max(est, 1e-9 * float(np.sqrt(np.mean(x * x)) or 1.0)))

@@ -13,7 +13,8 @@ with ``a = Kt/J``, ``b = B/J``, ``c = Tc/J``, ``d = T_load/J``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,11 +22,51 @@ from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment
 
-__all__ = ["MIN_DYNAMIC", "LinearFit", "arx_pole", "dynamic", "electrical_fit", "mechanical_fit"]
+__all__ = [
+    "MIN_DYNAMIC",
+    "LinearFit",
+    "arx_pole",
+    "dynamic",
+    "electrical_fit",
+    "mechanical_fit",
+    "memo",
+    "memoised",
+]
+
 
 FloatArray = NDArray[np.float64]
 # A segment with fewer samples is a table row group (steady-state levels), not a time series.
 MIN_DYNAMIC = 20
+
+
+_MEMO: dict[tuple, object] | None = None
+
+
+@contextmanager
+def memo() -> Iterator[None]:
+    """Within this block, the fits below are computed once per set of segments."""
+    global _MEMO
+    outer = _MEMO
+    _MEMO = {} if outer is None else outer
+    try:
+        yield
+    finally:
+        _MEMO = outer
+
+
+def memoised(func):  # type: ignore[no-untyped-def]
+    def wrapper(segments, *args, **kwargs):  # type: ignore[no-untyped-def]
+        if _MEMO is None:
+            return func(segments, *args, **kwargs)
+        segs = tuple(segments)
+        key = (func.__name__, tuple(id(s) for s in segs), args, tuple(sorted(kwargs.items())))
+        if key not in _MEMO:
+            _MEMO[key] = (segs, func(segs, *args, **kwargs))  # segs kept: ids stay valid
+        return _MEMO[key][1]  # type: ignore[index]
+
+    wrapper.__name__ = func.__name__
+    wrapper.__doc__ = func.__doc__
+    return wrapper
 
 
 def dynamic(segments: Sequence[Segment]) -> list[Segment]:
@@ -79,6 +120,7 @@ def _lstsq(names: tuple[str, ...], a: FloatArray, y: FloatArray) -> LinearFit | 
     return LinearFit(names, coef, se, n, float(np.sqrt(s2)))
 
 
+@memoised
 def electrical_fit(segments: Sequence[Segment]) -> LinearFit | None:
     """``V dt = R ibar dt + L di + Ke wbar dt + c dt`` over the driven intervals."""
     rows: list[FloatArray] = []
@@ -99,6 +141,7 @@ def electrical_fit(segments: Sequence[Segment]) -> LinearFit | None:
     return _lstsq(("R", "L", "Ke", "offset"), np.vstack(rows), np.concatenate(ys))
 
 
+@memoised
 def mechanical_fit(segments: Sequence[Segment], *, coulomb: bool = True) -> LinearFit | None:
     """``dw = (a ibar - b wbar - c sign(wbar) - d) dt`` over all intervals (open: i = 0)."""
     rows: list[FloatArray] = []

@@ -16,7 +16,7 @@ import numpy as np
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.quality.findings import Finding, Severity
-from pmdc_ident.core.quality.regress import arx_pole, dynamic
+from pmdc_ident.core.quality.regress import arx_pole, dynamic, memoised
 
 __all__ = ["check_time_unit", "check_timing", "time_constants_s"]
 
@@ -104,6 +104,7 @@ def check_timing(where: str, segments: Sequence[Segment]) -> list[Finding]:
     return out
 
 
+@memoised
 def time_constants_s(segments: Sequence[Segment]) -> tuple[float | None, float | None]:
     """Electrical and mechanical time constants seen in the record, in ``t``'s units.
 
