@@ -236,3 +236,12 @@ def test_ignore_takes_only_known_codes_and_turns_the_error_into_a_warning(base, 
     rc, out = check(path, "--ignore", "time-unit", capsys=capsys)
     assert rc == 0
     assert "warning: time-unit:" in out and "(ignored by the user)" in out
+
+
+def test_voltage_and_speed_without_current_says_what_it_can_tell(base, tmp_path, capsys):
+    rc, out = check(write_csv(tmp_path / "nocur.csv", base, drop=("current",)), capsys=capsys)
+    assert rc == 0
+    line = next(ln for ln in warnings(out) if ln.startswith("warning: no-current:"))
+    # Motor(): gain Ke/(R B + Ke^2) = 19.97 rad/s per V
+    assert "shows a gain of 19." in line or "shows a gain of 20." in line, line
+    assert "record the armature current" in line

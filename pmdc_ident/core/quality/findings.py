@@ -22,6 +22,7 @@ CODES: tuple[str, ...] = (
     "gaps",
     "identifiability",
     "jitter",
+    "no-current",
     "no-drive",
     "one-direction",
     "position-unit",

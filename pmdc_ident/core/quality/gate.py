@@ -18,6 +18,7 @@ from pmdc_ident.core.quality.findings import Finding, QualityReport, Severity
 from pmdc_ident.core.quality.physics import (
     check_delay,
     check_direction,
+    check_no_current,
     check_power_balance,
 )
 from pmdc_ident.core.quality.regress import memo
@@ -94,6 +95,7 @@ def _per_input(x: GateInput) -> list[Finding]:
         lambda: check_clipping(x.name, segs),
         lambda: check_power_balance(x.name, segs),
         lambda: check_delay(x.name, segs),
+        lambda: check_no_current(x.name, segs),
     ]
     for seg in segs:
         checks.append(lambda seg=seg: check_wrap(x.name, seg, position_declared="position" in d))

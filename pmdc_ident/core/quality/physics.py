@@ -198,3 +198,39 @@ def check_direction(where: str, segments: Sequence[Segment]) -> list[Finding]:
             "record both directions (a run in reverse separates them)",
         )
     ]
+
+
+def check_no_current(where: str, segments: Sequence[Segment]) -> list[Finding]:
+    """Voltage and speed without a current: only the response's gain and time constant."""
+    dyn = [s for s in dynamic(segments) if s.voltage is not None and s.current is None]
+    if not dyn or any(s.current is not None for s in segments):
+        return []
+    gains, taus = [], []
+    for s in dyn:
+        driven = ~s.open_mask
+        if driven.sum() < 10 or np.ptp(s.voltage[driven]) == 0:
+            continue
+        w = s.speed_or_derivative()
+        v = np.where(driven, s.voltage, 0.0)
+        a = np.column_stack([w[:-1], v[:-1], np.ones(s.n - 1)])[driven[:-1]]
+        coef, *_ = np.linalg.lstsq(a, w[1:][driven[:-1]], rcond=None)
+        if 0.0 < coef[0] < 1.0 and coef[1] > 0:
+            gains.append(coef[1] / (1.0 - coef[0]))
+            taus.append(-s.dt_s / np.log(coef[0]))
+    what = ""
+    if gains:
+        what = (
+            f" shows a gain of {np.median(gains):.4g} rad/s per V and a time constant of "
+            f"{np.median(taus) * 1e3:.3g} ms, i.e."
+        )
+    return [
+        Finding(
+            "no-current",
+            Severity.WARNING,
+            where,
+            f"no current column: voltage -> speed alone{what} two combinations of R, Ke, J, "
+            "B (with Kt = Ke: Ke/(R B + Ke^2) and R J/(R B + Ke^2)), not the parameters",
+            "record the armature current (a shunt or the driver's current sense), or "
+            "--fix R=... (multimeter) and --fix B=... to read Ke and J from the two",
+        )
+    ]
