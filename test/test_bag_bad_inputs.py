@@ -40,9 +40,6 @@ def _make(case: str, w: Path) -> Path:
         case "random bytes as .mcap":
             (w / "r.mcap").write_bytes(np.random.default_rng(0).bytes(5000))
             return w / "r.mcap"
-        case "bag folder without metadata.yaml":
-            (good / "metadata.yaml").unlink()
-            return good
         case "an empty folder":
             (w / "d").mkdir()
             return w / "d"
@@ -78,7 +75,6 @@ def _make(case: str, w: Path) -> Path:
 CASES = {
     "an empty .mcap": "empty",
     "random bytes as .mcap": "not a readable rosbag2/MCAP bag",
-    "bag folder without metadata.yaml": "give the file inside",
     "an empty folder": "without metadata.yaml",
     "corrupt metadata.yaml": "metadata.yaml",
     "metadata.yaml without its .mcap": "missing",

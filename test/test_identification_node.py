@@ -388,15 +388,16 @@ def _once_running(
     state: dict[str, Any],
     act: Callable[[dict[str, subprocess.Popen[bytes]]], object],
     key: str = "sent",
+    after_s: float = 1.0,
 ) -> Callable[[dict[str, subprocess.Popen[bytes]], float], None]:
-    """A ``during`` callback that runs ``act(procs)`` once, 1 s after the session started,
-    and records it as ``state[key]``."""
+    """A ``during`` callback that runs ``act(procs)`` once, ``after_s`` after the session
+    started, and records it as ``state[key]``."""
 
     def during(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
         log = (tmp_path / "logs" / "identification.log").read_text()
         if "segments, nominal" in log and key not in state:
             state.setdefault("seen", elapsed)
-            if elapsed - state["seen"] > 1.0:
+            if elapsed - state["seen"] > after_s:
                 act(procs)
                 state[key] = True
 
@@ -419,16 +420,49 @@ def test_ctrl_c_aborts_the_session_and_makes_the_motor_safe(tmp_path, ros_domain
     assert read_bag(res.bag).labels[0] == "staircase_01"
 
 
-def test_crashed_recorder_aborts_the_session(tmp_path, ros_domain):
+def test_crashed_recorder_aborts_the_session_and_its_bag_is_readable(tmp_path, ros_domain, caplog):
     state: dict[str, Any] = {}
 
-    # SIGKILL: no goodbye, as in a real crash
-    crash = _once_running(tmp_path, state, lambda procs: procs["recorder"].kill(), "killed")
-    res, probe = _session(tmp_path, ros_domain, during=crash)
+    # SIGKILL: no goodbye, as in a real crash; samples are held 0.5 s, chunks flushed twice
+    # a second, so a bag killed 2 s into the session holds at least 0.5 s of it
+    kill = _once_running(tmp_path, state, lambda p: p["recorder"].kill(), "killed", after_s=2.0)
+    res, probe = _session(tmp_path, ros_domain, during=kill, recorder={"hold_s": 0.5})
     assert state.get("killed"), _logs(res)
     assert res.identification_rc == 3, _logs(res)
     assert probe["status"][-1]["reason"] == "peer_crashed", probe["status"]
     _assert_safe_after(probe, _abort_marker(probe)["t_s"], strict_zero=True, res=res)
+    # the bag its recorder never closed: no metadata.yaml, no footer, complete chunks read
+    (bag,) = (tmp_path / "out").iterdir()
+    assert not (bag / "metadata.yaml").exists()
+    with caplog.at_level("WARNING", logger="pmdc_ident.bag"):
+        arrays = read_driver_arrays(bag)
+    (line,) = [r.getMessage() for r in caplog.records]
+    assert "truncated bag (its recorder did not close it): read " in line, line
+    assert arrays.markers[0].event.value == "session_start"
+    start_ns = round(arrays.markers[0].t_s * 1e9)
+    enc = arrays.encoder_ns[arrays.encoder_ns >= start_ns]
+    assert enc.size >= 500, enc.size
+    assert np.all(np.diff(enc) == 1_000_000) or probe["skipped"]  # nothing lost inside
+    # the command line reads it too, says what was lost in one line, and exports it
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pmdc_ident.cli",
+            "export",
+            str(bag),
+            "--csv",
+            str(tmp_path / "k.csv"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert out.returncode == 0, out.stderr
+    (note,) = out.stderr.strip().splitlines()
+    assert "truncated bag" in note and "lost its last" in note, note
+    assert (tmp_path / "k.csv").stat().st_size > 0
 
 
 def test_lost_driver_data_aborts_and_the_driver_applies_the_safe_command(tmp_path, ros_domain):

@@ -24,8 +24,10 @@ identification see the same samples.
 
 from __future__ import annotations
 
+import logging
 import math
 import struct
+import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,6 +66,7 @@ TOPIC_TYPES: dict[str, str] = {
     "segment": STRING,
 }
 _STAMP = struct.Struct("<iI")
+_log = logging.getLogger("pmdc_ident.bag")
 
 
 def _typestore():  # type: ignore[no-untyped-def]
@@ -234,53 +237,100 @@ def _topic_role(topic: str) -> str | None:
 
 
 def read_driver_arrays(path: str | Path) -> DriverArrays:
-    """The driver topics and segment markers of a bag directory or ``.mcap`` file."""
+    """The driver topics and segment markers of a bag directory or ``.mcap`` file.
+
+    A bag its recorder never closed (killed, power cut, a copy cut short) has no
+    ``metadata.yaml``, index or footer: its complete chunks are read
+    (:func:`pmdc_ident.dataio.mcap_recover.scan_mcap`) and one line on the
+    ``pmdc_ident.bag`` logger says what was lost.
+    """
     from rosbags.rosbag2 import Reader
-    from rosbags.rosbag2.errors import ReaderError
 
     p = Path(path)
     if p.is_dir() and not (p / "metadata.yaml").is_file():
         inside = sorted(p.glob("*.mcap"))
-        hint = f": give the file inside, {inside[0]}" if len(inside) == 1 else ""
-        msg = f"{p}: a folder without metadata.yaml is not a rosbag2 bag{hint}"
+        if len(inside) == 1:  # what a killed recorder leaves
+            from pmdc_ident.dataio.mcap_recover import unfinished
+
+            if unfinished(inside[0]):
+                return _recovered_arrays(p, inside[0])
+            _log.warning(f"{p}: no metadata.yaml: read {inside[0].name}, a complete MCAP file")
+            return read_driver_arrays(inside[0])
+        msg = f"{p}: a folder without metadata.yaml is not a rosbag2 bag"
         raise DataError(msg)
     fast = _read_driver_arrays_fast(p)
     if fast is not None:
         return fast
+    try:
+        with Reader(p) as reader:
+            conns = [c for c in reader.connections if _topic_role(c.topic)]
+            messages = [(c.topic, raw) for c, _, raw in reader.messages(connections=conns)]
+            topics = sorted(c.topic for c in reader.connections)
+    except Exception as exc:  # noqa: BLE001 - whatever rosbags raises on a damaged bag
+        from pmdc_ident.dataio.mcap_recover import unfinished
+
+        mcap = _mcap_files(p) if p.is_file() else sorted(p.glob("*.mcap"))
+        # an MCAP never closed (or cut short) is read up to its last complete chunk
+        if not mcap or len(mcap) != 1 or not unfinished(mcap[0]):
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            msg = f"{p}: not a readable rosbag2/MCAP bag ({first})"
+            raise DataError(msg) from None
+        return _recovered_arrays(p, mcap[0])
+    return _arrays_from(p, messages, topics)
+
+
+def _recovered_arrays(p: Path, mcap: Path) -> DriverArrays:
+    """The driver topics in the complete chunks of ``mcap``; one line says what was lost."""
+    from pmdc_ident.dataio.mcap_recover import scan_mcap
+
+    rec = scan_mcap(mcap)
+    if not rec.messages:
+        msg = (
+            f"{p}: not a readable rosbag2/MCAP bag (cut before its first complete chunk, "
+            f"at byte {rec.good_end} of {rec.size})"
+        )
+        raise DataError(msg)
+    messages = [(topic, raw) for topic, _, raw in rec.messages if _topic_role(topic)]
+    arrays = _arrays_from(p, messages)
+    _log.warning(rec.line())
+    return arrays
+
+
+def _arrays_from(
+    p: Path, messages: list[tuple[str, bytes]], topics: list[str] | None = None
+) -> DriverArrays:
+    """DriverArrays from (topic, CDR) pairs of the driver topics and the markers."""
+    roles = (
+        {_topic_role(t) for t, _ in messages} if topics is None else set(map(_topic_role, topics))
+    )
+    for need in ("encoder", "voltage_applied"):
+        if need not in roles:
+            names = sorted(topics if topics is not None else {t for t, _ in messages})
+            msg = f"{p}: no '{need}' topic in the bag (topics: {', '.join(names)})"
+            raise DataError(msg)
     ts = _typestore()
     cols: dict[str, list[Any]] = {k: [] for k in ("cur", "enc", "volt")}
     markers: list[Marker] = []
     try:
-        with Reader(p) as reader:
-            conns = [c for c in reader.connections if _topic_role(c.topic)]
-            roles = {_topic_role(c.topic) for c in conns}
-            for need in ("encoder", "voltage_applied"):
-                if need not in roles:
-                    msg = (
-                        f"{p}: no '{need}' topic in the bag (topics: "
-                        + ", ".join(sorted(c.topic for c in reader.connections))
-                        + ")"
-                    )
-                    raise DataError(msg)
-            for conn, _, raw in reader.messages(connections=conns):
-                role = _topic_role(conn.topic)
-                if role == "segment":
-                    text = ts.deserialize_cdr(raw, STRING).data
-                    try:
-                        markers.append(Marker.from_json(text))
-                    except PmdcError:
-                        continue
+        for topic, raw in messages:
+            role = _topic_role(topic)
+            if role == "segment":
+                text = ts.deserialize_cdr(raw, STRING).data
+                try:
+                    markers.append(Marker.from_json(text))
+                except PmdcError:
                     continue
-                if role == "voltage_cmd":
-                    continue
-                stamp, pos, vel, e0, e1 = parse_joint_state(raw)
-                if role == "current":
-                    cols["cur"].append((stamp, e0))
-                elif role == "encoder":
-                    cols["enc"].append((stamp, pos, vel))
-                else:
-                    cols["volt"].append((stamp, e0, e1))
-    except (ReaderError, KeyError, struct.error, DataError, FileNotFoundError) as exc:
+                continue
+            if role == "voltage_cmd":
+                continue
+            stamp, pos, vel, e0, e1 = parse_joint_state(raw)
+            if role == "current":
+                cols["cur"].append((stamp, e0))
+            elif role == "encoder":
+                cols["enc"].append((stamp, pos, vel))
+            else:
+                cols["volt"].append((stamp, e0, e1))
+    except (KeyError, struct.error, DataError, ValueError, IndexError) as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         msg = f"{p}: not a readable rosbag2/MCAP bag ({first})"
         raise DataError(msg) from None
@@ -394,10 +444,13 @@ class BagWriter:
     """A rosbag2 (MCAP storage) writer for the session topics; a context manager.
 
     ``write_raw`` takes CDR bytes as rclpy delivers them with ``raw=True``;
-    ``write_msg`` serializes a rosbags message object.
+    ``write_msg`` serializes a rosbags message object. The pending chunk is closed
+    and handed to the operating system every ``flush_s`` (and on :meth:`flush`),
+    so a writer killed mid-session leaves every chunk but the last one readable
+    (:func:`read_bag` recovers them).
     """
 
-    def __init__(self, path: str | Path, topics: dict[str, str]) -> None:
+    def __init__(self, path: str | Path, topics: dict[str, str], flush_s: float = 0.5) -> None:
         from rosbags.rosbag2 import StoragePlugin, Writer
 
         self.path = Path(path)
@@ -410,6 +463,8 @@ class BagWriter:
         self._conns: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
         self.is_open = False
+        self.flush_s = float(flush_s)
+        self._next_flush = 0.0
 
     def open(self) -> BagWriter:
         self._writer.open()
@@ -430,6 +485,18 @@ class BagWriter:
     def write_raw(self, topic: str, timestamp_ns: int, data: bytes | memoryview) -> None:
         self._writer.write(self._conns[topic], int(timestamp_ns), data)
         self.counts[topic] += 1
+        if time.monotonic() >= self._next_flush:
+            self.flush()
+
+    def flush(self) -> None:
+        """Close the pending chunk (if it holds messages) and write it to the file."""
+        self._next_flush = time.monotonic() + self.flush_s
+        storage = getattr(self._writer, "storage", None)  # rosbags' MCAP writer (pinned)
+        if storage is None or not self.is_open:
+            return
+        if storage.chunk.msgs:
+            storage.close_chunk()
+        storage.bio.flush()
 
     def set_custom_data(self, key: str, value: str) -> None:
         """A ``custom_data`` entry of ``metadata.yaml`` (written at :meth:`close`)."""
@@ -460,7 +527,7 @@ def _joint_state(ts: Any, stamp_ns: int, name: list[str], **arrays: Iterable[flo
     )
 
 
-def write_bag(run: Run, path: str | Path, session: str = "export") -> Path:
+def write_bag(run: Run, path: str | Path, session: str = "export", flush_s: float = 0.5) -> Path:
     """Write a Run as a session bag (driver topics + segment markers) that read_bag reads.
 
     Segments whose times do not follow the previous one are shifted to start one
@@ -469,7 +536,8 @@ def write_bag(run: Run, path: str | Path, session: str = "export") -> Path:
     p = Path(path)
     offset = 0.0
     last_t = -math.inf
-    with BagWriter(p, {k: v for k, v in TOPIC_TYPES.items() if k != "voltage_cmd"}) as w:
+    topics = {k: v for k, v in TOPIC_TYPES.items() if k != "voltage_cmd"}
+    with BagWriter(p, topics, flush_s=flush_s) as w:
         ts = w.typestore
         String = ts.types[STRING]
         first = True

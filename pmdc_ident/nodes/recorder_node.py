@@ -257,6 +257,8 @@ class RecorderNode(Node):
         return completeness(stamps, self.start_ns, end, dt_ns)
 
     def _heartbeat(self, closed: str = "") -> None:
+        if self.writer is not None:
+            self.writer.flush()  # a killed recorder loses at most the last 0.5 s
         if self.end_ns is not None and self.writer is not None:
             # The driver stopped: no sample arrived for a while (a recorder working
             # through a backlog still receives, so it is not closed early).
