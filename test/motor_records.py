@@ -69,15 +69,26 @@ def simulate(
     counts_per_rev: int | None = None,
     seed: int = 0,
     labels: list[str] | None = None,
+    controller=None,  # (k, speed measured at k) -> voltage over [k, k+1): closed loop
 ) -> Record:
-    """RK4 over ``voltage`` (NaN = open armature) from rest; measured signals with noise."""
+    """RK4 over ``voltage`` (NaN = open armature) from rest; measured signals with noise.
+
+    With ``controller``, ``voltage`` only sets the length: each sample's voltage is
+    ``controller(k, measured speed)`` (noise included, as a real loop sees it).
+    """
     dt = 1.0 / rate_hz
     h = dt / substeps
     n = voltage.size
     i_out, w_out, th_out = np.empty(n), np.empty(n), np.empty(n)
     i = w = th = 0.0
+    voltage = np.array(voltage, dtype=float)
+    rng = np.random.default_rng(seed)  # current noise drawn first, then speed noise
+    cur_noise = rng.normal(0.0, noise_current, n) if noise_current else np.zeros(n)
+    spd_noise = rng.normal(0.0, noise_speed, n) if noise_speed else np.zeros(n)
     for k in range(n):
         i_out[k], w_out[k], th_out[k] = i, w, th
+        if controller is not None:
+            voltage[k] = controller(k, w + spd_noise[k])
         v = float(voltage[k])
         is_open = math.isnan(v)
         if is_open:
@@ -93,9 +104,8 @@ def simulate(
             if m.Tc and w != 0.0 and w * w_new < 0:
                 w_new = 0.0  # friction stops the rotor; it does not reverse it
             w = w_new
-    rng = np.random.default_rng(seed)
-    cur = i_out + rng.normal(0.0, noise_current, n) if noise_current else i_out
-    spd = w_out + rng.normal(0.0, noise_speed, n) if noise_speed else w_out
+    cur = i_out + cur_noise
+    spd = w_out + spd_noise
     if counts_per_rev:
         q = 2 * math.pi / counts_per_rev
         th_out = np.floor(th_out / q) * q

@@ -245,3 +245,36 @@ def test_voltage_and_speed_without_current_says_what_it_can_tell(base, tmp_path,
     # Motor(): gain Ke/(R B + Ke^2) = 19.97 rad/s per V
     assert "shows a gain of 19." in line or "shows a gain of 20." in line, line
     assert "record the armature current" in line
+
+
+def test_an_analog_filter_on_the_current_sensor_is_a_warning(tmp_path):
+    """2 ms RC before the ADC (L/R = 1 ms, 1 kHz): the current rises S-shaped."""
+    from motor_records import Record
+
+    up = 20
+    v = steps([6, 12, None, -6, 0], 0.4, 1000)
+    fine = simulate(Motor(Tc=0.002), np.repeat(v, up), 1000 * up, substeps=1)
+    a = math.exp(-1.0 / (2e-3 * 1000 * up))
+    filtered = np.empty_like(fine.current)
+    filtered[0] = fine.current[0]
+    for k in range(1, filtered.size):
+        filtered[k] = a * filtered[k - 1] + (1 - a) * fine.current[k]
+    rng = np.random.default_rng(0)
+    rec = Record(
+        fine.t[::up],
+        v,
+        filtered[::up] + rng.normal(0, 0.005, v.size),
+        fine.speed[::up] + rng.normal(0, 0.05, v.size),
+        fine.position[::up],
+    )
+    x = load_input(write_csv(tmp_path / "rc.csv", rec))
+    found = [
+        f for f in check_inputs([GateInput(x.path, x.run)]).findings if f.code == "current-filter"
+    ]
+    assert found and found[0].severity is Severity.WARNING
+    assert found[0].value > 1.2
+    # the same motor with an unfiltered sensor: no such finding (see the clean test too)
+    y = load_input(write_csv(tmp_path / "raw.csv", replace(rec, current=fine.current[::up])))
+    assert not [
+        f for f in check_inputs([GateInput(y.path, y.run)]).findings if f.code == "current-filter"
+    ]

@@ -13,6 +13,7 @@ __all__ = ["CODES", "Finding", "QualityReport", "Severity"]
 # Every finding code the gate emits (``--ignore CODE`` accepts these).
 CODES: tuple[str, ...] = (
     "clipping",
+    "current-filter",
     "current-missing",
     "current-unit",
     "delay",

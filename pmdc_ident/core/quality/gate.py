@@ -16,6 +16,7 @@ import numpy as np
 from pmdc_ident.core.data import Run, Segment
 from pmdc_ident.core.quality.findings import Finding, QualityReport, Severity
 from pmdc_ident.core.quality.physics import (
+    check_current_filter,
     check_delay,
     check_direction,
     check_no_current,
@@ -95,6 +96,7 @@ def _per_input(x: GateInput) -> list[Finding]:
         lambda: check_clipping(x.name, segs),
         lambda: check_power_balance(x.name, segs),
         lambda: check_delay(x.name, segs),
+        lambda: check_current_filter(x.name, segs),
         lambda: check_no_current(x.name, segs),
     ]
     for seg in segs:

@@ -4,6 +4,7 @@ and the direction of rotation (one direction cannot separate Coulomb from a load
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -12,7 +13,13 @@ from pmdc_ident.core.data import Segment
 from pmdc_ident.core.quality.findings import Finding, Severity
 from pmdc_ident.core.quality.regress import dynamic, electrical_fit, mechanical_fit
 
-__all__ = ["check_delay", "check_direction", "check_power_balance", "noise_level"]
+__all__ = [
+    "check_current_filter",
+    "check_delay",
+    "check_direction",
+    "check_power_balance",
+    "noise_level",
+]
 
 _SURE = 6.0  # |coefficient / stderr| above which a sign counts as measured
 _PRE = 6  # samples of constant command before an edge used for the delay estimate
@@ -110,10 +117,10 @@ def check_power_balance(where: str, segments: Sequence[Segment]) -> list[Finding
     return out
 
 
-def check_delay(where: str, segments: Sequence[Segment]) -> list[Finding]:
-    """Samples between a voltage edge and the current's first response (ZOH: one)."""
-    lags: list[int] = []
-    dt = []
+def _edge_responses(segments: Sequence[Segment]) -> list[tuple[int, float, float]]:
+    """Per clean voltage edge: the current's lag (samples beyond the hold), and its first
+    two increments once it responds (signed with the edge)."""
+    out: list[tuple[int, float, float]] = []
     for s in dynamic(segments):
         if s.voltage is None or s.current is None:
             continue
@@ -131,8 +138,21 @@ def check_delay(where: str, segments: Sequence[Segment]) -> list[Finding]:
             base = float(np.median(s.current[lo:k]))
             moved = np.abs(s.current[lo : k + 12] - base) > 5 * sigma + 1e-12
             if moved.any() and not moved[:2].any():
-                lags.append(int(np.argmax(moved)) - _PRE - 1)
-                dt.append(s.dt_s)
+                j = lo + int(np.argmax(moved))  # first sample that moved
+                sign = float(np.sign(v[k] - v[k - 1]))
+                i = s.current
+                d1 = sign * (i[j] - i[j - 1]) if j + 1 < s.n else 0.0
+                d2 = sign * (i[j + 1] - i[j]) if j + 1 < s.n else 0.0
+                ok = d1 > 10 * sigma  # a first step well above the noise
+                out.append((j - k - 1, d1 if ok else math.nan, d2 if ok else math.nan))
+    return out
+
+
+def check_delay(where: str, segments: Sequence[Segment]) -> list[Finding]:
+    """Samples between a voltage edge and the current's first response (ZOH: one)."""
+    responses = _edge_responses(segments)
+    lags = [r[0] for r in responses]
+    dt = [s.dt_s for s in dynamic(segments)]
     if len(lags) < 2:
         return []
     lag = int(np.median(lags))
@@ -174,6 +194,35 @@ def check_delay(where: str, segments: Sequence[Segment]) -> list[Finding]:
             "(effect 'delay')",
             value=float(lag),
             unit="samples",
+        )
+    ]
+
+
+def check_current_filter(where: str, segments: Sequence[Segment]) -> list[Finding]:
+    """A current that rises faster in its second sample than its first after a voltage step.
+
+    An armature (R, L, back-EMF) answers a voltage step with its steepest slope at
+    once: each increment is smaller than the one before. A sensor filter or a
+    ramped drive voltage gives an S-shaped rise instead, which the fit would read
+    as inductance.
+    """
+    ratios = [d2 / d1 for lag, d1, d2 in _edge_responses(segments) if lag == 0 and d1 > 0]
+    if len(ratios) < 2:
+        return []
+    ratio = float(np.median(ratios))
+    if ratio <= 1.1:
+        return []
+    return [
+        Finding(
+            "current-filter",
+            Severity.WARNING,
+            where,
+            f"after {len(ratios)} voltage steps the current's second increment is {ratio:.2g} "
+            "times its first (an armature's is at most 1): the current sensor filters, or the "
+            "drive ramps the voltage; the fit reads that lag as inductance (L and R biased up)",
+            "record the current before its filter (or the drive's unfiltered sense), or log "
+            "the voltage the drive applies",
+            value=ratio,
         )
     ]
 
