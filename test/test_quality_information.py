@@ -96,3 +96,15 @@ def test_rate_for_inductance_grows_as_the_bound_tightens():
     r2 = rate_for_inductance_hz(0.5, tau, dt, 0.02)
     assert 1 / dt < r1 < r2 < math.inf
     assert rate_for_inductance_hz(0.05, tau, dt, 0.10) == pytest.approx(1 / dt)
+
+
+def test_50_hz_with_a_faster_rotor_says_j_is_not_resolved(tmp_path, capsys):
+    """tau_m = 5 ms sampled every 20 ms: the speed settles within a sample."""
+    m = Motor(R=8.0, L=2e-3, Ke=0.008, Kt=0.008, J=4e-8, B=1e-8, Tc=2e-5)
+    rec = simulate(m, prbs(300, 6.0, 1, seed=3), 50, substeps=100, noise_current=0.003)
+    rc = main(["check", str(write_csv(tmp_path / "fast.csv", rec, drop=("position",)))])
+    out = capsys.readouterr().out
+    assert rc == 0
+    line = next(ln for ln in out.splitlines() if "identifiability" in ln and " J: " in ln)
+    assert "the mechanical time constant is not resolved at this rate: not identifiable" in line
+    assert "sample at least 10x faster (>= 500 Hz)" in line

@@ -42,6 +42,7 @@ class Information:
     noise: dict[str, float]
     one_direction: bool
     tau_e_resolved: bool
+    tau_m_resolved: bool
     dt_s: float
     notes: tuple[str, ...] = field(default=())
 
@@ -163,14 +164,21 @@ def _start(segments: Sequence[Segment], fixed: Mapping[str, float]) -> dict[str,
     p.setdefault("Ke", ke)
     if mech["a"] <= 0 or p["Ke"] <= 0 or p.get("R", 1.0) <= 0:
         return None
-    p.setdefault("J", p["Ke"] / mech["a"])
-    p.setdefault("B", mech["b"] * p["J"])
-    torque = mech["c"] if not one_dir else mech["d"] * float(np.sign(np.mean(w)))
-    p["Tc"] = torque * p["J"]
     p.setdefault("R", 1.0)
-    tau_e, _ = time_constants_s(segments)
+    tau_e, tau_m = time_constants_s(segments)
     dt = float(np.median([s.dt_s for s in dynamic(segments)]))
     p["_resolved"] = float(tau_e is not None)
+    p["_j_resolved"] = float(tau_m is not None or "J" in fixed)
+    if tau_m is not None:
+        p.setdefault("J", p["Ke"] / mech["a"])
+        p.setdefault("B", mech["b"] * p["J"])
+        torque = mech["c"] if not one_dir else mech["d"] * float(np.sign(np.mean(w)))
+    else:  # the speed settles within a sample: steady state Ke i = B w + T at each sample
+        b, torque = _quasi_static_friction(segments, p["Ke"], one_dir)
+        p.setdefault("B", b)
+        # placed where it has no effect (reported as not resolved)
+        p.setdefault("J", (dt / 30.0) * (p["Ke"] ** 2 / p["R"] + max(p["B"], 0.0)))
+    p["Tc"] = torque * (p["J"] if tau_m is not None else 1.0)
     # unresolved: the current settles within a sample; placed where it has no effect
     p.setdefault("L", p["R"] * (tau_e if tau_e is not None else dt / 30.0))
     # keep the linearisation point well-posed (B may come out ~0 or slightly negative)
@@ -179,6 +187,23 @@ def _start(segments: Sequence[Segment], fixed: Mapping[str, float]) -> dict[str,
     cur = [s.current for s in dynamic(segments) if s.current is not None]
     p["_i_rms"] = float(np.sqrt(np.mean(np.concatenate(cur) ** 2))) if cur else 1.0
     return p
+
+
+def _quasi_static_friction(
+    segments: Sequence[Segment], ke: float, one_dir: bool
+) -> tuple[float, float]:
+    """``Ke i = B w + T`` over the samples (rotor in steady state at every sample)."""
+    rows, ys = [], []
+    for s in dynamic(segments):
+        if s.current is None:
+            continue
+        w = s.speed_or_derivative()
+        keep = ~s.open_mask
+        sgn = np.ones_like(w) if one_dir else np.sign(w)
+        rows.append(np.column_stack([w, sgn])[keep])
+        ys.append(ke * s.current[keep])
+    coef, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(ys), rcond=None)
+    return float(coef[0]), float(coef[1]) * (float(np.sign(np.mean(w))) if one_dir else 1.0)
 
 
 def expected_information(
@@ -200,6 +225,8 @@ def expected_information(
     names = [n for n in ("R", "L", "Ke", "J", "B", "Tc") if n not in fixed]
     if not p["_resolved"] and "L" not in fixed:
         names.remove("L")  # reported as not identifiable below
+    if not p["_j_resolved"] and "J" in names:
+        names.remove("J")
     if not drives:
         names = [n for n in names if n in ("J", "B", "Tc")]
     base = [_simulate(pc, p) for pc in pieces]
@@ -224,6 +251,8 @@ def expected_information(
         rsd[n] = float(sd[k]) if n in _LOG else float(sd[k] / max(abs(p[n]), 1e-300))
     if not p["_resolved"] and "L" not in fixed and drives:
         rsd["L"] = math.inf
+    if not p["_j_resolved"]:
+        rsd["J"] = math.inf
     values = {k: v for k, v in p.items() if not k.startswith("_")}
     return Information(
         values,
@@ -231,6 +260,7 @@ def expected_information(
         sigma,
         bool(p["_one_dir"]),
         bool(p["_resolved"]),
+        bool(p["_j_resolved"]),
         float(np.median([s.dt_s for s in dyn])),
     )
 
@@ -340,9 +370,15 @@ _ADVICE = {
 }
 _NAMES = {"Tc": "coulomb_friction.torque_nm"}
 WEAK, NOT_IDENTIFIABLE = 0.10, 0.50
+_UNRESOLVED = {"L": "L/R", "J": "the mechanical time constant"}
 
 
 def _advice(name: str, info: Information) -> str:
+    if name == "J" and not info.tau_m_resolved:
+        return (
+            f"the speed settles within a sample at {1 / info.dt_s:.4g} Hz: sample at least "
+            f"10x faster (>= {10 / info.dt_s:.4g} Hz), or add a known inertia to slow it"
+        )
     if name != "L":
         return _ADVICE.get(name, "")
     tau = info.values["L"] / info.values["R"]
@@ -395,7 +431,7 @@ def information_findings(where: str, segments: Sequence[Segment], fixed: Mapping
                 (
                     f"{label}: expected relative sd {rsd:.0%} on these data: "
                     if math.isfinite(rsd)
-                    else f"{label}: L/R is not resolved at this rate: "
+                    else f"{label}: {_UNRESOLVED.get(name, name)} is not resolved at this rate: "
                 )
                 + ("not identifiable" if bad else "weakly identifiable"),
                 _advice(name, info),

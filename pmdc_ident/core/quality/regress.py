@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -83,6 +83,7 @@ class LinearFit:
     stderr: FloatArray
     n: int
     rms: float
+    quasi_static: bool = False
 
     def __getitem__(self, name: str) -> float:
         return float(self.coef[self.names.index(name)])
@@ -122,9 +123,17 @@ def _lstsq(names: tuple[str, ...], a: FloatArray, y: FloatArray) -> LinearFit | 
 
 @memoised
 def electrical_fit(segments: Sequence[Segment]) -> LinearFit | None:
-    """``V dt = R ibar dt + L di + Ke wbar dt + c dt`` over the driven intervals."""
-    rows: list[FloatArray] = []
-    ys: list[FloatArray] = []
+    """The armature equation over the driven intervals, in the form the record supports.
+
+    ``V dt = R ibar dt + L di + Ke wbar dt + c dt`` (trapezoid) when the current's
+    transients span samples; ``V[k] = R i[k+1] + Ke w[k+1] + c`` (quasi-static, L
+    = 0) when they settle within a sample. The form with the smaller relative
+    residual is returned (``quasi_static`` says which).
+    """
+    trap_rows: list[FloatArray] = []
+    trap_ys: list[FloatArray] = []
+    qs_rows: list[FloatArray] = []
+    qs_ys: list[FloatArray] = []
     for s in dynamic(segments):
         if s.voltage is None or s.current is None:
             continue
@@ -134,11 +143,24 @@ def electrical_fit(segments: Sequence[Segment]) -> LinearFit | None:
         ib = 0.5 * (s.current[1:] + s.current[:-1])
         wb = 0.5 * (w[1:] + w[:-1])
         cols = np.column_stack([ib * dt, np.diff(s.current), wb * dt, dt])
-        rows.append(cols[driven])
-        ys.append((s.voltage[:-1] * dt)[driven])
-    if not rows:
+        trap_rows.append(cols[driven])
+        trap_ys.append((s.voltage[:-1] * dt)[driven])
+        zero = np.zeros(s.n - 1)
+        qs = np.column_stack([s.current[1:], zero, w[1:], np.ones(s.n - 1)])
+        qs_rows.append(qs[driven])
+        qs_ys.append(s.voltage[:-1][driven])
+    if not trap_rows:
         return None
-    return _lstsq(("R", "L", "Ke", "offset"), np.vstack(rows), np.concatenate(ys))
+    names = ("R", "L", "Ke", "offset")
+    trap = _lstsq(names, np.vstack(trap_rows), np.concatenate(trap_ys))
+    qs_fit = _lstsq(names, np.vstack(qs_rows), np.concatenate(qs_ys))
+    if trap is None or qs_fit is None:
+        return trap
+    scale_t = float(np.sqrt(np.mean(np.concatenate(trap_ys) ** 2))) or 1.0
+    scale_q = float(np.sqrt(np.mean(np.concatenate(qs_ys) ** 2))) or 1.0
+    if qs_fit.rms / scale_q < 0.5 * trap.rms / scale_t:
+        return replace(qs_fit, quasi_static=True)
+    return trap
 
 
 @memoised
