@@ -231,7 +231,7 @@ def test_ignore_takes_only_known_codes_and_turns_the_error_into_a_warning(base, 
     path = write_csv(tmp_path / "ms.csv", base, scale={"t": 1e3})
     assert main(["check", str(path), "--ignore", "nosuch"]) == EXIT_USER_ERROR
     err = capsys.readouterr().err
-    assert "--ignore nosuch: not a finding code (codes: clipping," in err
+    assert "--ignore nosuch: not a finding code (codes: check-failed, clipping," in err
     assert err.count("\n") == 1
     rc, out = check(path, "--ignore", "time-unit", capsys=capsys)
     assert rc == 0

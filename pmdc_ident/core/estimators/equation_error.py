@@ -28,7 +28,13 @@ from scipy.linalg import logm
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.errors import DataError
 
-__all__ = ["EquationErrorResult", "fit_equation_error", "fit_mechanical_equation_error"]
+__all__ = [
+    "ONE_DIRECTION_NOTE",
+    "EquationErrorResult",
+    "fit_equation_error",
+    "fit_mechanical_equation_error",
+    "one_direction",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -82,19 +88,35 @@ def fit_equation_error(
     i0, w0, v0, s0, i1, w1, dts = _rows(segments)
     dt = float(np.median(dts))
     n = i0.size
+    notes: list[str] = []
+    direction = one_direction(w0)
+    if coulomb and direction:
+        # sign(w) is the constant column: Coulomb friction and a constant load are one term
+        coulomb = False
+        notes.append(ONE_DIRECTION_NOTE)
     ones = np.ones(n)
     regs = [i0, w0, v0] + ([s0] if coulomb else []) + [ones]
     X = np.column_stack(regs)
     if np.linalg.matrix_rank(X) < X.shape[1]:
-        msg = "no excitation: voltage, current and speed do not vary enough to identify anything"
-        raise DataError(msg)
+        # e.g. one held voltage (a step already on at the first sample): V and the
+        # constant are one column; the quasi-static equations still separate R and Ke
+        if np.linalg.matrix_rank(np.column_stack([i1, w1])) < 2 or np.ptp(w0) == 0:
+            msg = (
+                "no excitation: voltage, current and speed do not vary enough to identify anything"
+            )
+            raise DataError(msg)
+        values = _quasi_static(i0, w0, v0, s0, i1, w1, dt, coulomb, Kt, J)
+        notes.append(
+            "equation error: the voltage is one held value, so the discretised regression "
+            "is singular; quasi-static equations used (L not estimated)"
+        )
+        return EquationErrorResult(_one_term(values, direction), "quasi-static", n, tuple(notes))
     ci, *_ = np.linalg.lstsq(X, i1, rcond=None)
     cw, *_ = np.linalg.lstsq(X, w1, rcond=None)
     phi = np.array([[ci[0], ci[1]], [cw[0], cw[1]]])
     gv = np.array([ci[2], cw[2]])
     gs = np.array([ci[3], cw[3]]) if coulomb else np.zeros(2)
     g1 = np.array([ci[-1], cw[-1]])
-    notes: list[str] = []
     values: dict[str, float] | None = None
     if phi[0, 0] > 0.05:
         values = _from_zoh(phi, gv, gs, g1, dt, Kt, J)
@@ -110,7 +132,35 @@ def fit_equation_error(
         notes.append(
             f"equation error: {why}; quasi-static electrical equation used, L not estimated"
         )
-    return EquationErrorResult(values, method, n, tuple(notes))
+    return EquationErrorResult(_one_term(values, direction), method, n, tuple(notes))
+
+
+ONE_DIRECTION_NOTE = (
+    "the rotor turns one way only: Coulomb friction and a constant load torque act as one "
+    "term (their sum is fitted); a run in reverse separates them"
+)
+
+
+def one_direction(w: FloatArray) -> float:
+    """+1 or -1 when the speed never turns the other way (beyond 2 % of its peak), else 0."""
+    peak = float(np.max(np.abs(w))) if w.size else 0.0
+    if peak == 0.0:
+        return 0.0
+    if np.all(w >= -0.02 * peak):
+        return 1.0
+    if np.all(w <= 0.02 * peak):
+        return -1.0
+    return 0.0
+
+
+def _one_term(values: dict[str, float], direction: float) -> dict[str, float]:
+    """One direction: the constant torque is reported as the Coulomb term (their sum)."""
+    if not direction:
+        return values
+    out = dict(values)
+    total = out.pop("load_torque.torque_nm", 0.0) * direction
+    out["coulomb_friction.torque_nm"] = out.get("coulomb_friction.torque_nm", 0.0) + total
+    return out
 
 
 def _scale(values: dict[str, float], Kt: float | None, J: float | None, kt_over_j: float) -> None:
@@ -213,6 +263,8 @@ def fit_mechanical_equation_error(
     # per-sample dt (non-uniform data are fine here)
     dw = (w1 - w0) / dts
     wm = 0.5 * (w0 + w1)
+    direction = one_direction(w0)
+    coulomb = coulomb and not direction  # one way only: sign(w) is the constant column
     cols = [ia, -wm] + ([-s0] if coulomb else []) + [-np.ones_like(wm)]
     beta, *_ = np.linalg.lstsq(np.column_stack(cols), dw, rcond=None)
     if beta[0] <= 0:
@@ -223,4 +275,5 @@ def fit_mechanical_equation_error(
     if coulomb:
         vals["coulomb_friction.torque_nm"] = float(beta[2]) * J
     vals["load_torque.torque_nm"] = float(beta[-1]) * J
-    return EquationErrorResult(vals, "mechanical", int(w0.size), ())
+    notes = (ONE_DIRECTION_NOTE,) if direction else ()
+    return EquationErrorResult(_one_term(vals, direction), "mechanical", int(w0.size), notes)

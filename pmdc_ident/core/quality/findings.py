@@ -12,6 +12,7 @@ __all__ = ["CODES", "Finding", "QualityReport", "Severity"]
 
 # Every finding code the gate emits (``--ignore CODE`` accepts these).
 CODES: tuple[str, ...] = (
+    "check-failed",
     "clipping",
     "current-filter",
     "current-missing",

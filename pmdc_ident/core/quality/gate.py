@@ -102,8 +102,25 @@ def _per_input(x: GateInput) -> list[Finding]:
     for seg in segs:
         checks.append(lambda seg=seg: check_wrap(x.name, seg, position_declared="position" in d))
     for check in checks:
-        out += check()
+        out += _guarded(check, x.name)
     return out
+
+
+def _guarded(check: Callable[[], list[Finding]], where: str) -> list[Finding]:
+    """A check that fails on data nobody foresaw says so; it never stops the others."""
+    try:
+        return check()
+    except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        return [
+            Finding(
+                "check-failed",
+                Severity.WARNING,
+                where,
+                f"a check could not run on these data ({type(exc).__name__}: {first[:80]}); "
+                "the others did",
+            )
+        ]
 
 
 def check_inputs(
@@ -145,6 +162,10 @@ def _check_inputs(inputs: Sequence[GateInput], fixed: Mapping[str, float] | None
     if segs and not any(f.severity is Severity.ERROR for f in findings):
         from pmdc_ident.core.quality.information import information_findings
 
-        more, rsd = information_findings(names, segs, fixed or {})
-        findings += more
+        def information() -> list[Finding]:
+            more, expected = information_findings(names, segs, fixed or {})
+            rsd.update(expected)
+            return more
+
+        findings += _guarded(information, names)
     return QualityReport.of(findings, rsd)

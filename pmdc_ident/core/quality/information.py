@@ -170,9 +170,20 @@ def _start(segments: Sequence[Segment], fixed: Mapping[str, float]) -> dict[str,
     p["_resolved"] = float(tau_e is not None)
     p["_j_resolved"] = float(tau_m is not None or "J" in fixed)
     if tau_m is not None:
-        p.setdefault("J", p["Ke"] / mech["a"])
-        p.setdefault("B", mech["b"] * p["J"])
-        torque = mech["c"] if not one_dir else mech["d"] * float(np.sign(np.mean(w)))
+        j_mech = p["Ke"] / mech["a"]
+        b_qs, t_qs = _quasi_static_friction(segments, p["Ke"], one_dir)
+        j_tau = tau_m * (p["Ke"] ** 2 / p["R"] + max(b_qs, 0.0))
+        if 0.5 < j_mech / j_tau < 2.0:
+            p.setdefault("J", j_mech)
+            p.setdefault("B", mech["b"] * p["J"])
+            torque = mech["c"] if not one_dir else mech["d"] * float(np.sign(np.mean(w)))
+        else:
+            # current and speed move together (one held voltage, L/R below a sample): the
+            # regression is ill-posed; the speed's own time constant and the steady state
+            # give the point to linearise at
+            p.setdefault("J", j_tau)
+            p.setdefault("B", b_qs)
+            torque = t_qs / p["J"]
     else:  # the speed settles within a sample: steady state Ke i = B w + T at each sample
         b, torque = _quasi_static_friction(segments, p["Ke"], one_dir)
         p.setdefault("B", b)

@@ -149,11 +149,16 @@ def electrical_fit(segments: Sequence[Segment]) -> LinearFit | None:
         qs = np.column_stack([s.current[1:], zero, w[1:], np.ones(s.n - 1)])
         qs_rows.append(qs[driven])
         qs_ys.append(s.voltage[:-1][driven])
-    if not trap_rows:
+    if not trap_rows or not sum(len(y) for y in qs_ys):
         return None
     names = ("R", "L", "Ke", "offset")
-    trap = _lstsq(names, np.vstack(trap_rows), np.concatenate(trap_ys))
-    qs_fit = _lstsq(names, np.vstack(qs_rows), np.concatenate(qs_ys))
+    a_t, a_q = np.vstack(trap_rows), np.vstack(qs_rows)
+    if np.ptp(np.concatenate(qs_ys)) == 0:
+        # one held voltage: an offset would absorb it all (R = Ke = 0); no offset then
+        a_t[:, 3] = 0.0
+        a_q[:, 3] = 0.0
+    trap = _lstsq(names, a_t, np.concatenate(trap_ys))
+    qs_fit = _lstsq(names, a_q, np.concatenate(qs_ys))
     if trap is None or qs_fit is None:
         return trap
     scale_t = float(np.sqrt(np.mean(np.concatenate(trap_ys) ** 2))) or 1.0

@@ -118,15 +118,17 @@ def time_constants_s(segments: Sequence[Segment]) -> tuple[float | None, float |
         if s.voltage is None:
             continue
         driven = ~s.open_mask
-        if driven.sum() < 10 or np.ptp(s.voltage[driven]) == 0:
+        w = s.speed_or_derivative()
+        if driven.sum() < 10 or np.ptp(w[driven]) == 0:
             continue
         v = np.where(driven, s.voltage, 0.0)
-        w = s.speed_or_derivative()
+        # one held voltage (a step already on at the first sample): the constant carries it
+        held = [] if np.ptp(s.voltage[driven]) == 0 else [v]
         if s.current is not None:
-            a = arx_pole(s.current, [v, w], driven)
+            a = arx_pole(s.current, [*held, w], driven)
             if a is not None and 0.0 < a < 1.0:
                 tau_e.append(-s.dt_s / math.log(a))
-        a = arx_pole(w, [v], driven)
+        a = arx_pole(w, held, driven)
         if a is not None and 0.05 < a < 1.0:
             tau_m.append(-s.dt_s / math.log(a))
     med = lambda xs: float(np.median(xs)) if xs else None  # noqa: E731
