@@ -87,3 +87,15 @@ def test_labelled_files_and_the_option_keep_their_segments(continuous, tmp_path,
     assert segment_run(labelled)[0] is labelled
     rc = main(["check", str(continuous), "--no-auto-segments"])
     assert rc == 0 and "segments found" not in capsys.readouterr().out
+
+
+def test_a_few_short_holds_do_not_break_the_segmentation():
+    """Found by the property test over CSVs: 11 rest rows, then 8 rows of a ramp."""
+    from pmdc_ident.core.data import Run, Segment
+
+    t = np.arange(19) * 1e-3
+    current = np.r_[np.zeros(11), [8.62, 8.68, 8.65, 8.63, 8.60, 8.57, 8.54, 8.52]]
+    speed = np.r_[np.zeros(11), np.linspace(0.44, 4.36, 8)]
+    run = Run((Segment("run", t, None, current=current, speed=speed),))
+    segmented, lines = segment_run(run)
+    assert sum(s.n for s in segmented.segments) == 19

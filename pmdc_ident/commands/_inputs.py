@@ -112,7 +112,11 @@ def segment_inputs(
 
     out = []
     for x in inputs:
-        run, lines = segment_run(x.run)
+        try:
+            run, lines = segment_run(x.run)
+        except (ArithmeticError, ValueError, IndexError) as exc:  # data nobody foresaw
+            show(f"segments: {x.path} kept as one segment ({type(exc).__name__}: {exc})")
+            run, lines = x.run, []
         if lines:
             show(f"segments found in {x.path} (no segment column; --no-auto-segments keeps one):")
             for line in lines:

@@ -169,11 +169,10 @@ def _active_runs(
     jumps = np.abs(np.diff(levels)) > 0.3 * span
     types = np.r_[jumps[:1], jumps] if jumps.size else np.zeros(1, dtype=bool)
     # majority over +-8 holds: the character of the neighbourhood, not of one hold
-    kernel = np.ones(17)
-    share = np.convolve(types.astype(float), kernel, "same") / np.convolve(
-        np.ones(types.size), kernel, "same"
-    )
-    smooth = share > 0.5
+    csum = np.r_[0.0, np.cumsum(types.astype(float))]
+    idx = np.arange(types.size)
+    lo_i, hi_i = np.maximum(idx - 8, 0), np.minimum(idx + 9, types.size)
+    smooth = (csum[hi_i] - csum[lo_i]) / (hi_i - lo_i) > 0.5
     cuts = [0, *(np.flatnonzero(np.diff(smooth.astype(int))) + 1).tolist(), len(holds)]
     min_len = max(50, (b - a) // 20)
     pieces: list[list[int]] = []
