@@ -27,16 +27,13 @@ import numpy as np
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.effects import CoulombFriction
+from pmdc_ident.core.estimators.output_error import fit_output_error
+from pmdc_ident.core.estimators.output_error.parameters import model_values
+from pmdc_ident.core.estimators.output_error.problem import Problem
+from pmdc_ident.core.estimators.output_error.segments import initial_noise, prepare_segments
 from pmdc_ident.core.excitation import plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import SensorSpec, load_motor
-from pmdc_ident.core.output_error import (
-    _initial_noise,
-    _model_values,
-    _prepare,
-    _Problem,
-    fit_output_error,
-)
 from pmdc_ident.core.params import MotorParams
 
 NOISE = {"current": 0.01, "speed": 0.05}
@@ -44,8 +41,8 @@ NOISE = {"current": 0.01, "speed": 0.05}
 
 def crb(segments, model: Model, free: list[str]) -> dict[str, float]:
     """CRB standard deviations (physical units) at the true model and noise."""
-    segs = _prepare(segments, [])
-    prob = _Problem(segs, model, _model_values(model), free, True, True, _initial_noise(segs), {})
+    segs = prepare_segments(segments, [])
+    prob = Problem(segs, model, model_values(model), free, True, True, initial_noise(segs), {})
     prob.noise = dict(NOISE)
     z = prob.z0()
     _r, A, _g = prob.evaluate(z, True)
@@ -62,7 +59,7 @@ def run_case(name: str, effects: tuple, n_runs: int, rng: np.random.Generator) -
     p = truth.params
     free = ["R", "L", "Ke", "J", "B"] + [f"{e.NAME}.torque_nm" for e in effects]
     bound = crb(clean.segments, truth, free)
-    true_vals = _model_values(truth)
+    true_vals = model_values(truth)
     est: dict[str, list[float]] = {k: [] for k in free}
     se: dict[str, list[float]] = {k: [] for k in free}
     t0 = time.perf_counter()

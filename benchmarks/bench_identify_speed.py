@@ -23,10 +23,10 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import least_squares
 
 from pmdc_ident.core.effects import CoulombFriction
+from pmdc_ident.core.estimators.output_error import fit_output_error
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import load_motor
-from pmdc_ident.core.output_error import fit_output_error
 from pmdc_ident.core.params import MotorParams
 
 DT_S = 1e-3

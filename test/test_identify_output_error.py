@@ -13,10 +13,10 @@ from pmdc_ident.core.effects import (
     LoadTorque,
     QuadraticDrag,
 )
+from pmdc_ident.core.estimators.output_error import FitResult, fit_output_error
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import SensorSpec, load_motor
-from pmdc_ident.core.output_error import FitResult, fit_output_error
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
 
 
@@ -148,7 +148,9 @@ def test_brush_drop_is_fitted_on_the_finite_difference_path():
 
 @pytest.mark.parametrize("current_driven", [False, True])
 def test_analytic_gradient_matches_finite_differences_without_friction_events(current_driven):
-    from pmdc_ident.core import output_error as oe
+    from pmdc_ident.core.estimators.output_error.parameters import model_values
+    from pmdc_ident.core.estimators.output_error.problem import Problem
+    from pmdc_ident.core.estimators.output_error.segments import initial_noise, prepare_segments
 
     spec = load_motor("seed001_110v")
     p = spec.model.params
@@ -177,10 +179,8 @@ def test_analytic_gradient_matches_finite_differences_without_friction_events(cu
             "current_offset.offset_a",
         ]
     m = Model(p.replace(R=p.R * 1.05, Kt=p.Ke), effects)
-    ps = oe._prepare(segs, [])
-    prob = oe._Problem(
-        ps, m, oe._model_values(m), free, not current_driven, True, oe._initial_noise(ps), {}
-    )
+    ps = prepare_segments(segs, [])
+    prob = Problem(ps, m, model_values(m), free, not current_driven, True, initial_noise(ps), {})
     z = prob.z0()
     _r, _A, g = prob.evaluate(z, True)
     for j in [*range(len(free)), len(free)]:  # every parameter and one initial state

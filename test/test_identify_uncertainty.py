@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
+from pmdc_ident.core.estimators.output_error import fit_output_error
 from pmdc_ident.core.estimators.uncertainty import parametric_bootstrap
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.motors import load_motor
-from pmdc_ident.core.output_error import fit_output_error
 
 
 def test_bootstrap_spread_matches_covariance_stderr_within_sampling_error():

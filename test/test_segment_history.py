@@ -12,10 +12,10 @@ from pmdc_ident.core.diagnosis import VerdictStatus, diagnose
 from pmdc_ident.core.diagnosis.holdout import split_segments
 from pmdc_ident.core.effects import Delay, ResistanceDrift
 from pmdc_ident.core.errors import DataError, ParameterError
+from pmdc_ident.core.estimators.output_error import fit_output_error
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model, simulate
 from pmdc_ident.core.motors import load_motor
-from pmdc_ident.core.output_error import fit_output_error
 from pmdc_ident.dataio.csvio import read_csv, write_csv
 
 _FAST_PLAN = SequenceConfig(sweep_duration_tau=20.0)

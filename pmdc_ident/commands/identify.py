@@ -237,7 +237,7 @@ def run(args: argparse.Namespace) -> int:
     # with a document on standard output, the human-readable report goes to stderr
     text_out = sys.stderr if to_stdout else sys.stdout
     from pmdc_ident.core.estimators.identify import identify, merge_runs
-    from pmdc_ident.core.output_error import CLOSURE_KT_KE
+    from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
 
     t0 = time.perf_counter()
 

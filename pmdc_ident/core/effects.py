@@ -22,6 +22,7 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any, ClassVar
 
 from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.params import PARAMETER_UNITS
 
 __all__ = [
     "EFFECT_NAMES",
@@ -41,6 +42,7 @@ __all__ = [
     "effect_from_mapping",
     "effects_from_mapping",
     "effects_to_mapping",
+    "parameter_unit",
 ]
 
 
@@ -221,6 +223,21 @@ EFFECT_TYPES: dict[str, type[Effect]] = {
     )
 }
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECT_TYPES)
+
+
+def parameter_unit(name: str) -> str:
+    """Unit of a motor parameter (``"R"``) or an effect parameter (``"<effect>.<field>"``).
+
+    Raises :class:`ParameterError` for a name that is neither.
+    """
+    if name in PARAMETER_UNITS:
+        return PARAMETER_UNITS[name]
+    eff, _, fld = name.partition(".")
+    cls = EFFECT_TYPES.get(eff)
+    if cls is None or fld not in cls.SPECS:
+        msg = f"unknown parameter {name!r}"
+        raise ParameterError(msg)
+    return cls.SPECS[fld].unit
 
 
 def effect_from_mapping(name: str, data: Any) -> Effect:

@@ -54,6 +54,9 @@ __all__ = [
     "apply_delay",
     "continuous_state_space",
     "discretize_zoh",
+    "effect_coefficients",
+    "effects_kernel",
+    "expm_small",
     "simulate",
     "simulate_linear",
 ]
@@ -139,12 +142,12 @@ def discretize_zoh(params: MotorParams, dt_s: float) -> tuple[FloatArray, FloatA
     m[:2, :2] = a2
     m[2, 1] = 1.0
     m[:2, 3:] = b2
-    e = _expm_small(m * dt_s)
+    e = expm_small(m * dt_s)
     return np.ascontiguousarray(e[:3, :3]), np.ascontiguousarray(e[:3, 3:])
 
 
 @njit
-def _expm_small(a):  # pragma: no cover - jitted
+def expm_small(a):  # pragma: no cover - jitted
     """exp(a) of a small matrix: scaling and squaring with an 18-term Taylor series.
 
     Plain loops, no BLAS: scipy's expm calls threaded BLAS, which on a busy
@@ -262,7 +265,9 @@ _TC, _TS, _WS, _CQ, _TL, _VB, _TCOG, _NCOG, _PHCOG, _KR, _ISAT = range(6, 17)
 _NCOEF = 17
 
 
-def _coefficients(model: Model) -> FloatArray:
+def effect_coefficients(model: Model) -> FloatArray:
+    """The coefficient vector :func:`effects_kernel` reads: R..B, then every effect's
+    parameters at fixed indices (zero for an absent effect)."""
     p = model.params
     c = np.zeros(_NCOEF)
     c[[_R, _L, _KE, _KT, _J, _B]] = p.R, p.L, p.Ke, p.Kt, p.J, p.B
@@ -387,13 +392,13 @@ def simulate(
 def _run_effects(
     model: Model, v_app: FloatArray, dt_s: float, state: FloatArray, substeps: int
 ) -> FloatArray:
-    c = _coefficients(model)
+    c = effect_coefficients(model)
     h = dt_s / substeps
     varying = c[_KR] > 0.0 or c[_ISAT] > 0.0
     phi, gam = discretize_zoh(model.params, h)
     if state[4] == 0.0 and state[1] == 0.0 and c[_TC] + c[_TS] > 0.0:
         state[4] = 1.0  # starts at rest: held by static friction until it breaks away
-    return _effects_kernel(v_app, c, phi, gam, h, substeps, varying, state)
+    return effects_kernel(v_app, c, phi, gam, h, substeps, varying, state)
 
 
 @njit
@@ -429,7 +434,12 @@ def _zoh2(a11, a12, a21, a22, h):  # pragma: no cover - jitted
 
 
 @njit
-def _effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - jitted
+def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - jitted
+    """Simulate ``v`` (one value per sample) with every effect, ``nsub`` sub-steps of ``h``
+    per sample; ``c`` from :func:`effect_coefficients`, ``phi``/``gam`` the sub-step ZOH
+    matrices (``varying``: R or L change with the state, so the step is re-discretised);
+    ``st`` = [i, w, th, heat, stuck] is the state, updated in place. Returns the states
+    (n, 3) at the sample instants."""
     r0, l0, ke, kt, j, b = c[0], c[1], c[2], c[3], c[4], c[5]
     tc, ts, ws, cq, tl, vb = c[6], c[7], c[8], c[9], c[10], c[11]
     tcog, ncog, phcog, kr, isat = c[12], c[13], c[14], c[15], c[16]
@@ -542,7 +552,7 @@ class Plant:
         self._delay_s = dl.delay_s if isinstance(dl, Delay) else 0.0
         self._offset_a = off.offset_a if isinstance(off, CurrentOffset) else 0.0
         self._history = np.zeros(int(math.floor(self._delay_s / self.dt_s)) + 2)
-        self._coef = _coefficients(model)
+        self._coef = effect_coefficients(model)
         self._varying = bool(self._coef[_KR] > 0.0 or self._coef[_ISAT] > 0.0)
         self._phi, self._gam = discretize_zoh(model.params, self.dt_s / self.substeps)
         self._state = np.zeros(5)
@@ -574,7 +584,7 @@ class Plant:
             self._history[-1] = v_arr[0]
             delayed = apply_delay(self._history, self._delay_s, self.dt_s)
             v_arr = delayed[-1:]
-        _effects_kernel(
+        effects_kernel(
             v_arr,
             self._coef,
             self._phi,

@@ -21,9 +21,10 @@ from typing import Any
 
 import numpy as np
 
+from pmdc_ident.core.effects import parameter_unit
+from pmdc_ident.core.estimators.output_error import FitResult
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec, motor_to_yaml
-from pmdc_ident.core.output_error import FitResult, parameter_unit
 
 __all__ = [
     "IdentificationResult",

@@ -48,7 +48,7 @@ def identify_session_run(
     driver samples were).
     """
     from pmdc_ident.core.estimators.identify import ModelChoice, identify, merge_runs
-    from pmdc_ident.core.output_error import CLOSURE_KT_KE
+    from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
 
     result = identify(
         merge_runs([run]),

@@ -32,8 +32,8 @@ from pmdc_ident.core.effects import (
     ResistanceDrift,
     StribeckFriction,
 )
+from pmdc_ident.core.estimators.output_error import FitResult, fit_output_error
 from pmdc_ident.core.model import Model, simulate
-from pmdc_ident.core.output_error import FitResult, fit_output_error
 
 __all__ = [
     "BASE_FREE",

@@ -37,8 +37,8 @@ from pmdc_ident.core.diagnosis.verdict import (
 )
 from pmdc_ident.core.effects import EFFECT_NAMES
 from pmdc_ident.core.errors import DataError, ParameterError
+from pmdc_ident.core.estimators.output_error import FitResult
 from pmdc_ident.core.model import Model
-from pmdc_ident.core.output_error import FitResult
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
 
 __all__ = ["DiagnosisConfig", "diagnose"]

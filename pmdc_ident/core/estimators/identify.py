@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from pmdc_ident.core.data import Run, Segment, TestKind
-from pmdc_ident.core.effects import CoulombFriction, LoadTorque
+from pmdc_ident.core.effects import CoulombFriction, LoadTorque, parameter_unit
 from pmdc_ident.core.errors import DataError, ParameterError
 from pmdc_ident.core.estimators.classical import ClassicalResult, classical_chain
 from pmdc_ident.core.estimators.equation_error import (
@@ -35,10 +35,10 @@ from pmdc_ident.core.estimators.equation_error import (
     fit_mechanical_equation_error,
 )
 from pmdc_ident.core.estimators.frequency import estimate_frequency_response
+from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE, FitResult, fit_output_error
 from pmdc_ident.core.estimators.validation import holdout_score, residual_tests
 from pmdc_ident.core.model import Model, simulate_linear
 from pmdc_ident.core.motors import Limits
-from pmdc_ident.core.output_error import CLOSURE_KT_KE, FitResult, fit_output_error, parameter_unit
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
 from pmdc_ident.core.results import IdentificationResult, ParameterEstimate, estimate_from_fit
 

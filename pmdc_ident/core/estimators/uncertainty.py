@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from pmdc_ident.core.data import Segment
-from pmdc_ident.core.output_error import CLOSURE_KT_KE, FitResult, fit_output_error
+from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE, FitResult, fit_output_error
 
 __all__ = ["coloured_noise_factor", "parametric_bootstrap", "simulated_copy", "widen_interval"]
 

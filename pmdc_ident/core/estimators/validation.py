@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment
-from pmdc_ident.core.output_error import FitResult
+from pmdc_ident.core.estimators.output_error import FitResult
 
 __all__ = ["HoldoutScore", "ResidualTests", "holdout_score", "residual_tests"]
 

@@ -1,0 +1,239 @@
+"""``fit_output_error``: the fit as a short sequence of named steps.
+
+1. prepare the segments (inputs, outputs, free initial states, added inertia);
+2. pin the fixed values and decide the Kt = Ke closure;
+3. choose the free parameters;
+4. solve by Levenberg-Marquardt, then re-weight by the residual noise and refit;
+5. build the result (covariance, intervals, identifiability) and flag what the data
+   cannot resolve (the (Kt, J, B) scale, an inductance faster than the sampling).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pmdc_ident.core.data import Segment
+from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.estimators.output_error.parameters import (
+    build_model,
+    is_fitted_field,
+    model_values,
+    parameter_info,
+)
+from pmdc_ident.core.estimators.output_error.problem import Problem
+from pmdc_ident.core.estimators.output_error.results import FitResult, build_result
+from pmdc_ident.core.estimators.output_error.segments import (
+    SIGNALS,
+    PreparedSegment,
+    initial_noise,
+    prepare_segments,
+)
+from pmdc_ident.core.estimators.output_error.simulators import FAST_EFFECTS
+from pmdc_ident.core.estimators.output_error.solver import LMState, levenberg_marquardt
+from pmdc_ident.core.model import Model
+from pmdc_ident.core.params import PARAMETER_NAMES
+
+__all__ = ["CLOSURE_KT_KE", "fit_output_error"]
+
+FloatArray = NDArray[np.float64]
+CLOSURE_KT_KE = "Kt=Ke"
+# L is not identifiable from dynamic data when the current settles within a sample.
+_MIN_TAU_E_SAMPLES = 1.0
+_NEEDED_TAU_E_SAMPLES = 5.0
+_ELECTRICAL = ("R", "L", "Ke", "Kt")
+
+
+def fit_output_error(
+    segments: Sequence[Segment],
+    model: Model,
+    *,
+    free: Sequence[str] | None = None,
+    fixed: Mapping[str, float] | None = None,
+    closure: str | None = CLOSURE_KT_KE,
+    weights: Mapping[str, float] | None = None,
+    max_nfev: int = 200,
+    progress: Callable[[int, float], None] | None = None,
+    refine_noise: bool = True,
+    check_inductance: bool = True,
+    added_inertia: Mapping[str, float] | None = None,
+) -> FitResult:
+    """Fit ``model`` to ``segments`` by output error (see the package docs).
+
+    ``free`` lists the parameters to fit (default: all identifiable ones);
+    ``fixed`` pins values (``{"L": 3e-4}``); ``closure`` ``"Kt=Ke"`` ties Kt to
+    Ke unless Kt or J is fixed (``None``: no closure). ``weights`` multiplies
+    the per-signal residual weights (``{"current": 0.5}``). ``progress(it,
+    cost)`` is called after every iteration. ``added_inertia`` maps segment
+    labels to a known inertia added for them (kg*m^2): runs with and without it
+    fix the (Kt, J, B) scale, so the Kt = Ke closure is dropped.
+    """
+    t_start = time.perf_counter()
+    warnings: list[str] = []
+    segs = prepare_segments(segments, warnings, added_inertia)
+    current_mode = segs[0].voltage is None
+    fixed = {str(k): float(v) for k, v in (fixed or {}).items()}
+    if closure not in (None, CLOSURE_KT_KE):
+        msg = f"unknown closure {closure!r}; use {CLOSURE_KT_KE!r} or None"
+        raise ParameterError(msg)
+    values = _pinned_values(model, fixed)
+    has_added = any(ps.dJ > 0 for ps in segs)
+    tie_kt, reasons = _closure(closure, fixed, has_added, current_mode)
+    if tie_kt:
+        values["Kt"] = values["Ke"]
+    free_names = _free_names(values, fixed, free, tie_kt, current_mode)
+    if not tie_kt and {"Kt", "J", "B"} <= set(free_names):
+        warnings.append(
+            "Kt, J and B are all free without a closure: only their ratios are identifiable"
+        )
+    _check_weights(weights)
+    fast = set(model.effect_names) <= FAST_EFFECTS
+    base = build_model(model, values)
+    noise = initial_noise(segs)
+    prob = Problem(segs, base, values, free_names, tie_kt, fast, noise, weights or {})
+    z, lm = _solve(prob, max_nfev, progress, refine_noise)
+    result = build_result(
+        prob, z, lm, reasons, fixed, closure if tie_kt else None, warnings, t_start
+    )
+    result = _flag_scale_ambiguity(result)
+    if check_inductance and not current_mode and "L" in result.free:
+        result = _flag_inductance(result, segs, t_start)
+    return result
+
+
+def _pinned_values(model: Model, fixed: Mapping[str, float]) -> dict[str, float]:
+    """Every parameter of ``model`` by name, with the ``fixed`` ones checked and pinned."""
+    values = model_values(model)
+    for name, v in fixed.items():
+        if name not in values:
+            msg = f"cannot fix {name!r}: not a parameter of this model (known: {list(values)})"
+            raise ParameterError(msg)
+        info = parameter_info(name)
+        if not (info.lower <= v <= info.upper) or (info.log and v <= 0.0):
+            msg = f"fixed value {name}={v:g} is outside its range"
+            raise ParameterError(msg)
+        values[name] = v
+    return values
+
+
+def _closure(
+    closure: str | None, fixed: Mapping[str, float], has_added: bool, current_mode: bool
+) -> tuple[bool, dict[str, str]]:
+    """Whether Kt is tied to Ke, and the reasons for what the data cannot give."""
+    reasons: dict[str, str] = {}
+    tie_kt = closure == CLOSURE_KT_KE and "Kt" not in fixed and "J" not in fixed
+    if has_added:
+        # a known added inertia on some segments fixes the (Kt, J, B) scale
+        tie_kt = False
+    if current_mode:
+        tie_kt = False
+        for n in ("R", "L", "Ke"):
+            reasons[n] = "no voltage in the data: electrical parameters are not observable"
+        if "Kt" not in fixed:
+            reasons["Kt"] = "given (current-driven data fix the scale through Kt)"
+    return tie_kt, reasons
+
+
+def _free_names(
+    values: Mapping[str, float],
+    fixed: Mapping[str, float],
+    free: Sequence[str] | None,
+    tie_kt: bool,
+    current_mode: bool,
+) -> list[str]:
+    """The parameters to fit: ``free`` (checked) or every fittable one."""
+    if free is None:
+        return [
+            n
+            for n in values
+            if n not in fixed
+            and not (current_mode and n in _ELECTRICAL)
+            and not (tie_kt and n == "Kt")
+            and (n in PARAMETER_NAMES or is_fitted_field(n))
+        ]
+    names = []
+    for n in free:
+        if n not in values:
+            msg = f"cannot fit {n!r}: not a parameter of this model (known: {list(values)})"
+            raise ParameterError(msg)
+        if n in fixed or (tie_kt and n == "Kt"):
+            continue
+        names.append(n)
+    return names
+
+
+def _check_weights(weights: Mapping[str, float] | None) -> None:
+    for k in weights or {}:
+        if k not in SIGNALS:
+            msg = f"weights keys must be among {SIGNALS}, got {k!r}"
+            raise ParameterError(msg)
+
+
+def _solve(
+    prob: Problem,
+    max_nfev: int,
+    progress: Callable[[int, float], None] | None,
+    refine_noise: bool,
+) -> tuple[FloatArray, LMState]:
+    """Levenberg-Marquardt from the start; with ``refine_noise``, refit once re-weighted.
+
+    Maximum likelihood with unknown noise levels: reweight by the residual RMS and
+    refit, unless the weights barely change (then the optimum does not move beyond a
+    small fraction of its standard error).
+    """
+    z, lm = levenberg_marquardt(prob, prob.z0(), max_nfev, progress)
+    if not refine_noise:
+        return z, lm
+    new_noise = prob.residual_noise(z)
+    moved = any(not 0.9 < new_noise[k] / prob.noise[k] < 1.1 for k in new_noise)
+    prob.noise = new_noise
+    if moved:
+        z, lm2 = levenberg_marquardt(prob, z, max_nfev, progress)
+        lm = LMState(lm2.cost, lm.nfev + lm2.nfev, lm.it + lm2.it, lm2.converged, lm2.message)
+    return z, lm
+
+
+def _flag_scale_ambiguity(result: FitResult) -> FitResult:
+    scale = ("Kt", "J", "B")
+    if not all(n in result.free and not result.identifiable[n] for n in scale):
+        return result
+    why = (
+        "scale ambiguity: voltage, current and speed fix (Kt, J, B) only up to a common "
+        "factor; use the Kt = Ke closure, fix Kt or J, or add a known inertia"
+    )
+    return replace(result, reasons={**result.reasons, **dict.fromkeys(scale, why)})
+
+
+def _inductance_reason(tau_e: float, dt_min: float) -> str:
+    need_hz = _NEEDED_TAU_E_SAMPLES / tau_e
+    return (
+        f"L/R ~ {tau_e * 1e3:.2g} ms is below the sample period "
+        f"{dt_min * 1e3:.3g} ms: the current settles within one sample, so L is "
+        f"not identifiable from these data; sample at >= {need_hz / 1e3:.3g} kHz "
+        f"or fix L from an LCR meter (--fix L=...)"
+    )
+
+
+def _flag_inductance(res: FitResult, segs: Sequence[PreparedSegment], t_start: float) -> FitResult:
+    """Mark L not identifiable when L/R is below the sample period.
+
+    The fitted (rough) value is kept: holding L at a guess would add nothing.
+    """
+    tau_e = res.values["L"] / res.values["R"]
+    dt_min = min(s.dt for s in segs)
+    if tau_e >= _MIN_TAU_E_SAMPLES * dt_min:
+        return res
+    reason = _inductance_reason(tau_e, dt_min)
+    return replace(
+        res,
+        reasons={**res.reasons, "L": reason + " (the value is the fit's rough estimate)"},
+        identifiable={**res.identifiable, "L": False},
+        ci95={**res.ci95, "L": None},
+        stderr={**res.stderr, "L": None},
+        warnings=(*res.warnings, "L: " + reason),
+        elapsed_s=time.perf_counter() - t_start,
+    )

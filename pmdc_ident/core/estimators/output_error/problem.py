@@ -1,0 +1,288 @@
+"""The output-error problem: residuals and normal-equation blocks over the
+transformed parameter vector ``z`` (log scale for positive parameters, then every
+segment's free initial states)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.estimators.output_error.kernel import (
+    COL,
+    COL_CQ,
+    COL_I0,
+    COL_TC,
+    COL_TL,
+    COL_TS,
+    COL_WS,
+    N_SENS,
+)
+from pmdc_ident.core.estimators.output_error.parameters import (
+    build_model,
+    model_values,
+    parameter_info,
+)
+from pmdc_ident.core.estimators.output_error.segments import SIGNALS, PreparedSegment
+from pmdc_ident.core.estimators.output_error.simulators import FastSim, general_sim
+from pmdc_ident.core.model import Model
+
+__all__ = ["Problem"]
+
+FloatArray = NDArray[np.float64]
+
+
+class Problem:
+    """Residuals and Jacobian blocks over transformed parameters z."""
+
+    def __init__(
+        self,
+        segs: list[PreparedSegment],
+        base: Model,
+        values: dict[str, float],
+        free: list[str],
+        tie_kt: bool,
+        fast: bool,
+        noise: dict[str, float],
+        weights: Mapping[str, float],
+    ) -> None:
+        self.segs = segs
+        self.base = base
+        self.values = dict(values)
+        self.free = free
+        self.info = [parameter_info(n) for n in free]
+        self.tie_kt = tie_kt
+        self.fast = fast
+        self.noise = noise
+        self.weights = dict(weights)
+        self.n_global = len(free)
+        self.offsets: list[int] = []
+        k = self.n_global
+        for ps in segs:
+            self.offsets.append(k)
+            k += len(ps.nuis)
+        self.n_total = k
+        self.n_rows = sum(len(ps.outputs) * ps.seg.n for ps in segs)
+        z0 = self.z0()
+        self.bounds: list[tuple[float, float]] = []
+        for j, info in enumerate(self.info):
+            if info.log:
+                lo = math.log(info.lower) if info.lower > 0 else -math.inf
+                hi = math.log(info.upper) if math.isfinite(info.upper) else math.inf
+                # Stay within six decades of the start (keeps the model finite).
+                self.bounds.append((max(lo, z0[j] - 14.0), min(hi, z0[j] + 14.0)))
+            else:
+                self.bounds.append((info.lower, info.upper))
+
+    # z <-> values
+    def z0(self) -> FloatArray:
+        z = np.empty(self.n_total)
+        for j, info in enumerate(self.info):
+            v = self.values[info.name]
+            if info.log:
+                z[j] = math.log(max(v, 1e-300))
+            else:
+                z[j] = v
+        for ps, off in zip(self.segs, self.offsets, strict=True):
+            for q, idx in enumerate(ps.nuis):
+                z[off + q] = ps.x0[idx]
+        return z
+
+    def clip(self, z: FloatArray) -> FloatArray:
+        z = z.copy()
+        for j, (lo, hi) in enumerate(self.bounds):
+            z[j] = min(max(z[j], lo), hi)
+        return z
+
+    def limit_step(self, step: FloatArray) -> FloatArray:
+        """At most a factor e^2 per iteration on log-scaled parameters."""
+        out = step.copy()
+        for j, info in enumerate(self.info):
+            if info.log:
+                out[j] = min(max(out[j], -2.0), 2.0)
+        return out
+
+    def values_at(self, z: FloatArray) -> dict[str, float]:
+        vals = dict(self.values)
+        for j, info in enumerate(self.info):
+            v = math.exp(min(z[j], 700.0)) if info.log else float(z[j])
+            # exp(log(upper)) can exceed upper by one ulp; effects refuse that
+            vals[info.name] = min(max(v, info.lower), info.upper)
+        if self.tie_kt:
+            vals["Kt"] = vals["Ke"]
+        return vals
+
+    def dvalue_dz(self, z: FloatArray) -> FloatArray:
+        return np.array([math.exp(z[j]) if info.log else 1.0 for j, info in enumerate(self.info)])
+
+    def model_at(self, z: FloatArray) -> Model:
+        return build_model(self.base, self.values_at(z))
+
+    def x0_of(self, z: FloatArray, q: int) -> FloatArray:
+        ps = self.segs[q]
+        x0 = ps.x0.copy()
+        off = self.offsets[q]
+        for k, idx in enumerate(ps.nuis):
+            x0[idx] = z[off + k]
+        return x0
+
+    def scale(self, idx: int) -> float:
+        sig = SIGNALS[idx]
+        return self.weights.get(sig, 1.0) / self.noise[sig]
+
+    # evaluation
+    def evaluate(self, z: FloatArray, want_jac: bool):
+        """Residual vector and, when asked, normal-equation blocks (A, g)."""
+        model = self.model_at(z)
+        r_parts: list[FloatArray] = []
+        raw_parts: list[tuple[int, FloatArray]] = []
+        A = np.zeros((self.n_total, self.n_total)) if want_jac else None
+        g = np.zeros(self.n_total) if want_jac else None
+        sim = FastSim(model) if self.fast else None
+        fd_cache: list[FloatArray] = []
+        if want_jac and not self.fast:
+            fd_cache = self._fd_global(z, model)
+        for q, ps in enumerate(self.segs):
+            x0 = self.x0_of(z, q)
+            idxs = list(range(self.n_global)) + [self.offsets[q] + k for k in range(len(ps.nuis))]
+            ii = np.array(idxs)
+            A_loc = g_loc = None
+            if self.fast:
+                assert sim is not None
+                acc = None
+                if want_jac:
+                    mx, off = self._mixing(z, model, ps)
+                    acc = (
+                        np.column_stack([y for _i, y in ps.outputs]),
+                        np.array([i for i, _y in ps.outputs], dtype=np.int64),
+                        np.array([self.scale(i) for i, _y in ps.outputs]),
+                        mx,
+                        off,
+                    )
+                X, A_loc, g_loc = sim.run(ps.seg, x0, acc, ps.dJ)
+            else:
+                X = general_sim(model, ps.seg, x0, ps.dJ)
+            r_seg = []
+            for idx, y in ps.outputs:
+                raw_parts.append((idx, X[:, idx] - y))
+                r_seg.append(raw_parts[-1][1] * self.scale(idx))
+            r_q = np.concatenate(r_seg)
+            r_parts.append(r_q)
+            if not want_jac:
+                continue
+            if A_loc is None:
+                cols = self._local_jac(q, ps, X, z, model, fd_cache)
+                A_loc = cols.T @ cols
+                g_loc = cols.T @ r_q
+            A[np.ix_(ii, ii)] += A_loc  # type: ignore[index]
+            g[ii] += g_loc  # type: ignore[index]
+        r = np.concatenate(r_parts)
+        self._last = (z.copy(), raw_parts, r, A, g, dict(self.noise))
+        return r, A, g
+
+    def cached(self, z: FloatArray, want_jac: bool):
+        """The last evaluation if it was at ``z`` with the current weights, else a new one."""
+        last = getattr(self, "_last", None)
+        if (
+            last is not None
+            and np.array_equal(last[0], z)
+            and (last[3] is not None or not want_jac)
+            and last[5] == self.noise
+        ):
+            return last[2], last[3], last[4]
+        return self.evaluate(z, want_jac)
+
+    def raw_residuals(self, z: FloatArray) -> dict[str, FloatArray]:
+        """Unscaled residuals per signal at ``z``."""
+        last = getattr(self, "_last", None)
+        if last is None or not np.array_equal(last[0], z):
+            self.evaluate(z, False)
+            last = self._last
+        acc: dict[str, list[FloatArray]] = {}
+        for idx, res in last[1]:
+            acc.setdefault(SIGNALS[idx], []).append(res)
+        return {k: np.concatenate(v) for k, v in acc.items()}
+
+    def _mixing(
+        self, z: FloatArray, model: Model, ps: PreparedSegment
+    ) -> tuple[FloatArray, FloatArray]:
+        """Kernel sensitivities (11 columns) -> local Jacobian columns; offset column mask."""
+        vals = model_values(model)
+        dvdz = self.dvalue_dz(z)
+        m_loc = self.n_global + len(ps.nuis)
+        mx = np.zeros((N_SENS, m_loc))
+        off = np.zeros(m_loc)
+        for j, name in enumerate(self.free):
+            if name in COL:
+                # kernel columns are per log of the value the segment sees (J + dJ)
+                seen = vals[name] + (ps.dJ if name == "J" else 0.0)
+                mx[COL[name], j] = dvdz[j] / seen
+                if name == "Ke" and self.tie_kt:
+                    mx[COL["Kt"], j] = dvdz[j] / vals[name]
+            elif name == "coulomb_friction.torque_nm":
+                mx[COL_TC, j] = dvdz[j]
+            elif name == "load_torque.torque_nm":
+                mx[COL_TL, j] = dvdz[j]
+            elif name == "stribeck_friction.torque_nm":
+                mx[COL_TS, j] = dvdz[j]
+            elif name == "stribeck_friction.speed_rad_s":
+                mx[COL_WS, j] = dvdz[j]
+            elif name == "quadratic_drag.coeff_nm_s2":
+                mx[COL_CQ, j] = dvdz[j]
+            elif name == "current_offset.offset_a":
+                off[j] = dvdz[j]
+            else:
+                msg = f"parameter {name} has no analytic sensitivity"
+                raise ParameterError(msg)
+        for k, sidx in enumerate(ps.nuis):
+            mx[COL_I0 + sidx, self.n_global + k] = 1.0
+        return mx, off
+
+    def _local_jac(self, q, ps, X, z, model, fd_cache) -> FloatArray:
+        """Forward-difference Jacobian block of one segment (general path)."""
+        n = ps.seg.n
+        m_loc = self.n_global + len(ps.nuis)
+        cols = np.zeros((n * len(ps.outputs), m_loc))
+        for o, (idx, _y) in enumerate(ps.outputs):
+            rows = slice(o * n, (o + 1) * n)
+            sc = self.scale(idx)
+            for j in range(self.n_global):
+                cols[rows, j] = fd_cache[j][q][:, idx] * sc
+        for k, sidx in enumerate(ps.nuis):
+            h = 1e-6 * max(1.0, abs(z[self.offsets[q] + k]))
+            x0 = self.x0_of(z, q)
+            x0[sidx] += h
+            Xp = general_sim(model, ps.seg, x0, ps.dJ)
+            for o, (idx, _y) in enumerate(ps.outputs):
+                rows = slice(o * n, (o + 1) * n)
+                cols[rows, self.n_global + k] = (Xp[:, idx] - X[:, idx]) / h * self.scale(idx)
+        return cols
+
+    def _fd_global(self, z: FloatArray, model: Model) -> list[list[FloatArray]]:
+        """Forward differences of every segment's states w.r.t. each global z."""
+        base = [
+            general_sim(model, ps.seg, self.x0_of(z, q), ps.dJ) for q, ps in enumerate(self.segs)
+        ]
+        out: list[list[FloatArray]] = []
+        for j in range(self.n_global):
+            h = 1e-6 * max(1.0, abs(z[j]))
+            zp = z.copy()
+            zp[j] += h
+            mp = self.model_at(zp)
+            out.append(
+                [
+                    (general_sim(mp, ps.seg, self.x0_of(z, q), ps.dJ) - base[q]) / h
+                    for q, ps in enumerate(self.segs)
+                ]
+            )
+        return out
+
+    def residual_noise(self, z: FloatArray) -> dict[str, float]:
+        out = {}
+        for k, res in self.raw_residuals(z).items():
+            rms = float(np.sqrt(np.mean(res**2)))
+            out[k] = max(rms, 1e-3 * self.noise[k], 1e-12)
+        return out
