@@ -143,9 +143,9 @@ def run(args: argparse.Namespace) -> int:
             path.write_text(document)
             written.append(path)
     if report_to is not None:
-        from pmdc_ident.report.diagnosis_html import write_report
+        from pmdc_ident.report.diagnosis_html import write_diagnosis_report
 
-        written.append(write_report(result, Path(report_to)))
+        written.append(write_diagnosis_report(result, Path(report_to)))
     for p in written:
         print(f"wrote {p}", file=text_out)
     return 0

@@ -290,10 +290,10 @@ def run(args: argparse.Namespace) -> int:
     elif yaml_to is not None:
         written.append(result.write_motor_yaml(yaml_to))
     if report_to is not None:
-        from pmdc_ident.report.plots import write_report
+        from pmdc_ident.report.plots import write_identify_report
 
         out = Path(report_to)
-        written += write_report(result, segments, out)
+        written += write_identify_report(result, segments, out)
         if json_to is None:
             written.append(_write(out / "identify.json", document))
         if yaml_to is None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -27,6 +27,7 @@ __all__ = [
     "TestKind",
     "link_history",
     "segment_kind",
+    "unique_labels",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -311,6 +312,23 @@ def link_history(segments: Sequence[Segment]) -> tuple[Segment, ...]:
             hist_q = (prev.history_heat_a2s or 0.0) + heat + gap
         out.append(replace(seg, history_voltage=hist_v, history_heat_a2s=hist_q))
     return tuple(out)
+
+
+def unique_labels(segments: Iterable[Segment]) -> list[Segment]:
+    """The segments with repeated labels made unique, the one rule for every command:
+    the second ``step_up`` becomes ``step_up_2`` (then ``_3``...), skipping labels
+    already taken. Segments whose label is unique are returned as they are."""
+    taken: set[str] = set()
+    out: list[Segment] = []
+    for s in segments:
+        label = s.label
+        k = 2
+        while label in taken:
+            label = f"{s.label}_{k}"
+            k += 1
+        taken.add(label)
+        out.append(s if label == s.label else replace(s, label=label))
+    return out
 
 
 def _contiguous(prev: Segment, seg: Segment) -> bool:

@@ -14,52 +14,22 @@ The YAML is a motor file of :mod:`pmdc_ident.core.motors`, so
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from pmdc_ident.core.effects import parameter_unit
+from pmdc_ident.core.estimate import ParameterEstimate, finite_or_none
 from pmdc_ident.core.estimators.output_error import FitResult
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec, motor_to_yaml
 
 __all__ = [
     "IdentificationResult",
-    "ParameterEstimate",
     "format_polynomial",
     "transfer_function_dict",
 ]
-
-
-@dataclass(frozen=True)
-class ParameterEstimate:
-    name: str
-    value: float
-    ci95: tuple[float, float] | None
-    unit: str
-    identifiable: bool
-    stderr: float | None = None
-    reason: str = ""
-    method: str = ""
-
-    def as_json(self) -> dict[str, Any]:
-        return {
-            "value": _num(self.value),
-            "ci95": None if self.ci95 is None else [_num(self.ci95[0]), _num(self.ci95[1])],
-            "unit": self.unit,
-            "identifiable": bool(self.identifiable),
-            "stderr": None if self.stderr is None else _num(self.stderr),
-            "reason": self.reason,
-            "method": self.method,
-        }
-
-
-def _num(x: float) -> float | None:
-    x = float(x)
-    return x if math.isfinite(x) else None
 
 
 def format_polynomial(coeffs: list[float], var: str = "s") -> str:
@@ -175,7 +145,7 @@ class IdentificationResult:
             {
                 "sources": list(self.sources),
                 "model": self.model_kind,
-                "parameters": {k: p.as_json() for k, p in self.parameters.items()},
+                "parameters": {k: p.to_json() for k, p in self.parameters.items()},
                 "assumptions": list(self.assumptions),
                 "warnings": list(self.warnings),
                 "methods": self.methods,
@@ -226,18 +196,5 @@ def _jsonable(obj: Any) -> Any:
     if isinstance(obj, np.integer | int):
         return int(obj)
     if isinstance(obj, np.floating | float):
-        return _num(float(obj))
+        return finite_or_none(float(obj))
     return obj
-
-
-def estimate_from_fit(fit: FitResult, name: str, method: str) -> ParameterEstimate:
-    return ParameterEstimate(
-        name=name,
-        value=fit.values[name],
-        ci95=fit.ci95.get(name),
-        unit=parameter_unit(name),
-        identifiable=fit.identifiable.get(name, True),
-        stderr=fit.stderr.get(name),
-        reason=fit.reasons.get(name, ""),
-        method=method,
-    )

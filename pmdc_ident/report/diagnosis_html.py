@@ -18,7 +18,7 @@ import numpy as np  # noqa: E402
 
 from pmdc_ident.core.diagnosis.results import DiagnosisResult  # noqa: E402
 
-__all__ = ["write_report"]
+__all__ = ["write_diagnosis_report"]
 
 MAX_TRACE_SEGMENTS = 8
 
@@ -135,7 +135,7 @@ def _table(rows: list[list[str]], head: list[str]) -> str:
     return f"<table><tr>{h}</tr>{body}</table>"
 
 
-def write_report(result: DiagnosisResult, out_dir: Path) -> Path:
+def write_diagnosis_report(result: DiagnosisResult, out_dir: Path) -> Path:
     """Write ``index.html``, its PNGs and ``diagnosis.json`` into ``out_dir``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -29,14 +29,14 @@ from pmdc_ident.core.estimators.classical import (  # noqa: E402
 from pmdc_ident.core.estimators.frequency import model_frequency_response  # noqa: E402
 from pmdc_ident.core.results import IdentificationResult  # noqa: E402
 
-__all__ = ["write_report"]
+__all__ = ["write_identify_report"]
 
 
 def _safe(label: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", label)[:60] or "segment"
 
 
-def write_report(
+def write_identify_report(
     result: IdentificationResult, segments: Sequence[Segment], outdir: str | Path
 ) -> list[Path]:
     out = Path(outdir)

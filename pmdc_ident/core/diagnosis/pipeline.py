@@ -1,16 +1,28 @@
-"""``diagnose``: baseline, localization, candidate search, verdict (ROS-free)."""
+"""``diagnose``: baseline, localization, candidate search, verdict (ROS-free).
+
+:func:`diagnose` is a short sequence of named steps:
+
+1. the segments (labels made unique), the held-out split and the noise levels;
+2. the baseline: the linear model fitted on the fit segments, L placed by simulation
+   (or held where the data cannot resolve L/R);
+3. where the baseline's held-out gap lies (regimes, periodicity in the shaft angle);
+4. every testable candidate effect fitted alone and scored on the held-out segments;
+5. the choice: the best significant candidate, ties named, greedy combinations while
+   most of the gap remains;
+6. the verdict, the gap shrink per regime and the assumptions made.
+"""
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from pmdc_ident.core.data import Run, Segment
+from pmdc_ident.core.data import Run, Segment, unique_labels
 from pmdc_ident.core.diagnosis.candidates import (
     DataScales,
     data_scales,
@@ -19,11 +31,10 @@ from pmdc_ident.core.diagnosis.candidates import (
     scan_start,
 )
 from pmdc_ident.core.diagnosis.holdout import HoldoutSplit, split_segments
-from pmdc_ident.core.diagnosis.localization import localize, regime_masks
+from pmdc_ident.core.diagnosis.localization import Localization, localize, regime_masks
 from pmdc_ident.core.diagnosis.results import (
     CandidateScore,
     DiagnosisResult,
-    ParameterEstimate,
     RegimeShrink,
     Tie,
     Verdict,
@@ -37,14 +48,17 @@ from pmdc_ident.core.diagnosis.verdict import (
 )
 from pmdc_ident.core.effects import EFFECT_NAMES
 from pmdc_ident.core.errors import DataError, ParameterError
-from pmdc_ident.core.estimators.output_error import FitResult
+from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit
+from pmdc_ident.core.estimators.output_error import FitResult, Prediction
+from pmdc_ident.core.estimators.start import equation_error_start
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
+from pmdc_ident.core.progress import ProgressCallback
 
 __all__ = ["DiagnosisConfig", "diagnose"]
 
-Progress = Callable[[str], None]
 SLOW_SAMPLE_S = 0.01  # median sample period from which data count as steady-state tables
+_FIT_ERRORS = (ValueError, ArithmeticError, np.linalg.LinAlgError)
 
 
 @dataclass(frozen=True)
@@ -82,6 +96,57 @@ class DiagnosisConfig:
         object.__setattr__(self, "effects", tuple(self.effects))
 
 
+def diagnose(
+    runs_or_segments: object,
+    *,
+    config: DiagnosisConfig | None = None,
+    progress: ProgressCallback | None = None,
+) -> DiagnosisResult:
+    """Diagnose the sim-to-real gap of recorded runs (see the module notes)."""
+    cfg = config or DiagnosisConfig()
+    t_start = time.perf_counter()
+    segments = _flatten(runs_or_segments)
+    split = split_segments(segments, cfg.holdout or None)
+    noise = estimate_noise(segments)
+    search = _Search(split, noise, cfg, progress)
+    slow_note = _hold_inductance_for_tables(search, segments)
+    search.say(
+        f"{len(split.fit)} fit / {len(split.held_out)} held-out segments ({split.rule} split)"
+    )
+    base = _baseline(search)
+    masks = regime_masks(split.held_out, base.fit.model.params.mechanical_time_constant_s)
+    loc = localize(split.held_out, base.res, masks)
+    scoring = _Scoring.for_baseline(base, noise, cfg.thresholds)
+    untestable, singles = _single_candidates(search, base, loc)
+    choice = _choose(search, scoring, base, singles)
+    verdict = _verdict(choice, scoring)
+    final = choice.chosen if verdict.status is VerdictStatus.EXPLAINED else base
+    return DiagnosisResult(
+        verdict=verdict,
+        split=split,
+        gap_before=scoring.g0,
+        gap_after=final.gap,
+        gap_by_signal_before=base.res.gap_by_signal(),
+        gap_by_signal_after=final.res.gap_by_signal(),
+        rms_before=base.res.rms_by_signal(),
+        rms_after=final.res.rms_by_signal(),
+        noise_sigma=dict(noise.sigma),
+        localization=loc,
+        candidates=tuple(sorted(choice.scores, key=lambda s: s.penalized_gap)),
+        baseline=_estimates(base.fit, cfg.fixed),
+        augmented=_estimates(final.fit, cfg.fixed),
+        regimes=_regimes(masks, base, final),
+        assumptions=_assumptions(search, slow_note, scoring.penalty, untestable),
+        elapsed_s=time.perf_counter() - t_start,
+        n_samples=sum(s.n for s in segments),
+        held_out=split.held_out,
+        predictions_before=tuple(_predictions(base.fit, split.held_out)),
+        predictions_after=tuple(_predictions(final.fit, split.held_out)),
+    )
+
+
+# ---------------------------------------------------------------------------
+# 1. segments
 # ---------------------------------------------------------------------------
 def _flatten(runs_or_segments: object) -> list[Segment]:
     items: list[object]
@@ -105,12 +170,7 @@ def _flatten(runs_or_segments: object) -> list[Segment]:
     if not segs:
         msg = "no segments to diagnose"
         raise DataError(msg)
-    seen: dict[str, int] = {}
-    out = []
-    for s in segs:
-        k = seen.get(s.label, 0)
-        seen[s.label] = k + 1
-        out.append(s if k == 0 else replace(s, label=f"{s.label}#{k + 1}"))
+    out = unique_labels(segs)
     if not any(s.current is not None for s in out):
         msg = "the diagnosis needs a current column in at least one segment"
         raise DataError(msg)
@@ -120,53 +180,49 @@ def _flatten(runs_or_segments: object) -> list[Segment]:
     return out
 
 
-def _smooth(x: np.ndarray, width: int) -> np.ndarray:
-    if width <= 1 or x.size <= width:
-        return x
-    return np.convolve(x, np.ones(width) / width, mode="same")
+# ---------------------------------------------------------------------------
+# 2. the baseline
+# ---------------------------------------------------------------------------
+def _hold_inductance_for_tables(search: _Search, segments: Sequence[Segment]) -> str:
+    """Tables of steady states (seconds apart) show no electrical dynamics; a free L
+    would run off to freeze the current at its measured start value: hold it."""
+    cfg = search.cfg
+    dt_med = float(np.median([s.dt_s for s in segments]))
+    if "L" in search.fixed or dt_med < SLOW_SAMPLE_S:
+        return ""
+    p_tmp = cfg.initial or equation_error_start(search.split.fit, cfg.fixed)
+    search.fixed["L"] = p_tmp.R * dt_med * 0.01
+    return (
+        f"L held at {search.fixed['L']:.3g} H: samples {dt_med:.3g} s apart cannot show "
+        "the electrical time constant"
+    )
 
 
-def initial_guess(segments: Sequence[Segment], fixed: Mapping[str, float]) -> MotorParams:
-    """Equation-error starting values (biased by unmodelled effects, refined later)."""
-    rows_e, ys_e, rows_m, ys_m = [], [], [], []
-    for s in segments:
-        w = s.speed_or_derivative()
-        width = max(1, s.n // 50)
-        ws = _smooth(w, width)
-        dw = np.gradient(ws, s.t)
-        is_open = s.open_mask
-        if s.current is not None and s.voltage is not None:
-            drive = ~is_open
-            rows_e.append(np.column_stack([s.current[drive], w[drive]]))
-            ys_e.append(s.voltage[drive])
-        i = np.zeros(s.n) if s.current is None else np.where(is_open, 0.0, s.current)
-        if s.current is not None or is_open.all():
-            rows_m.append(np.column_stack([dw, ws, i]))
-            ys_m.append(np.zeros(s.n))
-    r_guess, ke_guess = 1.0, 0.05
-    if rows_e:
-        a = np.concatenate(rows_e)
-        y = np.concatenate(ys_e)
-        ok = np.isfinite(y)
-        if ok.sum() >= 2:
-            (r_guess, ke_guess), *_ = np.linalg.lstsq(a[ok], y[ok], rcond=None)
-    r = float(fixed.get("R", r_guess if r_guess > 0 else 1.0))
-    ke = float(fixed.get("Ke", ke_guess if ke_guess > 0 else 0.05))
-    kt = float(fixed.get("Kt", ke))
-    j, b = math.nan, math.nan
-    if rows_m:
-        m = np.concatenate(rows_m)
-        # J dw/dt + B w = Kt i
-        sol, *_ = np.linalg.lstsq(m[:, :2], kt * m[:, 2], rcond=None)
-        j, b = float(sol[0]), float(sol[1])
-    if not (math.isfinite(j) and j > 0):
-        j = ke * kt * 0.1 / r  # tau_m = 0.1 s
-    if not (math.isfinite(b) and b >= 0):
-        b = 0.0
-    dt = float(np.median([s.dt_s for s in segments]))
-    values = {"R": r, "L": r * dt, "Ke": ke, "Kt": kt, "J": j, "B": b}
-    values.update({k: float(v) for k, v in fixed.items()})
-    return MotorParams(**values)
+def _baseline(search: _Search) -> _Fitted:
+    """The linear model fitted on the fit segments and scored on the held-out ones."""
+    cfg, split, noise = search.cfg, search.split, search.noise
+    p0 = cfg.initial or equation_error_start(split.fit, search.fixed)
+    try:
+        base = search.evaluate((), Model(p0))
+    except _FIT_ERRORS as exc:
+        msg = f"the baseline linear model could not be fitted to these data ({exc})"
+        raise DataError(msg) from None
+    if cfg.initial is None and "L" not in search.fixed:
+        # When L/R is below the sample period the engine holds L at its start value,
+        # so place that start by simulation on the fit segments and refit.
+        p_l = _scan_inductance(base.fit.model.params, split.fit, noise, cfg.fixed)
+        if p_l.L != base.fit.model.params.L:
+            try:
+                again = search.evaluate((), Model(p_l))
+            except _FIT_ERRORS:
+                again = base
+            if _fit_gap(again, split.fit, noise) < _fit_gap(base, split.fit, noise):
+                base = again
+    if "L" not in search.fixed and not base.fit.identifiable.get("L", True):
+        # L/R below the sample period: hold L for the candidates (one fit, not two)
+        search.fixed["L"] = float(base.fit.model.params.L)
+    search.say(f"baseline (linear model): held-out gap {base.gap:.3g}")
+    return base
 
 
 def _scan_inductance(
@@ -206,35 +262,19 @@ def _fit_gap(f: _Fitted, segments: Sequence[Segment], noise: NoiseModel) -> floa
     return residuals(segments, _predictions(f.fit, segments), noise).gap()
 
 
-def _predictions(fit: FitResult, segments: Sequence[Segment]) -> list[object]:
+def _predictions(fit: FitResult, segments: Sequence[Segment]) -> list[Prediction]:
     return list(fit.simulate_segments(list(segments)))
 
 
-def _estimates(fit: FitResult) -> tuple[ParameterEstimate, ...]:
-    ci = getattr(fit, "ci95", None) or {}
-    ident = getattr(fit, "identifiable", None) or {}
-    p = fit.model.params.as_dict()
-    out = [
-        ParameterEstimate(n, p[n], _ci(ci.get(n)), bool(ident.get(n, True)))
-        for n in PARAMETER_NAMES
-    ]
-    for e in fit.model.effects:
-        for f, val in e.as_dict().items():
-            key = f"{e.NAME}.{f}"
-            out.append(
-                ParameterEstimate(key, float(val), _ci(ci.get(key)), bool(ident.get(key, True)))
-            )
+def _estimates(fit: FitResult, user_fixed: Mapping[str, float]) -> tuple[ParameterEstimate, ...]:
+    """The fit's estimates; a value the diagnosis held (not the user) says so."""
+    out = []
+    for name in fit.values:
+        est = estimate_from_fit(fit, name, "output_error")
+        if name in fit.fixed and name not in user_fixed:
+            est = replace(est, reason="held by the diagnosis (see the assumptions)", method="held")
+        out.append(est)
     return tuple(out)
-
-
-def _ci(x: object) -> tuple[float, float] | None:
-    if x is None:
-        return None
-    try:
-        lo, hi = x  # type: ignore[misc]
-        return float(lo), float(hi)
-    except (TypeError, ValueError):
-        return None
 
 
 @dataclass
@@ -255,7 +295,7 @@ class _Search:
         split: HoldoutSplit,
         noise: NoiseModel,
         cfg: DiagnosisConfig,
-        progress: Progress | None,
+        progress: ProgressCallback | None,
     ) -> None:
         self.split = split
         self.noise = noise
@@ -281,7 +321,7 @@ class _Search:
         than ``fallback`` (the candidate is then simply not chosen)."""
         try:
             return self.evaluate(effects, model)
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        except _FIT_ERRORS as exc:
             self.say(f"candidate {'+'.join(effects)}: fit failed ({exc})")
             return _Fitted(effects, fallback.fit, fallback.res, fallback.gap, 0.0, failed=True)
 
@@ -296,77 +336,30 @@ def _n_added(model: Model, names: Sequence[str]) -> int:
     return sum(len(e.fitted_names()) for e in model.effects if e.NAME in names)
 
 
-def diagnose(
-    runs_or_segments: object,
-    *,
-    config: DiagnosisConfig | None = None,
-    progress: Progress | None = None,
-) -> DiagnosisResult:
-    """Diagnose the sim-to-real gap of recorded runs (see the package notes)."""
-    cfg = config or DiagnosisConfig()
-    th = cfg.thresholds
-    t_start = time.perf_counter()
-    segments = _flatten(runs_or_segments)
-    split = split_segments(segments, cfg.holdout or None)
-    noise = estimate_noise(segments)
-    search = _Search(split, noise, cfg, progress)
-    dt_med = float(np.median([s.dt_s for s in segments]))
-    slow_note = ""
-    if "L" not in search.fixed and dt_med >= SLOW_SAMPLE_S:
-        # Tables of steady states (seconds apart) show no electrical dynamics; a free L
-        # would run off to freeze the current at its measured start value.
-        p_tmp = cfg.initial or initial_guess(split.fit, cfg.fixed)
-        search.fixed["L"] = p_tmp.R * dt_med * 0.01
-        slow_note = (
-            f"L held at {search.fixed['L']:.3g} H: samples {dt_med:.3g} s apart cannot show "
-            "the electrical time constant"
+# ---------------------------------------------------------------------------
+# 3.-4. candidates, scored against the baseline
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Scoring:
+    """Scores candidates against the baseline's held-out gap ``g0``: each added
+    parameter costs ``penalty`` (gap units)."""
+
+    g0: float
+    penalty: float
+    noise_rel: float
+    thresholds: Thresholds
+
+    @classmethod
+    def for_baseline(cls, base: _Fitted, noise: NoiseModel, th: Thresholds) -> _Scoring:
+        g0 = base.gap
+        noise_rel = float(np.mean([noise.noise_rel(s) for s in noise.signals]))
+        penalty = max(
+            th.penalty_rel_per_param * max(g0, 0.0), th.penalty_noise_per_param * noise_rel
         )
-    search.say(
-        f"{len(split.fit)} fit / {len(split.held_out)} held-out segments ({split.rule} split)"
-    )
+        return cls(g0, penalty, noise_rel, th)
 
-    p0 = cfg.initial or initial_guess(split.fit, search.fixed)
-    try:
-        base = search.evaluate((), Model(p0))
-    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-        msg = f"the baseline linear model could not be fitted to these data ({exc})"
-        raise DataError(msg) from None
-    if cfg.initial is None and "L" not in search.fixed:
-        # When L/R is below the sample period the engine holds L at its start value,
-        # so place that start by simulation on the fit segments and refit.
-        p_l = _scan_inductance(base.fit.model.params, split.fit, noise, cfg.fixed)
-        if p_l.L != base.fit.model.params.L:
-            try:
-                again = search.evaluate((), Model(p_l))
-            except (ValueError, ArithmeticError, np.linalg.LinAlgError):
-                again = base
-            if _fit_gap(again, split.fit, noise) < _fit_gap(base, split.fit, noise):
-                base = again
-    g0 = base.gap
-    if "L" not in search.fixed and not base.fit.identifiable.get("L", True):
-        # L/R below the sample period: hold L for the candidates (one fit, not two)
-        search.fixed["L"] = float(base.fit.model.params.L)
-    search.say(f"baseline (linear model): held-out gap {g0:.3g}")
-
-    masks = regime_masks(split.held_out, base.fit.model.params.mechanical_time_constant_s)
-    loc = localize(split.held_out, base.res, masks)
-    noise_rel = float(np.mean([noise.noise_rel(s) for s in noise.signals]))
-    penalty = max(th.penalty_rel_per_param * max(g0, 0.0), th.penalty_noise_per_param * noise_rel)
-
-    # cogging is tried when the residuals are periodic in the shaft angle (it is the
-    # costliest fit, and the output error of a rotor caught in detents is multimodal)
-    periods = list(loc.angle_candidates) if loc.angle_periods_per_rev else []
-    sc = data_scales(split.fit, base.fit.model.params.Kt, periods)
-    untestable: dict[str, str] = {}
-    if not periods:
-        untestable["cogging"] = "no periodicity in shaft angle in the residuals"
-    if "L" in search.fixed:
-        untestable["inductance_saturation"] = "L is held (the data do not resolve L/R)"
-    names = [n for n in cfg.effects if n not in untestable]
-    with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
-        singles = list(pool.map(lambda n: search.single(base, n, sc), names))
-
-    def score(f: _Fitted, parent: _Fitted | None = None) -> CandidateScore:
+    def score(self, f: _Fitted, parent: _Fitted | None = None) -> CandidateScore:
+        g0, penalty = self.g0, self.penalty
         k = _n_added(f.fit.model, f.effects)
         gain = g0 - f.gap
         # a combination must beat its parent by the penalty of what it adds
@@ -388,75 +381,140 @@ def diagnose(
             fit_seconds=f.seconds,
         )
 
-    scored = sorted(((score(f), f) for f in singles), key=lambda sf: sf[0].penalized_gap)
+
+def _single_candidates(
+    search: _Search, base: _Fitted, loc: Localization
+) -> tuple[dict[str, str], list[_Fitted]]:
+    """Every testable effect fitted alone; also what could not be tried, and why.
+
+    Cogging is tried when the residuals are periodic in the shaft angle (it is the
+    costliest fit, and the output error of a rotor caught in detents is multimodal).
+    """
+    cfg = search.cfg
+    periods = list(loc.angle_candidates) if loc.angle_periods_per_rev else []
+    sc = data_scales(search.split.fit, base.fit.model.params.Kt, periods)
+    untestable: dict[str, str] = {}
+    if not periods:
+        untestable["cogging"] = "no periodicity in shaft angle in the residuals"
+    if "L" in search.fixed:
+        untestable["inductance_saturation"] = "L is held (the data do not resolve L/R)"
+    names = [n for n in cfg.effects if n not in untestable]
+    with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
+        singles = list(pool.map(lambda n: search.single(base, n, sc), names))
+    return untestable, singles
+
+
+# ---------------------------------------------------------------------------
+# 5. the choice
+# ---------------------------------------------------------------------------
+@dataclass
+class _Choice:
+    """The chosen candidate (the baseline when none helps), ties and every score."""
+
+    chosen: _Fitted
+    gap_significant: bool
+    ties: list[Tie] = field(default_factory=list)
+    scores: list[CandidateScore] = field(default_factory=list)
+
+
+def _choose(search: _Search, scoring: _Scoring, base: _Fitted, singles: list[_Fitted]) -> _Choice:
+    th, g0 = scoring.thresholds, scoring.g0
+    scored = sorted(((scoring.score(f), f) for f in singles), key=lambda sf: sf[0].penalized_gap)
     helping = [(s, f) for s, f in scored if s.significant]
     # A gap below the noise level still counts when an effect, fitted without the
     # held-out samples, beats its penalty on them and closes most of that gap: the
     # held-out improvement is the evidence (on effect-free runs no candidate does).
     shown = bool(helping) and g0 > 0 and (g0 - helping[0][0].gap) >= th.explained_shrink * g0
-    gap_significant = g0 > th.no_gap_noise * noise_rel or shown
-
+    gap_significant = g0 > th.no_gap_noise * scoring.noise_rel or shown
+    choice = _Choice(base, gap_significant, scores=[s for s, _ in scored])
+    if not (helping and gap_significant):
+        return choice
+    best_s, best_f = _break_ties(helping, g0, th, choice.ties)
+    choice.chosen = best_f
+    tied_names = {n for t in choice.ties for n in t.effects}
     by_name = {f.effects[0]: f for f in singles}
-    chosen: _Fitted = base
-    ties: list[Tie] = []
-    combos: list[CandidateScore] = []
-    if helping and gap_significant:
-        best_s, best_f = helping[0]
-        gain_best = g0 - best_s.gap
-        tied = [
-            (s, f)
-            for s, f in helping[1:]
-            if (g0 - s.gap) >= (1.0 - th.tie_fraction) * gain_best
-            and s.added_parameters == best_s.added_parameters
-        ]
-        if tied:
-            group = order_tie([best_s.effects[0]] + [s.effects[0] for s, _ in tied])
-            lookup = {s.effects[0]: (s, f) for s, f in [(best_s, best_f), *tied]}
-            best_s, best_f = lookup[group[0]]
-            for other in group[1:]:
-                ties.append(Tie((group[0], other), separating_test(group[0], other)))
-        chosen = best_f
-        tied_names = {n for t in ties for n in t.effects}
-        # combinations: greedy forward selection while most of the gap remains
-        while (
-            len(chosen.effects) < cfg.max_effects
-            and g0 > 0
-            and (g0 - chosen.gap) / g0 < th.combine_below_shrink
-        ):
-            pool_names = [
-                s.effects[0]
-                for s, _ in scored
-                if s.effects[0] not in chosen.effects
-                and s.effects[0] not in tied_names
-                and not by_name[s.effects[0]].failed
-            ][:4]
-            if not pool_names:
-                break
+    ranked_names = [
+        s.effects[0]
+        for s, _ in scored
+        if s.effects[0] not in tied_names and not by_name[s.effects[0]].failed
+    ]
+    _combine(search, scoring, choice, by_name, ranked_names)
+    return choice
 
-            def combo(n: str, base_fit: _Fitted = chosen) -> _Fitted:
-                e = by_name[n].fit.model.effect(n)
-                assert e is not None
-                m = base_fit.fit.model.with_effects(e)
-                out = search.try_evaluate((*base_fit.effects, n), m, base_fit)
-                search.say(f"combination {'+'.join(out.effects)}: held-out gap {out.gap:.3g}")
-                return out
 
-            with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
-                trials = list(pool.map(combo, pool_names))
-            best_trial = min(
-                trials, key=lambda f: f.gap + _n_added(f.fit.model, f.effects) * penalty
-            )
-            for f in trials:
-                combos.append(score(f, chosen))
-            k_new = _n_added(best_trial.fit.model, best_trial.effects[-1:])
-            if chosen.gap - best_trial.gap > k_new * penalty:
-                chosen = best_trial
-            else:
-                break
+def _break_ties(
+    helping: list[tuple[CandidateScore, _Fitted]],
+    g0: float,
+    th: Thresholds,
+    ties: list[Tie],
+) -> tuple[CandidateScore, _Fitted]:
+    """The best helping candidate; candidates that close nearly as much of the gap with
+    as many parameters are ties, ordered by :func:`order_tie` and named in ``ties``."""
+    best_s, best_f = helping[0]
+    gain_best = g0 - best_s.gap
+    tied = [
+        (s, f)
+        for s, f in helping[1:]
+        if (g0 - s.gap) >= (1.0 - th.tie_fraction) * gain_best
+        and s.added_parameters == best_s.added_parameters
+    ]
+    if tied:
+        group = order_tie([best_s.effects[0]] + [s.effects[0] for s, _ in tied])
+        lookup = {s.effects[0]: (s, f) for s, f in [(best_s, best_f), *tied]}
+        best_s, best_f = lookup[group[0]]
+        for other in group[1:]:
+            ties.append(Tie((group[0], other), separating_test(group[0], other)))
+    return best_s, best_f
 
+
+def _combine(
+    search: _Search,
+    scoring: _Scoring,
+    choice: _Choice,
+    by_name: Mapping[str, _Fitted],
+    ranked_names: Sequence[str],
+) -> None:
+    """Greedy forward selection while most of the gap remains: add the effect that
+    lowers the penalized gap most, while it beats the penalty of what it adds."""
+    g0, penalty = scoring.g0, scoring.penalty
+    th = scoring.thresholds
+    while (
+        len(choice.chosen.effects) < search.cfg.max_effects
+        and g0 > 0
+        and (g0 - choice.chosen.gap) / g0 < th.combine_below_shrink
+    ):
+        chosen = choice.chosen
+        pool_names = [n for n in ranked_names if n not in chosen.effects][:4]
+        if not pool_names:
+            break
+
+        def combo(n: str, base_fit: _Fitted = chosen) -> _Fitted:
+            e = by_name[n].fit.model.effect(n)
+            assert e is not None
+            m = base_fit.fit.model.with_effects(e)
+            out = search.try_evaluate((*base_fit.effects, n), m, base_fit)
+            search.say(f"combination {'+'.join(out.effects)}: held-out gap {out.gap:.3g}")
+            return out
+
+        with ThreadPoolExecutor(max_workers=search.cfg.workers) as pool:
+            trials = list(pool.map(combo, pool_names))
+        best_trial = min(trials, key=lambda f: f.gap + _n_added(f.fit.model, f.effects) * penalty)
+        choice.scores.extend(scoring.score(f, chosen) for f in trials)
+        k_new = _n_added(best_trial.fit.model, best_trial.effects[-1:])
+        if chosen.gap - best_trial.gap > k_new * penalty:
+            choice.chosen = best_trial
+        else:
+            break
+
+
+# ---------------------------------------------------------------------------
+# 6. verdict, regimes, assumptions
+# ---------------------------------------------------------------------------
+def _verdict(choice: _Choice, scoring: _Scoring) -> Verdict:
+    g0, noise_rel, chosen = scoring.g0, scoring.noise_rel, choice.chosen
     shrink = (g0 - chosen.gap) / g0 if g0 > 0 else 0.0
     if not chosen.effects:
-        if gap_significant and g0 > 0:
+        if choice.gap_significant and g0 > 0:
             status = VerdictStatus.UNEXPLAINED
             message = (
                 f"the linear model leaves a held-out gap of {g0:.3g} (noise {noise_rel:.2g}) "
@@ -468,7 +526,7 @@ def diagnose(
                 f"the linear model matches held-out data to the noise (gap {g0:.3g}, "
                 f"noise {noise_rel:.2g}); no effect is needed"
             )
-    elif shrink >= th.explained_shrink:
+    elif shrink >= scoring.thresholds.explained_shrink:
         status = VerdictStatus.EXPLAINED
         message = (
             f"{' + '.join(chosen.effects)} closes {shrink:.0%} of the held-out gap "
@@ -480,61 +538,38 @@ def diagnose(
             f"best candidate {' + '.join(chosen.effects)} closes only {shrink:.0%} of the "
             "held-out gap; the rest has no name in the vocabulary"
         )
-    verdict_effects = chosen.effects if status is VerdictStatus.EXPLAINED else ()
     if status is not VerdictStatus.EXPLAINED:
-        ties = []
-    verdict = Verdict(status, verdict_effects, tuple(ties), message)
-    final = chosen if status is VerdictStatus.EXPLAINED else base
+        return Verdict(status, (), (), message)
+    return Verdict(status, chosen.effects, tuple(choice.ties), message)
 
-    regimes = []
-    for cat, groups in masks.items():
-        for lab, mk in groups.items():
-            if mk.any():
-                regimes.append(
-                    RegimeShrink(
-                        cat,
-                        lab,
-                        float(mk.mean()),
-                        base.res.gap(mk),
-                        final.res.gap(mk),
-                    )
-                )
-    ranked = tuple(sorted([s for s, _ in scored] + combos, key=lambda s: s.penalized_gap))
-    assumptions = ["closure Kt = Ke (SI units)"]
+
+def _regimes(
+    masks: Mapping[str, Mapping[str, np.ndarray]], base: _Fitted, final: _Fitted
+) -> tuple[RegimeShrink, ...]:
+    return tuple(
+        RegimeShrink(cat, lab, float(mk.mean()), base.res.gap(mk), final.res.gap(mk))
+        for cat, groups in masks.items()
+        for lab, mk in groups.items()
+        if mk.any()
+    )
+
+
+def _assumptions(
+    search: _Search, slow_note: str, penalty: float, untestable: Mapping[str, str]
+) -> tuple[str, ...]:
+    cfg = search.cfg
+    out = ["closure Kt = Ke (SI units)"]
     if slow_note:
-        assumptions.append(slow_note)
+        out.append(slow_note)
     elif "L" in search.fixed and "L" not in cfg.fixed:
-        assumptions.append(
+        out.append(
             f"L held at {search.fixed['L']:.3g} H: L/R is below the sample period, so the "
             "data cannot resolve it"
         )
     if cfg.fixed:
-        assumptions.append(
-            "held fixed: " + ", ".join(f"{k} = {v:g}" for k, v in cfg.fixed.items())
-        )
-    assumptions.append(f"penalty per added parameter: {penalty:.3g} (gap units)")
+        out.append("held fixed: " + ", ".join(f"{k} = {v:g}" for k, v in cfg.fixed.items()))
+    out.append(f"penalty per added parameter: {penalty:.3g} (gap units)")
     for n, why in untestable.items():
         if n in cfg.effects:
-            assumptions.append(f"{n} not tried: {why}")
-    return DiagnosisResult(
-        verdict=verdict,
-        split=split,
-        gap_before=g0,
-        gap_after=final.gap,
-        gap_by_signal_before=base.res.gap_by_signal(),
-        gap_by_signal_after=final.res.gap_by_signal(),
-        rms_before=base.res.rms_by_signal(),
-        rms_after=final.res.rms_by_signal(),
-        noise_sigma=dict(noise.sigma),
-        localization=loc,
-        candidates=ranked,
-        baseline=_estimates(base.fit),
-        augmented=_estimates(final.fit),
-        regimes=tuple(regimes),
-        assumptions=tuple(assumptions),
-        elapsed_s=time.perf_counter() - t_start,
-        n_samples=sum(s.n for s in segments),
-        held_out=split.held_out,
-        predictions_before=tuple(_predictions(base.fit, split.held_out)),
-        predictions_after=tuple(_predictions(final.fit, split.held_out)),
-    )
+            out.append(f"{n} not tried: {why}")
+    return tuple(out)

@@ -9,13 +9,12 @@ from dataclasses import dataclass, field
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.diagnosis.holdout import HoldoutSplit
 from pmdc_ident.core.diagnosis.localization import Localization
-from pmdc_ident.core.effects import EFFECT_TYPES
-from pmdc_ident.core.params import PARAMETER_NAMES, PARAMETER_UNITS
+from pmdc_ident.core.estimate import ParameterEstimate, finite_or_none
+from pmdc_ident.core.params import PARAMETER_NAMES
 
 __all__ = [
     "CandidateScore",
     "DiagnosisResult",
-    "ParameterEstimate",
     "RegimeShrink",
     "Tie",
     "Verdict",
@@ -27,34 +26,6 @@ class VerdictStatus(enum.Enum):
     NO_GAP = "no_gap"
     EXPLAINED = "explained"
     UNEXPLAINED = "unexplained"
-
-
-def _num(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
-def unit_of(name: str) -> str:
-    if name in PARAMETER_UNITS:
-        return PARAMETER_UNITS[name]
-    eff, _, fld = name.partition(".")
-    cls = EFFECT_TYPES.get(eff)
-    return cls.SPECS[fld].unit if cls is not None and fld in cls.SPECS else ""
-
-
-@dataclass(frozen=True)
-class ParameterEstimate:
-    name: str
-    value: float
-    ci95: tuple[float, float] | None
-    identifiable: bool = True
-
-    def to_json(self) -> dict[str, object]:
-        return {
-            "value": self.value,
-            "ci95": list(self.ci95) if self.ci95 is not None else None,
-            "unit": unit_of(self.name),
-            "identifiable": self.identifiable,
-        }
 
 
 @dataclass(frozen=True)
@@ -73,10 +44,10 @@ class CandidateScore:
     def to_json(self) -> dict[str, object]:
         return {
             "effects": list(self.effects),
-            "gap": _num(self.gap),
-            "shrink": _num(self.shrink),
+            "gap": finite_or_none(self.gap),
+            "shrink": finite_or_none(self.shrink),
             "added_parameters": self.added_parameters,
-            "penalized_gap": _num(self.penalized_gap),
+            "penalized_gap": finite_or_none(self.penalized_gap),
             "significant": self.significant,
             "parameters": self.parameters,
         }
@@ -126,9 +97,9 @@ class RegimeShrink:
             "category": self.category,
             "label": self.label,
             "sample_share": round(self.sample_share, 4),
-            "gap_before": _num(self.gap_before),
-            "gap_after": _num(self.gap_after),
-            "shrink": _num(self.shrink),
+            "gap_before": finite_or_none(self.gap_before),
+            "gap_after": finite_or_none(self.gap_after),
+            "shrink": finite_or_none(self.shrink),
         }
 
 
@@ -170,9 +141,9 @@ class DiagnosisResult:
             "verdict": self.verdict.to_json(),
             "holdout": {
                 **self.split.to_json(),
-                "gap_before": _num(max(self.gap_before, 0.0)),
-                "gap_after": _num(max(self.gap_after, 0.0)),
-                "shrink": _num(self.shrink),
+                "gap_before": finite_or_none(max(self.gap_before, 0.0)),
+                "gap_after": finite_or_none(max(self.gap_after, 0.0)),
+                "shrink": finite_or_none(self.shrink),
                 "gap_by_signal_before": self.gap_by_signal_before,
                 "gap_by_signal_after": self.gap_by_signal_after,
                 "rms_error_before": self.rms_before,
@@ -223,5 +194,5 @@ class DiagnosisResult:
         names = [p for p in self.augmented if p.name not in PARAMETER_NAMES]
         for p in names:
             ci = f" [{p.ci95[0]:.3g}, {p.ci95[1]:.3g}]" if p.ci95 else ""
-            lines.append(f"  {p.name} = {p.value:.4g}{ci} {unit_of(p.name)}")
+            lines.append(f"  {p.name} = {p.value:.4g}{ci} {p.unit}")
         return lines

@@ -1,15 +1,19 @@
 """The identification pipeline behind ``pmdc-ident identify``.
 
-1. Sort the segments: tables and steady levels go to the classical chain,
-   uniformly sampled time series to the dynamic methods.
-2. Equation error on the discretised equations (fast start).
-3. Output error over all dynamic segments at once, for the seeds' linear model
+:func:`identify` is a short sequence of named steps:
+
+1. check the arguments and sort the segments: tables and steady levels go to the
+   classical chain, uniformly sampled time series to the dynamic methods;
+2. equation error on the discretised equations (a fast start);
+3. the classical chain on staircase and coast-down data;
+4. output error over all dynamic segments at once, for the seeds' linear model
    and for the same plus Coulomb friction; the Coulomb model is kept when its
-   friction torque is significant (95 % interval above zero).
-4. Validation: one segment is held out and predicted free-running by a fit
+   friction torque is significant (95 % interval above zero);
+5. validation: one segment is held out and predicted free-running by a fit
    on the others; residual whiteness and input cross-correlation; optionally a
-   parametric bootstrap that checks the covariance intervals.
-5. The sweep's non-parametric frequency response against the model's.
+   parametric bootstrap that checks the covariance intervals;
+6. the sweep's non-parametric frequency response against the model's;
+7. the parameter estimates, intervals widened for coloured residuals.
 
 Current-driven data (no voltage column) give the mechanical side only (J, B,
 Coulomb, load torque), given Kt.
@@ -19,42 +23,41 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import replace
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from pmdc_ident.core.data import Run, Segment, TestKind
-from pmdc_ident.core.effects import CoulombFriction, LoadTorque, parameter_unit
+from pmdc_ident.core.data import Run, Segment, TestKind, unique_labels
+from pmdc_ident.core.effects import CoulombFriction, parameter_unit
 from pmdc_ident.core.errors import DataError, ParameterError
-from pmdc_ident.core.estimators.classical import ClassicalResult, classical_chain
+from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit
+from pmdc_ident.core.estimators.classical import ClassicalResult, CoastFit, classical_chain
 from pmdc_ident.core.estimators.equation_error import (
     EquationErrorResult,
     fit_equation_error,
     fit_mechanical_equation_error,
 )
-from pmdc_ident.core.estimators.frequency import estimate_frequency_response
+from pmdc_ident.core.estimators.frequency import FrequencyResponse, estimate_frequency_response
 from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE, FitResult, fit_output_error
+from pmdc_ident.core.estimators.start import (
+    COULOMB_TORQUE,
+    LOAD_TORQUE,
+    start_model,
+    start_values,
+)
 from pmdc_ident.core.estimators.validation import holdout_score, residual_tests
 from pmdc_ident.core.model import Model, simulate_linear
 from pmdc_ident.core.motors import Limits
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
-from pmdc_ident.core.results import IdentificationResult, ParameterEstimate, estimate_from_fit
+from pmdc_ident.core.progress import ProgressCallback, silent
+from pmdc_ident.core.results import IdentificationResult
 
-__all__ = ["ModelChoice", "identify", "identify_runs", "merge_runs"]
+__all__ = ["ModelChoice", "identify", "merge_runs", "minus_two_log_likelihood"]
 
 TABLE_MAX_ROWS = 20
-
-
-class _Skip(Exception):  # noqa: N818 - control flow, never leaves this module
-    """Internal: no time series for the dynamic methods."""
-
-
-_SKIP = _Skip()
-
-
-TC = "coulomb_friction.torque_nm"
+TC = COULOMB_TORQUE
 
 
 class ModelChoice(enum.StrEnum):
@@ -65,28 +68,195 @@ class ModelChoice(enum.StrEnum):
     COULOMB = "coulomb"
 
 
-Progress = Callable[[str], None]
-
-
 def merge_runs(runs: Sequence[Run]) -> list[Segment]:
     """All segments of several runs, labels made unique (``step_up``, ``step_up_2``...)."""
-    segs: list[Segment] = []
-    labels: set[str] = set()
-    for run in runs:
-        for s in run.segments:
-            label = s.label
-            k = 2
-            while label in labels:
-                label = f"{s.label}_{k}"
-                k += 1
-            labels.add(label)
-            segs.append(s if label == s.label else s.slice(0, s.n, label=label))
-    return segs
+    return unique_labels(s for run in runs for s in run.segments)
 
 
-def identify_runs(runs: Sequence[Run], **kwargs: Any) -> IdentificationResult:
-    """:func:`identify` on the merged segments of several runs (files)."""
-    return identify(merge_runs(runs), sources=tuple(r.source for r in runs), **kwargs)
+@dataclass(frozen=True)
+class _Setup:
+    """The checked inputs of one identification."""
+
+    segments: list[Segment]
+    dynamic: list[Segment]  # long, regularly sampled: for the dynamic methods
+    fixed: dict[str, float]
+    closure: str | None  # the closure actually used
+    added: dict[str, float]  # known added inertia by segment label, kg*m^2
+    current_mode: bool  # no voltage column: mechanical side only
+
+    def fit(self, segs: Sequence[Segment], model: Model, **kwargs: Any) -> FitResult:
+        """The output-error fit of ``model`` on ``segs`` with this setup's fixed values,
+        closure and added inertia."""
+        return fit_output_error(
+            segs,
+            model,
+            fixed=_fixed_for(self.fixed, model),
+            closure=self.closure,
+            added_inertia=_added_for(self.added, segs),
+            **kwargs,
+        )
+
+
+@dataclass
+class _Report:
+    """What the steps add to the result as they go."""
+
+    assumptions: list[str]
+    warnings: list[str] = field(default_factory=list)
+    methods: dict[str, dict[str, Any]] = field(default_factory=dict)
+    validation: dict[str, Any] = field(default_factory=dict)
+
+
+def identify(
+    segments: Sequence[Segment],
+    *,
+    fixed: Mapping[str, float] | None = None,
+    closure: str | None = CLOSURE_KT_KE,
+    model: str = ModelChoice.AUTO,
+    holdout: bool = True,
+    bootstrap: int = 0,
+    frequency: bool = True,
+    progress: ProgressCallback | None = None,
+    sources: tuple[str, ...] = (),
+    seed: int = 0,
+    added_inertia: Mapping[str, float] | None = None,
+) -> IdentificationResult:
+    """Identify the motor from ``segments`` (see module docs).
+
+    ``added_inertia`` maps segment labels to a known inertia added for them
+    (kg*m^2); with runs with and without it, Kt is estimated instead of assumed
+    equal to Ke.
+    """
+    say = progress or silent
+    setup, report = _setup(segments, _checked_fixed(fixed), closure, model, added_inertia)
+    limits = _limits(setup.segments)
+    ee = _equation_error(setup, report, say)
+    classical = _classical(setup, ee, report, say)
+    if not setup.dynamic:
+        return _classical_only(classical, setup.fixed, report, sources, limits)
+    fits = _output_error(setup, model, ee, classical, report, say)
+    chosen = _choose(fits, model)
+    fit = fits[chosen]
+    _note_choice(chosen, model, fits, report)
+    if holdout:
+        _holdout_validation(setup, fits, chosen, report, say)
+    widen = _residual_validation(fit, setup.dynamic, report)
+    if bootstrap > 0:
+        from pmdc_ident.core.estimators.uncertainty import parametric_bootstrap
+
+        say(f"bootstrap: {bootstrap} refits on simulated noise")
+        report.validation["bootstrap"] = parametric_bootstrap(
+            fit, setup.dynamic, n=bootstrap, seed=seed, closure=setup.closure
+        )
+    freq = _frequency_response(setup, fit, report) if frequency else None
+    return IdentificationResult(
+        sources=sources,
+        model_kind="mechanical" if setup.current_mode else chosen,
+        model=fit.model,
+        parameters=_estimates(fit, chosen, widen, setup.current_mode),
+        assumptions=tuple(report.assumptions),
+        warnings=tuple(dict.fromkeys(report.warnings)),
+        methods=report.methods,
+        validation=report.validation,
+        noise=dict(fit.noise),
+        fit=fit,
+        frequency=freq,
+        fit_info=_fit_info(fit, setup.dynamic),
+        limits=limits,
+    )
+
+
+# ---------------------------------------------------------------------------
+# 1. arguments and segments
+# ---------------------------------------------------------------------------
+def _checked_fixed(fixed: Mapping[str, float] | None) -> dict[str, float]:
+    out = {str(k): float(v) for k, v in (fixed or {}).items()}
+    known = set(PARAMETER_NAMES) | {TC, LOAD_TORQUE}
+    for k, v in out.items():
+        if k not in known:
+            msg = f"--fix {k}: unknown parameter (known: {', '.join(sorted(known))})"
+            raise ParameterError(msg)
+        if not math.isfinite(v) or (k in PARAMETER_NAMES and (v < 0 or (v == 0 and k != "B"))):
+            msg = f"--fix {k}={v:g}: must be a positive number in {parameter_unit(k)}"
+            raise ParameterError(msg)
+    return out
+
+
+def _setup(
+    segments: Sequence[Segment],
+    fixed: dict[str, float],
+    closure: str | None,
+    model: str,
+    added_inertia: Mapping[str, float] | None,
+) -> tuple[_Setup, _Report]:
+    if model not in (ModelChoice.AUTO, ModelChoice.LINEAR, ModelChoice.COULOMB):
+        msg = f"unknown model {model!r}; use auto, linear or coulomb"
+        raise ParameterError(msg)
+    if not segments:
+        msg = "no data"
+        raise DataError(msg)
+    segs = list(segments)
+    _check_excitation(segs)
+    current_mode = all(s.voltage is None for s in segs)
+    if not current_mode and any(s.voltage is None for s in segs):
+        msg = "some inputs have a voltage column and some do not; identify them separately"
+        raise DataError(msg)
+    added = {k: float(v) for k, v in (added_inertia or {}).items() if float(v) > 0.0}
+    closure_used, assumptions = _closure(closure, fixed, added, current_mode)
+    report = _Report(assumptions)
+    dyn = [s for s in segs if _is_dynamic(s)]
+    skipped = [s.label for s in segs if not _is_dynamic(s) and s.n > TABLE_MAX_ROWS]
+    if skipped:
+        report.warnings.append(
+            "segments with gaps in time (a sample period off the median by more than 25 %), "
+            f"left out of the dynamic fit: {', '.join(skipped)}"
+        )
+    return _Setup(segs, dyn, fixed, closure_used, added, current_mode), report
+
+
+def _closure(
+    closure: str | None,
+    fixed: Mapping[str, float],
+    added: Mapping[str, float],
+    current_mode: bool,
+) -> tuple[str | None, list[str]]:
+    """The closure of the (Kt, J, B) scale actually used, and the assumptions made."""
+    closure_used = closure if ("Kt" not in fixed and "J" not in fixed) else None
+    if added and not current_mode:
+        closure_used = None
+    assumptions: list[str] = []
+    if current_mode:
+        if "Kt" not in fixed:
+            msg = "current-driven data (no voltage column) need the torque constant: --fix Kt=..."
+            raise ParameterError(msg)
+        assumptions.append(
+            f"no voltage column: mechanical-only fit (J, B, Coulomb, load torque) "
+            f"given Kt = {fixed['Kt']:g} N*m/A"
+        )
+        closure_used = None
+    elif added:
+        amounts = ", ".join(sorted({f"{v:g}" for v in added.values()}))
+        assumptions.append(
+            f"a known added inertia ({amounts} kg*m^2 on {len(added)} segment(s)) fixes the "
+            "(Kt, J, B) scale: Kt is estimated, not assumed equal to Ke"
+        )
+    elif closure_used == CLOSURE_KT_KE:
+        assumptions.append(
+            "Kt = Ke (SI units, power balance): closes the scale ambiguity of (Kt, J, B); "
+            "replace with --fix Kt=... or --fix J=..."
+        )
+    elif "Kt" in fixed:
+        assumptions.append(f"Kt fixed at {fixed['Kt']:g} N*m/A (replaces the Kt = Ke closure)")
+    elif "J" in fixed:
+        assumptions.append(f"J fixed at {fixed['J']:g} kg*m^2 (replaces the Kt = Ke closure)")
+    for k, v in fixed.items():
+        if k not in ("Kt", "J") or current_mode:
+            assumptions.append(f"{k} fixed at {v:g} {parameter_unit(k)} (user)")
+    assumptions.append(
+        "voltage column is the voltage at the armature (no dead zone, brush drop or sag); "
+        "an empty cell is an open armature"
+    )
+    return closure_used, assumptions
 
 
 def _check_excitation(segs: Sequence[Segment]) -> None:
@@ -124,381 +294,6 @@ def regular_sampling(s: Segment, jitter: float = 0.25) -> bool:
     return bool(np.all(np.abs(dt - s.dt_s) <= jitter * s.dt_s))
 
 
-def identify(
-    segments: Sequence[Segment],
-    *,
-    fixed: Mapping[str, float] | None = None,
-    closure: str | None = CLOSURE_KT_KE,
-    model: str = ModelChoice.AUTO,
-    holdout: bool = True,
-    bootstrap: int = 0,
-    frequency: bool = True,
-    progress: Progress | None = None,
-    sources: tuple[str, ...] = (),
-    seed: int = 0,
-    added_inertia: Mapping[str, float] | None = None,
-) -> IdentificationResult:
-    """Identify the motor from ``segments`` (see module docs).
-
-    ``added_inertia`` maps segment labels to a known inertia added for them
-    (kg*m^2); with runs with and without it, Kt is estimated instead of assumed
-    equal to Ke.
-    """
-    say = progress or (lambda _msg: None)
-    fixed = {str(k): float(v) for k, v in (fixed or {}).items()}
-    known = set(PARAMETER_NAMES) | {TC, "load_torque.torque_nm"}
-    for k, v in fixed.items():
-        if k not in known:
-            msg = f"--fix {k}: unknown parameter (known: {', '.join(sorted(known))})"
-            raise ParameterError(msg)
-        if not math.isfinite(v) or (k in PARAMETER_NAMES and (v < 0 or (v == 0 and k != "B"))):
-            msg = f"--fix {k}={v:g}: must be a positive number in {parameter_unit(k)}"
-            raise ParameterError(msg)
-    if model not in (ModelChoice.AUTO, ModelChoice.LINEAR, ModelChoice.COULOMB):
-        msg = f"unknown model {model!r}; use auto, linear or coulomb"
-        raise ParameterError(msg)
-    if not segments:
-        msg = "no data"
-        raise DataError(msg)
-    segs = list(segments)
-    _check_excitation(segs)
-    assumptions: list[str] = []
-    warnings: list[str] = []
-    methods: dict[str, dict[str, Any]] = {}
-    validation: dict[str, Any] = {}
-    current_mode = all(s.voltage is None for s in segs)
-    if not current_mode and any(s.voltage is None for s in segs):
-        msg = "some inputs have a voltage column and some do not; identify them separately"
-        raise DataError(msg)
-
-    added = {k: float(v) for k, v in (added_inertia or {}).items() if float(v) > 0.0}
-    closure_used = closure if ("Kt" not in fixed and "J" not in fixed) else None
-    if added and not current_mode:
-        closure_used = None
-    if current_mode:
-        if "Kt" not in fixed:
-            msg = "current-driven data (no voltage column) need the torque constant: --fix Kt=..."
-            raise ParameterError(msg)
-        assumptions.append(
-            f"no voltage column: mechanical-only fit (J, B, Coulomb, load torque) "
-            f"given Kt = {fixed['Kt']:g} N*m/A"
-        )
-        closure_used = None
-    elif added:
-        amounts = ", ".join(sorted({f"{v:g}" for v in added.values()}))
-        assumptions.append(
-            f"a known added inertia ({amounts} kg*m^2 on {len(added)} segment(s)) fixes the "
-            "(Kt, J, B) scale: Kt is estimated, not assumed equal to Ke"
-        )
-    elif closure_used == CLOSURE_KT_KE:
-        assumptions.append(
-            "Kt = Ke (SI units, power balance): closes the scale ambiguity of (Kt, J, B); "
-            "replace with --fix Kt=... or --fix J=..."
-        )
-    elif "Kt" in fixed:
-        assumptions.append(f"Kt fixed at {fixed['Kt']:g} N*m/A (replaces the Kt = Ke closure)")
-    elif "J" in fixed:
-        assumptions.append(f"J fixed at {fixed['J']:g} kg*m^2 (replaces the Kt = Ke closure)")
-    for k, v in fixed.items():
-        if k not in ("Kt", "J") or current_mode:
-            assumptions.append(f"{k} fixed at {v:g} {parameter_unit(k)} (user)")
-    assumptions.append(
-        "voltage column is the voltage at the armature (no dead zone, brush drop or sag); "
-        "an empty cell is an open armature"
-    )
-
-    dyn = [s for s in segs if _is_dynamic(s)]
-    skipped = [s.label for s in segs if not _is_dynamic(s) and s.n > TABLE_MAX_ROWS]
-    if skipped:
-        warnings.append(
-            "segments with gaps in time (a sample period off the median by more than 25 %), "
-            f"left out of the dynamic fit: {', '.join(skipped)}"
-        )
-    limits = _limits(segs)
-
-    # 1. equation error (a fast start; also gives the classical chain an R)
-    ee: EquationErrorResult | None = None
-    try:
-        if not dyn:
-            raise _SKIP
-        say("equation error (discretised equations)")
-        if current_mode:
-            ee = fit_mechanical_equation_error(dyn, Kt=fixed["Kt"])
-        else:
-            ee = fit_equation_error(
-                dyn, Kt=fixed.get("Kt"), J=fixed.get("J") if closure_used is None else None
-            )
-        methods["equation_error"] = {"values": dict(ee.values), "method": ee.method}
-        warnings.extend(ee.notes)
-    except _Skip:
-        pass
-    except DataError as exc:
-        if "no excitation" in str(exc):
-            raise
-        warnings.append(f"equation error skipped: {exc}")
-
-    # 2. classical chain on staircase / coast-down (tables or time series)
-    classical: ClassicalResult | None = None
-    if any(s.kind in (TestKind.STAIRCASE, TestKind.COAST) for s in segs) and not current_mode:
-        try:
-            say("classical chain (staircase, coast-down)")
-            cfix = dict(fixed)
-            if "R" not in cfix and ee is not None and "R" in ee.values:
-                # no multimeter value: the staircase alone pins R poorly
-                cfix["R"] = ee.values["R"]
-            classical = classical_chain(segs, fixed=cfix)
-            if "R" not in fixed and "R" in cfix:
-                classical = replace(
-                    classical,
-                    notes=(
-                        f"classical: R = {cfix['R']:.4g} ohm taken from the equation-error "
-                        "fit (no multimeter value given)",
-                        *classical.notes,
-                    ),
-                )
-            methods["classical"] = {
-                "values": dict(classical.values),
-                "ci95": {k: list(v) if v else None for k, v in classical.ci95.items()},
-                "notes": list(classical.notes),
-            }
-            if classical.coast is not None:
-                c = classical.coast
-                methods["classical"]["coast"] = {
-                    "J": c.J,
-                    "J_ci95": list(c.J_ci95),
-                    "J_from_Tc_shape": c.J_from_Tc,
-                    "J_from_B_shape": c.J_from_B,
-                    "average_slope_rad_s2": c.average_slope_rad_s2,
-                    "J_one_average_slope": (c.Tc + c.B * c.w0_rad_s) / c.average_slope_rad_s2
-                    if c.average_slope_rad_s2 > 0
-                    else None,
-                    "rms_speed_rad_s": c.rms_speed_rad_s,
-                }
-        except DataError as exc:
-            warnings.append(f"classical chain skipped: {exc}")
-
-    if not dyn:
-        if classical is None or not classical.values:
-            msg = "no segment long enough for a dynamic fit and no staircase/coast-down table"
-            raise DataError(msg)
-        return _classical_only(classical, fixed, assumptions, warnings, methods, sources, limits)
-
-    start = _initial_values(ee, classical, dyn, fixed, current_mode)
-
-    # 3. output error, linear and Coulomb
-    want = [ModelChoice.LINEAR, ModelChoice.COULOMB] if model == ModelChoice.AUTO else [model]
-    fits: dict[str, FitResult] = {}
-    for kind in map(str, want):
-        m0 = _start_model(start, kind, current_mode, fixed)
-        say(f"output error, {kind} model")
-        try:
-            fits[kind] = fit_output_error(
-                dyn,
-                m0,
-                fixed=_fixed_for(fixed, m0),
-                closure=closure_used,
-                progress=lambda it, cost, k=kind: say(f"  {k}: iteration {it}, cost {cost:.6g}"),
-                added_inertia=_added_for(added, dyn),
-            )
-        except DataError as exc:
-            warnings.append(f"output error ({kind}) failed: {exc}")
-    if not fits:
-        msg = "the output-error fit failed on every model"
-        raise DataError(msg)
-    lin, cou = fits.get(ModelChoice.LINEAR), fits.get(ModelChoice.COULOMB)
-    if lin is not None and cou is not None:
-        if minus_two_log_likelihood(cou) > minus_two_log_likelihood(lin) + 1e-6:
-            # The Coulomb model contains the linear one (Tc = 0): a worse fit is a poor
-            # local minimum; restart it from the linear solution.
-            say("output error, coulomb model restarted from the linear fit")
-            m0 = Model(lin.model.params, (CoulombFriction(1e-6 * lin.model.params.Kt),))
-            again = fit_output_error(
-                dyn,
-                m0,
-                fixed=_fixed_for(fixed, m0),
-                closure=closure_used,
-                added_inertia=_added_for(added, dyn),
-            )
-            if minus_two_log_likelihood(again) < minus_two_log_likelihood(cou):
-                fits[ModelChoice.COULOMB] = again
-    for kind, f in fits.items():
-        methods[f"output_error_{kind}"] = {
-            "values": dict(f.values),
-            "ci95": {k: list(v) if v else None for k, v in f.ci95.items()},
-            "rms": dict(f.rms),
-            "cost": f.cost,
-            "minus_2_log_likelihood": minus_two_log_likelihood(f),
-            "iterations": f.iterations,
-            "converged": f.converged,
-        }
-    chosen = _choose(fits, model)
-    fit = fits[chosen]
-    if chosen == ModelChoice.COULOMB:
-        assumptions.append(
-            "friction is Coulomb plus viscous (Coulomb torque significant: its 95 % interval "
-            "lies above zero and the likelihood-ratio test prefers it)"
-        )
-    elif model == ModelChoice.AUTO and ModelChoice.COULOMB in fits:
-        assumptions.append("friction is viscous only (no significant Coulomb torque found)")
-    warnings.extend(w for w in fit.warnings if w not in warnings)
-    if current_mode:
-        chosen_kind = "mechanical"
-    else:
-        chosen_kind = chosen
-
-    # 4. validation
-    if holdout:
-        held = _holdout_segments(dyn)
-        if held:
-            rest = [s for s in dyn if s not in held]
-            say(f"validation: refit without {', '.join(s.label for s in held)}")
-            for kind, f in fits.items():
-                try:
-                    f_rest = fit_output_error(
-                        rest,
-                        f.model,
-                        fixed=_fixed_for(fixed, f.model),
-                        closure=closure_used,
-                        added_inertia=_added_for(added, rest),
-                    )
-                except DataError as exc:
-                    warnings.append(f"hold-out refit ({kind}) failed: {exc}")
-                    continue
-                score = holdout_score(f_rest, held)
-                methods[f"output_error_{kind}"]["holdout_rms"] = score.rms
-                methods[f"output_error_{kind}"]["holdout_nrmse"] = score.nrmse
-                if kind == chosen:
-                    validation["holdout"] = {
-                        "labels": list(score.labels),
-                        "rms": score.rms,
-                        "nrmse": score.nrmse,
-                        "model": kind,
-                    }
-        else:
-            warnings.append("only one dynamic segment: no held-out validation possible")
-    tests = residual_tests(fit, dyn)
-    validation["residuals"] = {
-        "autocorr_fraction_outside_95": tests.autocorr_outside,
-        "crosscorr_input_fraction_outside_95": tests.crosscorr_outside,
-        "autocorr_max": tests.autocorr_max,
-        "crosscorr_max": tests.crosscorr_max,
-        "white": tests.white,
-        "independent_of_input": tests.independent_of_input,
-    }
-    widen = 1.0
-    if not all(tests.white.values()):
-        from pmdc_ident.core.estimators.uncertainty import coloured_noise_factor
-
-        factors = coloured_noise_factor(fit, dyn)
-        widen = math.sqrt(max([1.0, *factors.values()]))
-        validation["residuals"]["variance_inflation"] = factors
-        validation["residuals"]["interval_widening"] = widen
-    for sig, ok in tests.white.items():
-        if not ok:
-            warnings.append(
-                f"{sig} residuals are not white ({100 * tests.autocorr_outside[sig]:.0f} % of "
-                "lags outside the 95 % band): unmodelled dynamics or coloured noise "
-                "(see `pmdc-ident diagnose`); intervals widened x"
-                f"{widen:.2g} for the residuals' autocorrelation"
-            )
-    if bootstrap > 0:
-        from pmdc_ident.core.estimators.uncertainty import parametric_bootstrap
-
-        say(f"bootstrap: {bootstrap} refits on simulated noise")
-        bs = parametric_bootstrap(fit, dyn, n=bootstrap, seed=seed, closure=closure_used)
-        validation["bootstrap"] = bs
-
-    # 5. frequency response
-    freq = None
-    sweeps = [s for s in dyn if s.kind is TestKind.SWEEP]
-    if frequency and sweeps and not current_mode:
-        try:
-            sw = sweeps[0]
-            x0 = np.array(fit.initial_states.get(sw.label, (0.0, 0.0, 0.0)))
-            free = simulate_linear(fit.model.params, np.zeros(sw.n), sw.dt_s, x0=x0)
-            freq = estimate_frequency_response(sw, free_response=(free.current, free.speed))
-            mism = freq.mismatch_db(fit.model.params)
-            methods["frequency"] = {
-                "segment": freq.label,
-                "n_points": int(freq.freq_hz.size),
-                "band_hz": [float(freq.freq_hz[0]), float(freq.freq_hz[-1])],
-                "median_abs_mismatch_db": mism,
-                "coherent_fraction": {
-                    "current": float(np.mean(freq.coherence_current >= 0.9))
-                    if freq.coherence_current is not None
-                    else None,
-                    "speed": float(np.mean(freq.coherence_speed >= 0.9)),
-                },
-            }
-        except DataError as exc:
-            warnings.append(f"frequency response skipped: {exc}")
-
-    params = {name: estimate_from_fit(fit, name, f"output_error_{chosen}") for name in fit.values}
-    if widen > 1.0:
-        from pmdc_ident.core.estimators.uncertainty import widen_interval
-
-        for name, est in params.items():
-            if est.ci95 is not None:
-                params[name] = _replace_est(
-                    est,
-                    ci95=widen_interval(est.value, est.ci95, widen),
-                    stderr=None if est.stderr is None else est.stderr * widen,
-                )
-    for name in fit.fixed:
-        params[name] = _replace_est(params[name], reason="fixed by the user", method="fixed")
-    if current_mode:
-        for name in ("R", "L", "Ke"):
-            params[name] = _replace_est(
-                params[name],
-                identifiable=False,
-                reason="no voltage in the data (value is a placeholder)",
-            )
-    if "L" in params and not params["L"].identifiable and "L" not in fixed:
-        pass  # reason already names the needed rate
-    fit_info = {
-        "n_samples": fit.n_samples,
-        "cost": fit.cost,
-        "iterations": fit.iterations,
-        "evaluations": fit.nfev,
-        "converged": fit.converged,
-        "message": fit.message,
-        "elapsed_s": fit.elapsed_s,
-        "fast_path": fit.fast_path,
-        "segments": [s.label for s in dyn],
-    }
-    return IdentificationResult(
-        sources=sources,
-        model_kind=chosen_kind,
-        model=fit.model,
-        parameters=params,
-        assumptions=tuple(assumptions),
-        warnings=tuple(dict.fromkeys(warnings)),
-        methods=methods,
-        validation=validation,
-        noise=dict(fit.noise),
-        fit=fit,
-        frequency=freq,
-        fit_info=fit_info,
-        limits=limits,
-    )
-
-
-def _added_for(added: Mapping[str, float], segs: Sequence[Segment]) -> dict[str, float]:
-    labels = {s.label for s in segs}
-    return {k: v for k, v in added.items() if k in labels}
-
-
-def _replace_est(p: ParameterEstimate, **kw: Any) -> ParameterEstimate:
-    from dataclasses import replace
-
-    return replace(p, **kw)
-
-
-def _fixed_for(fixed: Mapping[str, float], m: Model) -> dict[str, float]:
-    names = set(PARAMETER_NAMES) | {f"{e.NAME}.{f}" for e in m.effects for f in e.as_dict()}
-    return {k: v for k, v in fixed.items() if k in names}
-
-
 def _limits(segs: Sequence[Segment]) -> Limits:
     def peak(arrs: list[np.ndarray]) -> float:
         vals = [
@@ -519,81 +314,140 @@ def _limits(segs: Sequence[Segment]) -> Limits:
     )
 
 
-def _initial_values(
+# ---------------------------------------------------------------------------
+# 2.-3. equation error and the classical chain
+# ---------------------------------------------------------------------------
+def _equation_error(
+    setup: _Setup, report: _Report, say: ProgressCallback
+) -> EquationErrorResult | None:
+    """A fast start; also gives the classical chain an R."""
+    if not setup.dynamic:
+        return None
+    say("equation error (discretised equations)")
+    try:
+        if setup.current_mode:
+            ee = fit_mechanical_equation_error(setup.dynamic, Kt=setup.fixed["Kt"])
+        else:
+            j_known = setup.fixed.get("J") if setup.closure is None else None
+            ee = fit_equation_error(setup.dynamic, Kt=setup.fixed.get("Kt"), J=j_known)
+    except DataError as exc:
+        if "no excitation" in str(exc):
+            raise
+        report.warnings.append(f"equation error skipped: {exc}")
+        return None
+    report.methods["equation_error"] = {"values": dict(ee.values), "method": ee.method}
+    report.warnings.extend(ee.notes)
+    return ee
+
+
+def _classical(
+    setup: _Setup, ee: EquationErrorResult | None, report: _Report, say: ProgressCallback
+) -> ClassicalResult | None:
+    """The classical chain on staircase / coast-down (tables or time series)."""
+    kinds = (TestKind.STAIRCASE, TestKind.COAST)
+    if setup.current_mode or not any(s.kind in kinds for s in setup.segments):
+        return None
+    say("classical chain (staircase, coast-down)")
+    cfix = dict(setup.fixed)
+    if "R" not in cfix and ee is not None and "R" in ee.values:
+        # no multimeter value: the staircase alone pins R poorly
+        cfix["R"] = ee.values["R"]
+    try:
+        classical = classical_chain(setup.segments, fixed=cfix)
+    except DataError as exc:
+        report.warnings.append(f"classical chain skipped: {exc}")
+        return None
+    if "R" not in setup.fixed and "R" in cfix:
+        note = (
+            f"classical: R = {cfix['R']:.4g} ohm taken from the equation-error "
+            "fit (no multimeter value given)"
+        )
+        classical = replace(classical, notes=(note, *classical.notes))
+    report.methods["classical"] = {
+        "values": dict(classical.values),
+        "ci95": {k: list(v) if v else None for k, v in classical.ci95.items()},
+        "notes": list(classical.notes),
+    }
+    if classical.coast is not None:
+        report.methods["classical"]["coast"] = _coast_json(classical.coast)
+    return classical
+
+
+def _coast_json(c: CoastFit) -> dict[str, Any]:
+    return {
+        "J": c.J,
+        "J_ci95": list(c.J_ci95),
+        "J_from_Tc_shape": c.J_from_Tc,
+        "J_from_B_shape": c.J_from_B,
+        "average_slope_rad_s2": c.average_slope_rad_s2,
+        "J_one_average_slope": (c.Tc + c.B * c.w0_rad_s) / c.average_slope_rad_s2
+        if c.average_slope_rad_s2 > 0
+        else None,
+        "rms_speed_rad_s": c.rms_speed_rad_s,
+    }
+
+
+# ---------------------------------------------------------------------------
+# 4. output error, linear and Coulomb
+# ---------------------------------------------------------------------------
+def _output_error(
+    setup: _Setup,
+    model: str,
     ee: EquationErrorResult | None,
     classical: ClassicalResult | None,
-    dyn: Sequence[Segment],
-    fixed: Mapping[str, float],
-    current_mode: bool,
-) -> dict[str, float]:
-    vals: dict[str, float] = {}
-    if classical is not None:
-        vals.update(classical.values)
-    if ee is not None:
-        vals.update({k: v for k, v in ee.values.items() if math.isfinite(v)})
-    dt = min(s.dt_s for s in dyn)
-    if "R" not in vals or "Ke" not in vals:
-        vals.update(_crude_guess(dyn))
-    if "L" not in vals:
-        vals["L"] = vals.get("R", 1.0) * dt / 4.0  # below the sample period: flagged later
-    vals.update(fixed)
-    if "Kt" not in vals:
-        vals["Kt"] = vals.get("Ke", 1.0)
-    if "J" not in vals:
-        vals["J"] = vals["Kt"] * 0.1
-    vals.setdefault("B", 0.0)
-    vals.setdefault("R", 1.0)
-    vals.setdefault("Ke", vals["Kt"])
-    # sanitize for a valid start
-    for k in ("R", "L", "Ke", "Kt", "J"):
-        if not (vals[k] > 0 and math.isfinite(vals[k])):
-            vals[k] = 1.0
-    scale_b = vals["J"] / max(10 * dt, 1e-3)
-    vals["B"] = vals["B"] if vals["B"] > 0 else 1e-3 * scale_b
-    vals[TC] = max(vals.get(TC, 0.0), 0.0)
-    return vals
-
-
-def _crude_guess(dyn: Sequence[Segment]) -> dict[str, float]:
-    """R and Ke from the ends of segments (steady states) when nothing better exists."""
-    rows = []
-    for s in dyn:
-        if s.voltage is None or s.current is None:
-            continue
-        k0 = int(0.8 * s.n)
-        v = s.voltage[k0:]
-        if np.isnan(v).any():
-            continue
-        rows.append(
-            (
-                float(v.mean()),
-                float(s.current[k0:].mean()),
-                float(s.speed_or_derivative()[k0:].mean()),
+    report: _Report,
+    say: ProgressCallback,
+) -> dict[str, FitResult]:
+    start = start_values(
+        classical.values if classical is not None else {},
+        ee.values if ee is not None else {},
+        setup.dynamic,
+        setup.fixed,
+        setup.current_mode,
+    )
+    want = [ModelChoice.LINEAR, ModelChoice.COULOMB] if model == ModelChoice.AUTO else [model]
+    fits: dict[str, FitResult] = {}
+    for kind in map(str, want):
+        m0 = start_model(start, kind == ModelChoice.COULOMB, setup.current_mode, setup.fixed)
+        say(f"output error, {kind} model")
+        try:
+            fits[kind] = setup.fit(
+                setup.dynamic,
+                m0,
+                progress=lambda it, cost, k=kind: say(f"  {k}: iteration {it}, cost {cost:.6g}"),
             )
-        )
-    if len(rows) >= 2:
-        a = np.array(rows)
-        (R, Ke), *_ = np.linalg.lstsq(a[:, 1:], a[:, 0], rcond=None)
-        if R > 0 and Ke > 0:
-            return {"R": float(R), "Ke": float(Ke)}
-    return {}
+        except DataError as exc:
+            report.warnings.append(f"output error ({kind}) failed: {exc}")
+    if not fits:
+        msg = "the output-error fit failed on every model"
+        raise DataError(msg)
+    _restart_coulomb(setup, fits, say)
+    for kind, f in fits.items():
+        report.methods[f"output_error_{kind}"] = {
+            "values": dict(f.values),
+            "ci95": {k: list(v) if v else None for k, v in f.ci95.items()},
+            "rms": dict(f.rms),
+            "cost": f.cost,
+            "minus_2_log_likelihood": minus_two_log_likelihood(f),
+            "iterations": f.iterations,
+            "converged": f.converged,
+        }
+    return fits
 
 
-def _start_model(
-    vals: Mapping[str, float], kind: str, current_mode: bool, fixed: Mapping[str, float]
-) -> Model:
-    p = MotorParams(**{n: vals[n] for n in PARAMETER_NAMES})
-    effects = []
-    if kind == ModelChoice.COULOMB or TC in fixed:
-        tc = vals.get(TC, 0.0)
-        if tc <= 0 and TC not in fixed:
-            # a small positive start (1 mA worth of torque)
-            tc = 1e-3 * p.Kt
-        effects.append(CoulombFriction(tc))
-    if current_mode or "load_torque.torque_nm" in fixed:
-        # a load torque is fitted on current-driven data, or held where the user knows it
-        effects.append(LoadTorque(float(vals.get("load_torque.torque_nm", 0.0))))
-    return Model(p, tuple(effects))
+def _restart_coulomb(setup: _Setup, fits: dict[str, FitResult], say: ProgressCallback) -> None:
+    """The Coulomb model contains the linear one (Tc = 0): a worse fit is a poor local
+    minimum; restart it from the linear solution and keep the better of the two."""
+    lin, cou = fits.get(ModelChoice.LINEAR), fits.get(ModelChoice.COULOMB)
+    if lin is None or cou is None:
+        return
+    if minus_two_log_likelihood(cou) <= minus_two_log_likelihood(lin) + 1e-6:
+        return
+    say("output error, coulomb model restarted from the linear fit")
+    m0 = Model(lin.model.params, (CoulombFriction(1e-6 * lin.model.params.Kt),))
+    again = setup.fit(setup.dynamic, m0)
+    if minus_two_log_likelihood(again) < minus_two_log_likelihood(cou):
+        fits[ModelChoice.COULOMB] = again
 
 
 def minus_two_log_likelihood(fit: FitResult) -> float:
@@ -620,6 +474,21 @@ def _choose(fits: Mapping[str, FitResult], model: str) -> str:
     return ModelChoice.LINEAR
 
 
+def _note_choice(chosen: str, model: str, fits: Mapping[str, FitResult], report: _Report) -> None:
+    if chosen == ModelChoice.COULOMB:
+        report.assumptions.append(
+            "friction is Coulomb plus viscous (Coulomb torque significant: its 95 % interval "
+            "lies above zero and the likelihood-ratio test prefers it)"
+        )
+    elif model == ModelChoice.AUTO and ModelChoice.COULOMB in fits:
+        report.assumptions.append("friction is viscous only (no significant Coulomb torque found)")
+    warnings = report.warnings
+    warnings.extend(w for w in fits[chosen].warnings if w not in warnings)
+
+
+# ---------------------------------------------------------------------------
+# 5.-6. validation and frequency response
+# ---------------------------------------------------------------------------
 def _holdout_segments(dyn: Sequence[Segment]) -> list[Segment]:
     """One segment to predict: a step (prefer step_down), else the last non-sweep one."""
     if len(dyn) < 2:
@@ -634,15 +503,166 @@ def _holdout_segments(dyn: Sequence[Segment]) -> list[Segment]:
     return [others[-1]] if len(others) >= 2 else [dyn[-1]]
 
 
+def _holdout_validation(
+    setup: _Setup,
+    fits: Mapping[str, FitResult],
+    chosen: str,
+    report: _Report,
+    say: ProgressCallback,
+) -> None:
+    """Refit each model without one segment and predict that segment free-running."""
+    held = _holdout_segments(setup.dynamic)
+    if not held:
+        report.warnings.append("only one dynamic segment: no held-out validation possible")
+        return
+    rest = [s for s in setup.dynamic if s not in held]
+    say(f"validation: refit without {', '.join(s.label for s in held)}")
+    for kind, f in fits.items():
+        try:
+            f_rest = setup.fit(rest, f.model)
+        except DataError as exc:
+            report.warnings.append(f"hold-out refit ({kind}) failed: {exc}")
+            continue
+        score = holdout_score(f_rest, held)
+        report.methods[f"output_error_{kind}"]["holdout_rms"] = score.rms
+        report.methods[f"output_error_{kind}"]["holdout_nrmse"] = score.nrmse
+        if kind == chosen:
+            report.validation["holdout"] = {
+                "labels": list(score.labels),
+                "rms": score.rms,
+                "nrmse": score.nrmse,
+                "model": kind,
+            }
+
+
+def _residual_validation(fit: FitResult, dyn: Sequence[Segment], report: _Report) -> float:
+    """Residual whiteness and independence of the input; returns the factor by which the
+    intervals widen for coloured residuals (1 when they are white)."""
+    tests = residual_tests(fit, dyn)
+    residuals: dict[str, Any] = {
+        "autocorr_fraction_outside_95": tests.autocorr_outside,
+        "crosscorr_input_fraction_outside_95": tests.crosscorr_outside,
+        "autocorr_max": tests.autocorr_max,
+        "crosscorr_max": tests.crosscorr_max,
+        "white": tests.white,
+        "independent_of_input": tests.independent_of_input,
+    }
+    report.validation["residuals"] = residuals
+    widen = 1.0
+    if not all(tests.white.values()):
+        from pmdc_ident.core.estimators.uncertainty import coloured_noise_factor
+
+        factors = coloured_noise_factor(fit, dyn)
+        widen = math.sqrt(max([1.0, *factors.values()]))
+        residuals["variance_inflation"] = factors
+        residuals["interval_widening"] = widen
+    for sig, ok in tests.white.items():
+        if not ok:
+            report.warnings.append(
+                f"{sig} residuals are not white ({100 * tests.autocorr_outside[sig]:.0f} % of "
+                "lags outside the 95 % band): unmodelled dynamics or coloured noise "
+                "(see `pmdc-ident diagnose`); intervals widened x"
+                f"{widen:.2g} for the residuals' autocorrelation"
+            )
+    return widen
+
+
+def _frequency_response(
+    setup: _Setup, fit: FitResult, report: _Report
+) -> FrequencyResponse | None:
+    """The sweep's measured frequency response against the fitted model's."""
+    sweeps = [s for s in setup.dynamic if s.kind is TestKind.SWEEP]
+    if not sweeps or setup.current_mode:
+        return None
+    sw = sweeps[0]
+    try:
+        x0 = np.array(fit.initial_states.get(sw.label, (0.0, 0.0, 0.0)))
+        free = simulate_linear(fit.model.params, np.zeros(sw.n), sw.dt_s, x0=x0)
+        freq = estimate_frequency_response(sw, free_response=(free.current, free.speed))
+        mism = freq.mismatch_db(fit.model.params)
+    except DataError as exc:
+        report.warnings.append(f"frequency response skipped: {exc}")
+        return None
+    report.methods["frequency"] = {
+        "segment": freq.label,
+        "n_points": int(freq.freq_hz.size),
+        "band_hz": [float(freq.freq_hz[0]), float(freq.freq_hz[-1])],
+        "median_abs_mismatch_db": mism,
+        "coherent_fraction": {
+            "current": float(np.mean(freq.coherence_current >= 0.9))
+            if freq.coherence_current is not None
+            else None,
+            "speed": float(np.mean(freq.coherence_speed >= 0.9)),
+        },
+    }
+    return freq
+
+
+# ---------------------------------------------------------------------------
+# 7. the estimates
+# ---------------------------------------------------------------------------
+def _estimates(
+    fit: FitResult, chosen: str, widen: float, current_mode: bool
+) -> dict[str, ParameterEstimate]:
+    params = {name: estimate_from_fit(fit, name, f"output_error_{chosen}") for name in fit.values}
+    if widen > 1.0:
+        from pmdc_ident.core.estimators.uncertainty import widen_interval
+
+        for name, est in params.items():
+            if est.ci95 is not None:
+                params[name] = replace(
+                    est,
+                    ci95=widen_interval(est.value, est.ci95, widen),
+                    stderr=None if est.stderr is None else est.stderr * widen,
+                )
+    for name in fit.fixed:
+        params[name] = replace(params[name], reason="fixed by the user", method="fixed")
+    if current_mode:
+        for name in ("R", "L", "Ke"):
+            params[name] = replace(
+                params[name],
+                identifiable=False,
+                reason="no voltage in the data (value is a placeholder)",
+            )
+    return params
+
+
+def _fit_info(fit: FitResult, dyn: Sequence[Segment]) -> dict[str, Any]:
+    return {
+        "n_samples": fit.n_samples,
+        "cost": fit.cost,
+        "iterations": fit.iterations,
+        "evaluations": fit.nfev,
+        "converged": fit.converged,
+        "message": fit.message,
+        "elapsed_s": fit.elapsed_s,
+        "fast_path": fit.fast_path,
+        "segments": [s.label for s in dyn],
+    }
+
+
+def _added_for(added: Mapping[str, float], segs: Sequence[Segment]) -> dict[str, float]:
+    labels = {s.label for s in segs}
+    return {k: v for k, v in added.items() if k in labels}
+
+
+def _fixed_for(fixed: Mapping[str, float], m: Model) -> dict[str, float]:
+    names = set(PARAMETER_NAMES) | {f"{e.NAME}.{f}" for e in m.effects for f in e.as_dict()}
+    return {k: v for k, v in fixed.items() if k in names}
+
+
 def _classical_only(
-    classical: ClassicalResult,
+    classical: ClassicalResult | None,
     fixed: Mapping[str, float],
-    assumptions: list[str],
-    warnings: list[str],
-    methods: dict[str, dict[str, Any]],
+    report: _Report,
     sources: tuple[str, ...],
     limits: Limits,
 ) -> IdentificationResult:
+    """The result when there is no time series: the classical chain's values, with
+    placeholders for what the tables cannot give."""
+    if classical is None or not classical.values:
+        msg = "no segment long enough for a dynamic fit and no staircase/coast-down table"
+        raise DataError(msg)
     vals = dict(classical.values)
     vals.update(fixed)
     params: dict[str, ParameterEstimate] = {}
@@ -673,7 +693,7 @@ def _classical_only(
             params[name] = ParameterEstimate(
                 name, value, None, parameter_unit(name), False, reason=reason, method="placeholder"
             )
-            warnings.append(f"{name}: {reason} (written as a placeholder {value:.3g})")
+            report.warnings.append(f"{name}: {reason} (written as a placeholder {value:.3g})")
     p = MotorParams(**{n: params[n].value for n in PARAMETER_NAMES})
     tc = params[TC].value
     m = Model(p, (CoulombFriction(max(tc, 0.0)),) if tc > 0 else ())
@@ -682,9 +702,9 @@ def _classical_only(
         model_kind="classical",
         model=m,
         parameters=params,
-        assumptions=tuple(assumptions),
-        warnings=tuple(dict.fromkeys(warnings)),
-        methods=methods,
+        assumptions=tuple(report.assumptions),
+        warnings=tuple(dict.fromkeys(report.warnings)),
+        methods=report.methods,
         validation={},
         noise={},
         limits=limits,

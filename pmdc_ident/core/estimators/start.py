@@ -1,0 +1,134 @@
+"""Start values for the output-error fit: one equation-error estimator for both
+``identify`` and ``diagnose``.
+
+:func:`equation_error_start` solves the motor's equations by least squares on the
+samples themselves: ``V = R i + Ke w`` over the driven samples (L di/dt is
+neglected) and ``J dw/dt + B w = Kt i`` over samples with a measured current (or an
+open armature, i = 0). It is biased by every unmodelled effect, which is fine for a
+start: the output-error fit refines it.
+
+:func:`start_values` is what ``identify`` starts from: the classical chain's values,
+then the discretised equation-error fit's, and :func:`equation_error_start` for R and
+Ke when neither gave them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from pmdc_ident.core.data import Segment
+from pmdc_ident.core.effects import CoulombFriction, LoadTorque
+from pmdc_ident.core.model import Model
+from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
+
+__all__ = ["COULOMB_TORQUE", "LOAD_TORQUE", "equation_error_start", "start_model", "start_values"]
+
+COULOMB_TORQUE = "coulomb_friction.torque_nm"
+LOAD_TORQUE = "load_torque.torque_nm"
+
+
+def _smooth(x: np.ndarray, width: int) -> np.ndarray:
+    if width <= 1 or x.size <= width:
+        return x
+    return np.convolve(x, np.ones(width) / width, mode="same")
+
+
+def equation_error_start(segments: Sequence[Segment], fixed: Mapping[str, float]) -> MotorParams:
+    """Equation-error starting values (biased by unmodelled effects, refined later)."""
+    rows_e, ys_e, rows_m, ys_m = [], [], [], []
+    for s in segments:
+        w = s.speed_or_derivative()
+        width = max(1, s.n // 50)
+        ws = _smooth(w, width)
+        dw = np.gradient(ws, s.t)
+        is_open = s.open_mask
+        if s.current is not None and s.voltage is not None:
+            drive = ~is_open
+            rows_e.append(np.column_stack([s.current[drive], w[drive]]))
+            ys_e.append(s.voltage[drive])
+        i = np.zeros(s.n) if s.current is None else np.where(is_open, 0.0, s.current)
+        if s.current is not None or is_open.all():
+            rows_m.append(np.column_stack([dw, ws, i]))
+            ys_m.append(np.zeros(s.n))
+    r_guess, ke_guess = 1.0, 0.05
+    if rows_e:
+        a = np.concatenate(rows_e)
+        y = np.concatenate(ys_e)
+        ok = np.isfinite(y)
+        if ok.sum() >= 2:
+            (r_guess, ke_guess), *_ = np.linalg.lstsq(a[ok], y[ok], rcond=None)
+    r = float(fixed.get("R", r_guess if r_guess > 0 else 1.0))
+    ke = float(fixed.get("Ke", ke_guess if ke_guess > 0 else 0.05))
+    kt = float(fixed.get("Kt", ke))
+    j, b = math.nan, math.nan
+    if rows_m:
+        m = np.concatenate(rows_m)
+        # J dw/dt + B w = Kt i
+        sol, *_ = np.linalg.lstsq(m[:, :2], kt * m[:, 2], rcond=None)
+        j, b = float(sol[0]), float(sol[1])
+    if not (math.isfinite(j) and j > 0):
+        j = ke * kt * 0.1 / r  # tau_m = 0.1 s
+    if not (math.isfinite(b) and b >= 0):
+        b = 0.0
+    dt = float(np.median([s.dt_s for s in segments]))
+    values = {"R": r, "L": r * dt, "Ke": ke, "Kt": kt, "J": j, "B": b}
+    values.update({k: float(v) for k, v in fixed.items()})
+    return MotorParams(**values)
+
+
+def start_values(
+    classical: Mapping[str, float],
+    equation_error: Mapping[str, float],
+    dyn: Sequence[Segment],
+    fixed: Mapping[str, float],
+    current_mode: bool,
+) -> dict[str, float]:
+    """Start values for ``identify``'s fits: the classical chain's values, overridden by
+    the discretised equation-error fit's finite ones, then the user's ``fixed`` values;
+    R and Ke from :func:`equation_error_start` when those two did not give both."""
+    vals: dict[str, float] = dict(classical)
+    vals.update({k: v for k, v in equation_error.items() if math.isfinite(v)})
+    dt = min(s.dt_s for s in dyn)
+    if ("R" not in vals or "Ke" not in vals) and not current_mode:
+        p = equation_error_start(dyn, {})
+        vals.update({"R": p.R, "Ke": p.Ke})
+    if "L" not in vals:
+        vals["L"] = vals.get("R", 1.0) * dt / 4.0  # below the sample period: flagged later
+    vals.update(fixed)
+    if "Kt" not in vals:
+        vals["Kt"] = vals.get("Ke", 1.0)
+    if "J" not in vals:
+        vals["J"] = vals["Kt"] * 0.1
+    vals.setdefault("B", 0.0)
+    vals.setdefault("R", 1.0)
+    vals.setdefault("Ke", vals["Kt"])
+    # sanitize for a valid start
+    for k in ("R", "L", "Ke", "Kt", "J"):
+        if not (vals[k] > 0 and math.isfinite(vals[k])):
+            vals[k] = 1.0
+    scale_b = vals["J"] / max(10 * dt, 1e-3)
+    vals["B"] = vals["B"] if vals["B"] > 0 else 1e-3 * scale_b
+    vals[COULOMB_TORQUE] = max(vals.get(COULOMB_TORQUE, 0.0), 0.0)
+    return vals
+
+
+def start_model(
+    vals: Mapping[str, float], coulomb: bool, current_mode: bool, fixed: Mapping[str, float]
+) -> Model:
+    """The model a fit starts from: the linear model, plus Coulomb friction when asked
+    for (or fixed), plus a load torque on current-driven data (or when fixed)."""
+    p = MotorParams(**{n: vals[n] for n in PARAMETER_NAMES})
+    effects = []
+    if coulomb or COULOMB_TORQUE in fixed:
+        tc = vals.get(COULOMB_TORQUE, 0.0)
+        if tc <= 0 and COULOMB_TORQUE not in fixed:
+            # a small positive start (1 mA worth of torque)
+            tc = 1e-3 * p.Kt
+        effects.append(CoulombFriction(tc))
+    if current_mode or LOAD_TORQUE in fixed:
+        # a load torque is fitted on current-driven data, or held where the user knows it
+        effects.append(LoadTorque(float(vals.get(LOAD_TORQUE, 0.0))))
+    return Model(p, tuple(effects))
