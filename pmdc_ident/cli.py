@@ -46,12 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name, module_name in COMMANDS.items():
-        try:
-            module = importlib.import_module(f"pmdc_ident.commands.{module_name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"pmdc_ident.commands.{module_name}":
-                continue  # command not part of this build
-            raise
+        module = importlib.import_module(f"pmdc_ident.commands.{module_name}")
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
         p.set_defaults(_run=module.run)

@@ -202,3 +202,24 @@ def test_telemetry_fields_round_trip_exactly(
 ) -> None:
     msg = Telemetry(counter, counter ^ 0xFFFF, count, current, -current, 0, 1, faults)
     assert parse_frame(frame_message(msg)[:-1]) == (0, msg)
+
+
+def test_one_fault_enum_whose_bits_are_the_firmwares():
+    """The protocol, every backend and the driver carry pmdc_ident.core.enums.Fault; its
+    bits must be the firmware's PMDC_FAULT_* values (the wire format)."""
+    import re
+    from pathlib import Path
+
+    from pmdc_ident.backends import base, serial_board, sim
+    from pmdc_ident.core.enums import Fault
+    from pmdc_ident.protocol import board
+
+    header = Path(__file__).parents[1] / "firmware" / "protocol" / "pmdc_protocol.h"
+    firmware = {
+        name: int(value)
+        for name, value in re.findall(r"PMDC_FAULT_(\w+)\s*=\s*(\d+)", header.read_text())
+    }
+    assert firmware == {f.name: f.value for f in Fault if f.value}
+    for module in (base, serial_board, sim, board):
+        assert module.Fault is Fault, module.__name__
+    assert board.STICKY_FAULTS == Fault.OVER_CURRENT | Fault.OVER_SPEED | Fault.WATCHDOG

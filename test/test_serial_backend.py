@@ -12,9 +12,10 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
-from pmdc_ident.backends.base import Backend, BackendError, Fault, SafeMode, Telemetry
+from pmdc_ident.backends.base import Backend, BackendError, Telemetry
 from pmdc_ident.backends.serial_board import LinkState, SerialBackend
 from pmdc_ident.backends.virtual_board import VirtualBoard
+from pmdc_ident.core.enums import Fault, SafeMode
 from pmdc_ident.core.model import simulate
 from pmdc_ident.core.motors import MotorSpec, load_motor
 

@@ -7,10 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from pmdc_ident.backends.base import Backend, BackendError, Fault, SafeMode, Telemetry
-from pmdc_ident.backends.safety import SafetyMonitor
+from pmdc_ident.backends.base import Backend, BackendError, Telemetry
 from pmdc_ident.backends.sim import SimBackend
-from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.enums import Fault, SafeMode
 from pmdc_ident.core.excitation import apply_sensors
 from pmdc_ident.core.model import simulate
 from pmdc_ident.core.motors import Limits, SensorSpec, load_motor
@@ -255,47 +254,3 @@ def test_encoder_reading_is_quantised_to_whole_counts():
 def test_bad_sample_period_is_refused():
     with pytest.raises(BackendError, match="dt_s must be a positive"):
         SimBackend(SEED000, 0.0)
-
-
-# ---------------------------------------------------------------------------
-# SafetyMonitor
-# ---------------------------------------------------------------------------
-def _sample(current: float = 0.0, speed: float = 0.0) -> Telemetry:
-    return Telemetry(0, 0.0, current, 0.0, speed, 1.0)
-
-
-def test_over_current_and_over_speed_trip_once_and_latch_until_reset():
-    mon = SafetyMonitor(current_limit_a=10.0, speed_limit_rad_s=100.0, watchdog_s=0.5)
-    assert mon.check_sample(_sample(9.9, 99.0)) == Fault.NONE
-    assert mon.check_sample(_sample(-10.5, 0.0)) == Fault.OVER_CURRENT
-    assert "over-current trip" in mon.trip_message
-    assert mon.check_sample(_sample(-11.0, 0.0)) == Fault.NONE  # already latched
-    assert mon.check_sample(_sample(0.0, 120.0)) == Fault.OVER_SPEED
-    assert mon.tripped and mon.faults == Fault.OVER_CURRENT | Fault.OVER_SPEED
-    mon.reset()
-    assert not mon.tripped
-
-
-def test_zero_limit_disables_a_trip():
-    mon = SafetyMonitor(current_limit_a=0.0, speed_limit_rad_s=0.0, watchdog_s=0.0)
-    assert mon.check_sample(_sample(1e6, 1e6)) == Fault.NONE
-    assert not mon.watchdog_expired(1e9, driving=True)
-
-
-def test_watchdog_fires_once_after_the_timeout_and_a_command_clears_it():
-    mon = SafetyMonitor(current_limit_a=10.0, speed_limit_rad_s=100.0, watchdog_s=0.5)
-    mon.command_received(10.0)
-    assert not mon.watchdog_expired(10.49, driving=True)
-    assert mon.watchdog_expired(10.51, driving=True)
-    assert not mon.watchdog_expired(10.6, driving=True)  # once
-    assert mon.faults == Fault.WATCHDOG
-    mon.command_received(11.0)
-    assert mon.faults == Fault.NONE
-    assert not mon.watchdog_expired(20.0, driving=False)  # open armature: nothing to guard
-
-
-def test_negative_or_nan_safety_limits_are_refused():
-    with pytest.raises(ParameterError, match="watchdog_s must be >= 0"):
-        SafetyMonitor(current_limit_a=1.0, speed_limit_rad_s=1.0, watchdog_s=-1.0)
-    with pytest.raises(ParameterError, match="current_limit_a"):
-        SafetyMonitor(current_limit_a=math.nan, speed_limit_rad_s=1.0, watchdog_s=1.0)

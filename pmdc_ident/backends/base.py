@@ -11,39 +11,19 @@ an error: the driver calls it on every way out.
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
+from pmdc_ident.core.enums import Fault
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.motors import Limits
 
-__all__ = ["Backend", "BackendError", "Fault", "SafeMode", "Telemetry"]
+__all__ = ["Backend", "BackendError", "Telemetry"]
 
 
 class BackendError(PmdcError):
     """The backend cannot reach or drive the motor (one plain line)."""
-
-
-class SafeMode(enum.Enum):
-    """What 'safe' means for this rig: open the armature, or hold zero volts (brake)."""
-
-    OPEN = "open"
-    ZERO = "zero"
-
-
-class Fault(enum.IntFlag):
-    """Fault flags carried by telemetry (the serial protocol uses the same bits)."""
-
-    NONE = 0
-    OVER_CURRENT = 1
-    OVER_SPEED = 2
-    WATCHDOG = 4  # no command within the watchdog time: armature opened
-    SUPPLY = 8  # supply voltage out of range
-    CLAMPED = 16  # last command exceeded the voltage limit and was clamped
-    BAD_COMMAND = 32  # NaN/inf command refused
-    LINK = 64  # host link problem (checksum errors, lost frames)
 
 
 @dataclass(frozen=True)

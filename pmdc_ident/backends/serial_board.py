@@ -43,7 +43,8 @@ from dataclasses import dataclass, replace
 
 import serial
 
-from pmdc_ident.backends.base import BackendError, Fault, SafeMode, Telemetry
+from pmdc_ident.backends.base import BackendError, Telemetry
+from pmdc_ident.core.enums import Fault, SafeMode
 from pmdc_ident.core.motors import Limits
 from pmdc_ident.protocol import (
     PROTOCOL_VERSION,

@@ -38,7 +38,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from pmdc_ident.backends.base import BackendError, Fault, SafeMode, Telemetry
+from pmdc_ident.backends.base import BackendError, Telemetry
+from pmdc_ident.core.enums import Fault, SafeMode
 from pmdc_ident.core.excitation import apply_sensors
 from pmdc_ident.core.model import Plant
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec

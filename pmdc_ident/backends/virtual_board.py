@@ -29,10 +29,11 @@ import tty
 
 import numpy as np
 
+from pmdc_ident.core.enums import Fault
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.model import Plant
 from pmdc_ident.core.motors import MotorSpec
-from pmdc_ident.protocol.board import BoardCore, FaultBit
+from pmdc_ident.protocol.board import BoardCore
 from pmdc_ident.protocol.codec import cobs_decode, cobs_encode
 from pmdc_ident.protocol.messages import (
     BITS_PER_BYTE,
@@ -298,9 +299,9 @@ class VirtualBoard:
         w = plant.speed_rad_s
         lim = self.motor.limits
         if abs(plant.current_a) > lim.current_max_a:
-            core.trip(FaultBit.OVER_CURRENT)
+            core.trip(Fault.OVER_CURRENT)
         if abs(w) > lim.speed_max_rad_s:
-            core.trip(FaultBit.OVER_SPEED)
+            core.trip(Fault.OVER_SPEED)
         v = core.setpoint_v
         cpr = core.info.counts_per_rev
         count = math.floor(plant.position_rad / (2.0 * math.pi) * cpr)

@@ -83,7 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_ignore(args)
-    from pmdc_ident.commands.identify import parse_fix
+    from pmdc_ident.core.fixed import parse_fix
     from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
     from pmdc_ident.core.params import PARAMETER_NAMES
 

@@ -110,59 +110,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_batch_arguments(parser)
 
 
-def parse_fix(items: list[str], known: tuple[str, ...] | None = None) -> dict[str, float]:
-    """``--fix NAME=VALUE`` items: known names, physical values, no conflicting repeats.
-
-    ``known``: the names that may be fixed (default: what identify can hold, the
-    motor parameters, the Coulomb friction and a load torque).
-    """
-    from pmdc_ident.core.params import PARAMETER_NAMES
-
-    if known is None:
-        known = (*PARAMETER_NAMES, "coulomb_friction.torque_nm", "load_torque.torque_nm")
-    out: dict[str, float] = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        name = name.strip()
-        if not sep or not name:
-            msg = f"--fix expects NAME=VALUE (e.g. L=3e-4), got {item!r}"
-            raise ParameterError(msg)
-        try:
-            v = float(value)
-        except ValueError:
-            msg = f"--fix {name}: {value!r} is not a number"
-            raise ParameterError(msg) from None
-        if not math.isfinite(v):
-            msg = f"--fix {name}: value must be finite, got {value!r}"
-            raise ParameterError(msg)
-        if name not in known:
-            msg = f"--fix {name}: unknown parameter (known: {', '.join(known)})"
-            raise ParameterError(msg)
-        _check_fix_range(name, v)
-        if name in out and out[name] != v:
-            msg = f"--fix {name} given twice with different values ({out[name]:g} and {v:g})"
-            raise ParameterError(msg)
-        out[name] = v
-    return out
-
-
-def _check_fix_range(name: str, value: float) -> None:
-    from pmdc_ident.core.effects import EFFECT_TYPES
-    from pmdc_ident.core.params import PARAMETER_NAMES, check_physical_range
-
-    if name in PARAMETER_NAMES:
-        check_physical_range(name, value, source="--fix")
-        return
-    effect, _, field_name = name.partition(".")
-    spec = EFFECT_TYPES[effect].SPECS[field_name]
-    if not spec.lower <= value <= spec.upper:
-        msg = (
-            f"--fix {name}={value:g}: outside the range of the {spec.description}, "
-            f"[{spec.lower:g}, {spec.upper:g}] {spec.unit}"
-        )
-        raise ParameterError(msg)
-
-
 def _added_inertia(items: list[str], data: list[str], runs, segments) -> dict[str, float]:
     """``DATA=KG_M2`` items to segment labels (segments keep the order of the files)."""
     per_file: dict[str, float] = {}
@@ -218,6 +165,8 @@ def _write(path: Path | str, text: str) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     check_ignore(args)
+    from pmdc_ident.core.fixed import parse_fix
+
     fixed = parse_fix(args.fix)
     if args.bootstrap is not None and args.bootstrap < 0:
         msg = f"--bootstrap must be >= 0, got {args.bootstrap}"

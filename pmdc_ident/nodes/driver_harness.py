@@ -6,7 +6,8 @@
   stopped with SIGINT, its exit status and stderr kept;
 * :class:`DriverClient` - a small node that publishes ``voltage_cmd``, calls
   ``open_armature`` and records ``current``/``encoder``/``voltage_applied`` by stamp;
-* :func:`run_step_demo` - the foundation-stage demo (``make demo``).
+* :func:`run_step_demo` - the one-step demo (``python -m pmdc_ident.demo --step``;
+  ``make demo`` runs the whole session, :mod:`pmdc_ident.demo`).
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ re-sent instead of lost; ``voltage_cmd`` RELIABLE KEEP_LAST(10), the ROS default
 controller publishes with; ``/diagnostics`` RELIABLE KEEP_LAST(10)).
 
 No algorithm lives here: the plant is :class:`pmdc_ident.backends.sim.SimBackend`,
-the trips and the watchdog are :class:`pmdc_ident.backends.safety.SafetyMonitor`.
+the trips and the watchdog are :class:`pmdc_ident.core.safety.SafetyMonitor`.
 The motor is made safe on every way out (Ctrl-C, SIGTERM, exception, shutdown).
 """
 
@@ -56,10 +56,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from pmdc_ident.backends.base import Backend, BackendError, Fault, SafeMode, Telemetry
-from pmdc_ident.backends.safety import SafetyMonitor
+from pmdc_ident.backends.base import Backend, BackendError, Telemetry
+from pmdc_ident.core.enums import Fault, SafeMode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec, load_motor
+from pmdc_ident.core.safety import SafetyConfig, SafetyMonitor
 from pmdc_ident.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, sample_qos
 
 __all__ = ["PARAMETERS", "DriverConfigError", "DriverNode", "main"]
@@ -165,9 +166,13 @@ class DriverNode(Node):
         self._check_start(cfg)
         self._voltage_limit_v = self._effective_voltage_limit(cfg["voltage_limit_v"])
         self._safety = SafetyMonitor(
-            current_limit_a=cfg["current_limit_a"] or self._spec.limits.current_max_a,
-            speed_limit_rad_s=cfg["speed_limit_rad_s"] or self._spec.limits.speed_max_rad_s,
-            watchdog_s=cfg["watchdog_s"],
+            SafetyConfig(
+                current_max_a=cfg["current_limit_a"] or self._spec.limits.current_max_a,
+                speed_max_rad_s=cfg["speed_limit_rad_s"] or self._spec.limits.speed_max_rad_s,
+                data_timeout_s=0.0,  # the driver publishes; the session watches the data
+                watchdog_s=cfg["watchdog_s"],
+                non_finite_trips=False,  # a sensor may report 'not measured'
+            )
         )
         self._backend_name = cfg["backend"]
         self._rate_hz = float(cfg["rate_hz"])
@@ -276,8 +281,8 @@ class DriverNode(Node):
         # node's SafetyMonitor latches the trip and applies runtime changes.
         limits = Limits(
             voltage_max_v=self._spec.limits.voltage_max_v,
-            current_max_a=self._safety.current_limit_a,
-            speed_max_rad_s=self._safety.speed_limit_rad_s,
+            current_max_a=self._safety.config.current_max_a,
+            speed_max_rad_s=self._safety.config.speed_max_rad_s,
         )
         if cfg["backend"] == "sim":
             from pmdc_ident.backends.sim import SimBackend
@@ -327,11 +332,11 @@ class DriverNode(Node):
             if p.name == "voltage_limit_v":
                 self._voltage_limit_v = self._effective_voltage_limit(p.value)
             elif p.name == "current_limit_a":
-                self._safety.current_limit_a = p.value or self._spec.limits.current_max_a
+                self._safety.update(current_max_a=p.value or self._spec.limits.current_max_a)
             elif p.name == "speed_limit_rad_s":
-                self._safety.speed_limit_rad_s = p.value or self._spec.limits.speed_max_rad_s
+                self._safety.update(speed_max_rad_s=p.value or self._spec.limits.speed_max_rad_s)
             elif p.name == "watchdog_s":
-                self._safety.watchdog_s = p.value
+                self._safety.update(watchdog_s=p.value)
             self.get_logger().info(f"parameter {p.name} set to {p.value!r}")
 
     # -- commands -------------------------------------------------------------------------
@@ -351,7 +356,7 @@ class DriverNode(Node):
             return
         if self._safety.tripped:
             log.warning(
-                f"voltage_cmd refused: {self._safety.trip_message}; call reset_faults",
+                f"voltage_cmd refused: {self._safety.message()}; call reset_faults",
                 throttle_duration_sec=1.0,
             )
             return
@@ -384,7 +389,7 @@ class DriverNode(Node):
         return resp
 
     def _on_reset_faults(self, _req: Trigger.Request, resp: Trigger.Response) -> Any:
-        was = self._safety.trip_message or "no latched fault"
+        was = self._safety.message() or "no latched fault"
         self._safety.reset()
         resp.success = True
         resp.message = f"cleared: {was}"
@@ -415,15 +420,17 @@ class DriverNode(Node):
                 "the simulated motor kept running and stamps stay on the grid"
             )
         for s in samples:
-            if self._safety.check_sample(s):
+            trip = self._safety.check(s.time_s, s.current_a, s.speed_rad_s)
+            if trip is not None:
                 self._make_safe()
-                self.get_logger().error(f"{self._safety.trip_message}: motor made safe")
+                self.get_logger().error(f"{self._safety.latched[trip]}: motor made safe")
             self._publish(s)
         if self._safety.watchdog_expired(self._clock_s(), self._driving):
             self.backend.open_armature()
             self._driving = False
+            timeout = self._safety.config.watchdog_s
             self.get_logger().warning(
-                f"watchdog: no voltage_cmd for {self._safety.watchdog_s:g} s, armature opened"
+                f"watchdog: no voltage_cmd for {timeout:g} s, armature opened"
             )
 
     def _publish(self, s: Telemetry) -> None:
@@ -478,7 +485,7 @@ class DriverNode(Node):
         status.name = f"{self.get_fully_qualified_name()}: motor driver"
         status.hardware_id = f"{self._backend_name}:{self._spec.name}"
         if faults & (Fault.OVER_CURRENT | Fault.OVER_SPEED):
-            status.level, status.message = DiagnosticStatus.ERROR, self._safety.trip_message
+            status.level, status.message = DiagnosticStatus.ERROR, self._safety.message()
         elif faults or self._last_rate_hz < 0.9 * self._rate_hz:
             status.level = DiagnosticStatus.WARN
             status.message = f"faults: {_fault_names(faults)}" if faults else "sample rate low"
@@ -498,7 +505,7 @@ class DriverNode(Node):
             "armature": self.state_text(),
             "voltage limit (V)": f"{self._voltage_limit_v:g}",
             "watchdog": "tripped" if self._safety.watchdog_tripped else "ok",
-            "watchdog timeout (s)": f"{self._safety.watchdog_s:g}",
+            "watchdog timeout (s)": f"{self._safety.config.watchdog_s:g}",
             "skipped samples (host stalls)": str(getattr(self.backend, "skipped_samples", 0)),
         }
         if link is not None:

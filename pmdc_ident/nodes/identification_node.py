@@ -53,9 +53,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
-from pmdc_ident.backends.base import SafeMode
+from pmdc_ident.core.enums import SafeMode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.excitation import SequenceConfig, default_plan, plan_for_motor
+from pmdc_ident.core.fixed import parse_fix
 from pmdc_ident.core.motors import Limits, MotorSpec, load_motor
 from pmdc_ident.core.session import (
     AbortReason,
@@ -68,7 +69,7 @@ from pmdc_ident.core.session import (
 )
 from pmdc_ident.dataio.bagio import DriverArrays, assemble_run, parse_joint_state
 from pmdc_ident.dataio.completeness import Completeness, completeness
-from pmdc_ident.nodes.identify_call import identify_session_run, parse_fix
+from pmdc_ident.nodes.identify_call import identify_session_run
 from pmdc_ident.nodes.qos import (
     COMMAND_QOS,
     LATCHED_QOS,

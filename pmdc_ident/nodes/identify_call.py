@@ -11,14 +11,14 @@ document ``pmdc-ident identify --json`` writes.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from pmdc_ident.core.data import Run
 from pmdc_ident.core.motors import motor_to_yaml
 
-__all__ = ["IdentifyOutput", "identify_session_run", "parse_fix"]
+__all__ = ["IdentifyOutput", "identify_session_run"]
 
 
 @dataclass(frozen=True)
@@ -27,13 +27,6 @@ class IdentifyOutput:
     yaml_text: str  # the motor file of ``pmdc-ident identify --yaml``
     table: str  # the text report the command prints
     values: dict[str, float]
-
-
-def parse_fix(items: Sequence[str]) -> dict[str, float]:
-    """``["L=3e-4", ...]`` -> ``{"L": 3e-4}``, exactly as ``--fix`` parses it."""
-    from pmdc_ident.commands.identify import parse_fix as cli_parse_fix
-
-    return cli_parse_fix(list(items))
 
 
 def identify_session_run(

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import struct
 
+from pmdc_ident.core.enums import Fault
 from pmdc_ident.protocol.codec import encode_frame
 from pmdc_ident.protocol.messages import (
     MESSAGE_TYPES,
@@ -32,23 +33,13 @@ from pmdc_ident.protocol.messages import (
 )
 from pmdc_ident.protocol.parser import FrameParser
 
-__all__ = ["DEFAULT_WATCHDOG_MS", "BoardCore", "FaultBit"]
+__all__ = ["DEFAULT_WATCHDOG_MS", "STICKY_FAULTS", "BoardCore"]
 
 DEFAULT_WATCHDOG_MS = 500
 
 
-class FaultBit:
-    """Telemetry fault bits (same values as pmdc_ident.backends.base.Fault)."""
-
-    OVER_CURRENT = 1
-    OVER_SPEED = 2
-    WATCHDOG = 4
-    SUPPLY = 8
-    CLAMPED = 16
-    BAD_COMMAND = 32
-    LINK = 64
-    # Cleared by the next valid drive command (SET_VOLTAGE / SET_DUTY / OPEN).
-    STICKY = OVER_CURRENT | OVER_SPEED | WATCHDOG
+# Cleared by the next valid drive command (SET_VOLTAGE / SET_DUTY / OPEN).
+STICKY_FAULTS = Fault.OVER_CURRENT | Fault.OVER_SPEED | Fault.WATCHDOG
 
 
 def _q(value: float, lsb: float) -> int:
@@ -123,7 +114,7 @@ class BoardCore:
             self.last_host_us = now_us
             out += self._handle(item, seq, now_us)
         if self.parser.stats.errors != self._seen_errors:
-            self.faults |= FaultBit.LINK
+            self.faults |= Fault.LINK
             self._seen_errors = self.parser.stats.errors
         return bytes(out)
 
@@ -166,21 +157,21 @@ class BoardCore:
         elif kind == MsgType.SET_DUTY:
             duty = msg.duty_q15  # type: ignore[attr-defined]
             if duty < -32767:
-                self.trip(FaultBit.BAD_COMMAND)
+                self.trip(Fault.BAD_COMMAND)
                 return self._reply(ErrorReply(kind, ErrorCode.BAD_VALUE, duty & 0xFFFF), seq)
             supply_mv = int(self.info.supply_nominal_v * 1000.0 + 0.5)
             product = duty * supply_mv  # C: int64 product, division truncating toward 0
             self._drive_mv(abs(product) // 32767 * (1 if product >= 0 else -1))
         elif kind == MsgType.OPEN_ARMATURE:
             self.setpoint_mv = None
-            self.faults &= ~(FaultBit.STICKY | FaultBit.CLAMPED | FaultBit.BAD_COMMAND)
+            self.faults &= ~(STICKY_FAULTS | Fault.CLAMPED | Fault.BAD_COMMAND)
         return self._reply(Ack(kind), seq)
 
     def _drive_mv(self, mv: int) -> None:
         limit_mv = int(min(self.info.voltage_max_v, self.info.supply_nominal_v) * 1000.0 + 0.5)
-        self.faults &= ~(FaultBit.STICKY | FaultBit.CLAMPED | FaultBit.BAD_COMMAND)
+        self.faults &= ~(STICKY_FAULTS | Fault.CLAMPED | Fault.BAD_COMMAND)
         if mv > limit_mv or mv < -limit_mv:
-            self.faults |= FaultBit.CLAMPED
+            self.faults |= Fault.CLAMPED
             mv = limit_mv if mv > 0 else -limit_mv
         self.setpoint_mv = mv
 
@@ -194,7 +185,7 @@ class BoardCore:
         # Signed 32-bit difference: wraps of the microsecond clock are harmless.
         silent_us = ((now_us - self.last_host_us + 2**31) % 2**32) - 2**31
         if self.setpoint_mv is not None and silent_us > self.watchdog_ms * 1000:
-            self.trip(FaultBit.WATCHDOG)
+            self.trip(Fault.WATCHDOG)
 
     def skip_sample(self) -> None:
         """A sample instant passed without a frame (the counter still advances)."""
@@ -222,5 +213,5 @@ class BoardCore:
             self.faults & 0xFF,
         )
         self.counter += 1
-        self.faults &= ~FaultBit.LINK
+        self.faults &= ~Fault.LINK
         return encode_frame(encode_message(msg))

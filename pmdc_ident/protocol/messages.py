@@ -180,7 +180,7 @@ class Telemetry(Message):
     applied_v: int  # voltage_lsb_v counts held over this sample; NOT_MEASURED = open
     terminal_v: int  # voltage_lsb_v counts; NOT_MEASURED when not measured
     supply_v: int  # voltage_lsb_v counts; NOT_MEASURED when not measured
-    faults: int  # pmdc_ident.backends.base.Fault bits
+    faults: int  # pmdc_ident.core.enums.Fault bits
 
 
 @dataclass(frozen=True)

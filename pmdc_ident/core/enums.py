@@ -1,0 +1,51 @@
+"""Shared vocabulary of the driver, the protocol, the backends and the session.
+
+One place for the enums several layers use, so that none of them has to import a
+layer above it: the serial protocol (:mod:`pmdc_ident.protocol`) and every backend
+(:mod:`pmdc_ident.backends`) carry :class:`Fault` bits, the driver and the session
+make the motor safe the :class:`SafeMode` way, and a session that stops early says
+why with an :class:`AbortReason`.
+"""
+
+from __future__ import annotations
+
+import enum
+
+__all__ = ["AbortReason", "Fault", "SafeMode"]
+
+
+class SafeMode(enum.Enum):
+    """What 'safe' means for this rig: open the armature, or hold zero volts (brake)."""
+
+    OPEN = "open"
+    ZERO = "zero"
+
+
+class Fault(enum.IntFlag):
+    """Fault flags carried by telemetry.
+
+    The values are the wire format of serial protocol v1 and equal the firmware's
+    ``PMDC_FAULT_*`` (``firmware/protocol/pmdc_protocol.h``; a test compares them).
+    """
+
+    NONE = 0
+    OVER_CURRENT = 1
+    OVER_SPEED = 2
+    WATCHDOG = 4  # no command within the watchdog time: armature opened
+    SUPPLY = 8  # supply voltage out of range
+    CLAMPED = 16  # last command exceeded the voltage limit and was clamped
+    BAD_COMMAND = 32  # NaN/inf command refused
+    LINK = 64  # host link problem (checksum errors, lost frames)
+
+
+class AbortReason(enum.Enum):
+    """Why a session stopped early (the value is what the ``status`` topic carries),
+    and which limit a :class:`~pmdc_ident.core.safety.SafetyMonitor` tripped."""
+
+    OVER_CURRENT = "over_current"
+    OVER_SPEED = "over_speed"
+    STALL = "stall"
+    LOST_DRIVER_DATA = "lost_driver_data"
+    PEER_CRASHED = "peer_crashed"
+    INTERRUPTED = "interrupted"
+    DRIVER_FAULT = "driver_fault"

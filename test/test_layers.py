@@ -1,0 +1,115 @@
+"""The package's layers, enforced: a module imports only from its own layer or below.
+
+    core <- protocol <- dataio, report <- backends <- commands (and cli) <- nodes <- demo
+
+Every ``import`` / ``from ... import`` statement of every module is read from its
+syntax tree, including imports inside functions (a lazy import is still a
+dependency). The layer of a module is the first component below ``pmdc_ident``.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE_DIR = REPO / "pmdc_ident"
+
+LAYERS: dict[str, int] = {
+    "__init__": 0,
+    "core": 0,
+    "protocol": 1,
+    "dataio": 2,
+    "report": 2,
+    "backends": 3,
+    "commands": 4,
+    "cli": 4,
+    "nodes": 5,
+    "demo": 6,
+}
+
+
+def _layer_of_path(path: Path) -> str:
+    rel = path.relative_to(PACKAGE_DIR)
+    return rel.parts[0] if len(rel.parts) > 1 else rel.stem
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(REPO).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _imported_modules(path: Path) -> list[tuple[int, str]]:
+    """(line, absolute dotted name) of every pmdc_ident import in ``path``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    package = _module_name(path)
+    if path.name != "__init__.py":
+        package = package.rsplit(".", 1)[0]
+    out: list[tuple[int, str]] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - node.level + 1]
+                mod = ".".join([*base, node.module] if node.module else base)
+            else:
+                mod = node.module or ""
+            # "from pmdc_ident import nodes" imports the subpackage nodes
+            out += [(node.lineno, f"{mod}.{a.name}") for a in node.names]
+    return [(ln, m) for ln, m in out if m == "pmdc_ident" or m.startswith("pmdc_ident.")]
+
+
+def _layer_of_module(name: str) -> str:
+    parts = name.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in LAYERS else "__init__"
+
+
+def upward_imports(paths: list[Path]) -> list[str]:
+    offenders = []
+    for path in paths:
+        own = _layer_of_path(path)
+        for line, mod in _imported_modules(path):
+            target = _layer_of_module(mod)
+            if LAYERS[target] > LAYERS[own]:
+                rel = path.relative_to(REPO)
+                offenders.append(f"{rel}:{line}: {own} imports {mod} ({target} is above)")
+    return offenders
+
+
+SOURCES = sorted(PACKAGE_DIR.rglob("*.py"))
+
+
+def test_every_module_has_a_layer():
+    unknown = sorted({_layer_of_path(p) for p in SOURCES} - set(LAYERS))
+    assert unknown == [], f"add these to LAYERS (and to docs/design.md): {unknown}"
+
+
+def test_no_module_imports_a_layer_above_its_own():
+    assert upward_imports(SOURCES) == []
+
+
+@pytest.mark.parametrize(
+    ("layer", "source", "bad"),
+    [
+        ("core", "from pmdc_ident.backends.base import Telemetry\n", True),
+        ("core", "def f():\n    import pmdc_ident.nodes.bringup\n", True),
+        ("protocol", "from pmdc_ident.core.enums import Fault\n", False),
+        ("dataio", "from pmdc_ident import commands\n", True),
+        ("nodes", "from pmdc_ident.commands.identify import parse_fix\n", False),
+    ],
+)
+def test_the_check_catches_upward_imports(tmp_path, monkeypatch, layer, source, bad):
+    fake_pkg = tmp_path / "pmdc_ident"
+    (fake_pkg / layer).mkdir(parents=True)
+    path = fake_pkg / layer / "probe.py"
+    path.write_text(source)
+    monkeypatch.setattr(f"{__name__}.PACKAGE_DIR", fake_pkg)
+    monkeypatch.setattr(f"{__name__}.REPO", tmp_path)
+    assert bool(upward_imports([path])) is bad
