@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 
 from pmdc_ident.core.control_design import TOLERANCES, check_gains, design_gains
-from pmdc_ident.core.estimators.identify import identify_runs
+from pmdc_ident.core.estimators.identify import identify, merge_runs
 from pmdc_ident.core.excitation import plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model, simulate, simulate_linear
 from pmdc_ident.core.motors import MotorSpec, load_motor
@@ -51,7 +51,7 @@ def main() -> None:
     dt = 1e-3
     run = synthesize_run(true.model, plan_for_motor(true, dt), true.sensors, seed=7)
     c0 = time.process_time()
-    result = identify_runs([run])
+    result = identify(merge_runs([run]), sources=(run.source,))
     print(f"identified in {time.process_time() - c0:.1f} s CPU: {result.model}")
     ident = MotorSpec("identified", result.model, limits=true.limits)
     linear = MotorSpec("identified_linear", Model(result.model.params), limits=true.limits)

@@ -1,6 +1,6 @@
 """The package's layers, enforced: a module imports only from its own layer or below.
 
-    core <- protocol <- dataio, report <- backends <- commands (and cli) <- nodes <- demo
+    core <- protocol <- dataio, report, exports <- backends <- commands (and cli) <- nodes <- demo
 
 Every ``import`` / ``from ... import`` statement of every module is read from its
 syntax tree, including imports inside functions (a lazy import is still a
@@ -19,10 +19,12 @@ PACKAGE_DIR = REPO / "pmdc_ident"
 
 LAYERS: dict[str, int] = {
     "__init__": 0,
+    "_lazy": 0,
     "core": 0,
     "protocol": 1,
     "dataio": 2,
     "report": 2,
+    "exports": 2,
     "backends": 3,
     "commands": 4,
     "cli": 4,

@@ -83,8 +83,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_ignore(args)
-    from pmdc_ident.core.fixed import parse_fix
     from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
+    from pmdc_ident.core.fixed import parse_fix
     from pmdc_ident.core.params import PARAMETER_NAMES
 
     effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
