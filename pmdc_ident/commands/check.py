@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     json_to = check_file_output("--json", args.json, args.data, suffixes=(".json",))
     text_out = sys.stderr if json_to == STDOUT else sys.stdout
-    from pmdc_ident.commands.identify import parse_fix
+    from pmdc_ident.core.fixed import parse_fix
 
     check_ignore(args)
     fixed = parse_fix(args.fix)
