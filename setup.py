@@ -44,6 +44,7 @@ setup(
             "identification_node = pmdc_ident.nodes.identification_node:main",
             "recorder_node = pmdc_ident.nodes.recorder_node:main",
             "bringup = pmdc_ident.nodes.bringup:main",
+            "monitor_node = pmdc_ident.nodes.monitor_node:main",
         ],
     },
 )

@@ -1,0 +1,167 @@
+"""The drift monitor node over real DDS: a heating simulated motor, flagged on /diagnostics.
+
+Driver (sim backend, seed-000 motor with a strong resistance_drift) and monitor
+node each in their own process; the test commands voltage steps and listens to
+``model_drift``, ``/diagnostics`` and the latched ``reidentify_suggested``.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+rclpy = pytest.importorskip("rclpy")
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+
+from pmdc_ident.nodes.driver_harness import (  # noqa: E402
+    DriverClient,
+    DriverProcess,
+    apply_ros_env,
+)
+from pmdc_ident.nodes.monitor_node import PARAMETERS  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+DOMAIN_ID = 16
+K_HEAT = 0.003  # 1/(A^2 s): R rises fast enough to cross +20 % within seconds
+
+
+class MonitorProcess(DriverProcess):
+    """The monitor node as a child process (same lifecycle as the driver's)."""
+
+    def start(self) -> MonitorProcess:
+        cmd = [sys.executable, "-m", "pmdc_ident.nodes.monitor_node", "--ros-args"]
+        for name, value in self.params.items():
+            cmd += ["-p", f"{name}:={value}"]
+        self.proc = subprocess.Popen(
+            cmd, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        return self
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    motor = yaml.safe_load((REPO / "config" / "motors" / "seed000_ebike.yaml").read_text())
+    motor["effects"]["resistance_drift"] = {"coeff_per_a2s": K_HEAT}
+    path = tmp_path_factory.mktemp("monitor") / "heating.yaml"
+    path.write_text(yaml.safe_dump(motor))
+    apply_ros_env(DOMAIN_ID)
+    with (
+        DriverProcess({"motor": str(path), "watchdog_s": 0.5}, domain_id=DOMAIN_ID) as driver,
+        MonitorProcess({"params": "seed000_ebike"}, domain_id=DOMAIN_ID) as monitor,
+    ):
+        rclpy.init()
+        client = DriverClient(1000.0, name="test_monitor_client")
+        got: dict[str, list] = {"drift": [], "diag": [], "suggest": []}
+        client.create_subscription(
+            String, "model_drift", lambda m: got["drift"].append(json.loads(m.data)), 100
+        )
+        client.create_subscription(
+            DiagnosticArray,
+            "/diagnostics",
+            lambda m: got["diag"].extend(s for s in m.status if "motor drift" in s.name),
+            100,
+        )
+        latched = QoSProfile(
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        client.create_subscription(
+            String,
+            "reidentify_suggested",
+            lambda m: got["suggest"].append(json.loads(m.data)),
+            latched,
+        )
+        try:
+            client.wait_for_driver(timeout_s=30.0, alive=driver.alive)
+            levels = [6.0, 14.0, -8.0, 3.0, 18.0, -12.0]
+            start = time.monotonic()
+
+            def step() -> None:
+                client.send(levels[int((time.monotonic() - start) / 0.7) % len(levels)])
+
+            # until the monitor has reported for 12 s of samples (it may start late)
+            end = time.monotonic() + 60.0
+            while time.monotonic() < end and (
+                len(got["drift"]) < 2 or got["drift"][-1]["t_s"] - got["drift"][0]["t_s"] < 12.0
+            ):
+                client.spin_for(0.5, 0.02, step)
+            client.catch_up()
+            yield client, got, monitor
+        finally:
+            client.destroy_node()
+            rclpy.try_shutdown()
+
+
+def test_heating_is_tracked_and_reported_over_dds(session):
+    client, got, monitor = session
+    assert monitor.alive(), monitor.stderr
+    assert got["drift"], "no model_drift message"
+    last = got["drift"][-1]
+    # True R from what the driver measured: R0 (1 + k int i^2 dt) up to the last report.
+    stamps = np.array(client.current.stamps_ns) * 1e-9
+    i = np.array([v[0] for v in client.current.values])
+    upto = stamps <= last["t_s"]
+    heat = np.sum(i[upto] ** 2) * 1e-3
+    r_true = 1.375 * (1 + K_HEAT * heat)
+    r = last["quantities"]["resistance"]
+    assert r["value"] == pytest.approx(r_true, rel=0.03), (r, r_true)
+    assert r["unit"] == "ohm" and r["ci95"] > 0 and r["level"] == "ERROR"
+    assert last["temperature_rise_k"] > 50.0
+
+
+def test_diagnostics_carry_the_level_and_values_with_units(session):
+    _, got, _ = session
+    status = got["diag"][-1]
+    assert status.level == b"\x02"  # ERROR
+    values = {kv.key: kv.value for kv in status.values}
+    assert float(values["resistance_ohm"]) > 1.375 * 1.2
+    assert values["resistance_level"] == "ERROR"
+    assert values["suggest_reidentify"] == "true"
+    assert "back_emf_V_s_per_rad" in values and "delay_ci95_s" in values
+
+
+def test_the_suggestion_is_latched_and_reset_by_service(session):  # noqa: D103
+    client, got, _ = session
+    assert got["suggest"][-1]["suggest_reidentify"] is True
+    assert "resistance" in got["suggest"][-1]["reason"]
+    client.trigger("reset_suggestion")
+    end = time.monotonic() + 5.0
+    while time.monotonic() < end and got["suggest"][-1]["suggest_reidentify"]:
+        client.spin_once(0.05)
+    assert got["suggest"][-1]["suggest_reidentify"] is False
+
+
+def test_config_defaults_match_the_declared_parameters():
+    data = yaml.safe_load((REPO / "config" / "monitor.yaml").read_text())
+    declared = {k: v[0] for k, v in PARAMETERS.items()}
+    assert data["/**"]["ros__parameters"] == declared
+
+
+def test_a_missing_motor_file_is_one_line_and_exit_2(tmp_path):
+    with MonitorProcess({"params": str(tmp_path / "none.yaml")}, domain_id=DOMAIN_ID) as proc:
+        proc.proc.wait(timeout=60)
+    rc = proc.stop()
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert rc == 2
+    assert len(lines) == 1 and "parameter params" in lines[0]
+
+
+def test_sigint_stops_the_node_with_exit_0():
+    with MonitorProcess({"params": "seed000_ebike"}, domain_id=DOMAIN_ID) as proc:
+        time.sleep(3.0)  # well into its spin loop on a loaded machine
+        assert proc.alive(), proc.stderr
+        assert proc.stop(signal.SIGINT, timeout_s=20.0) == 0, proc.stderr
