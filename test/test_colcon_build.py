@@ -26,6 +26,7 @@ CONSOLE_SCRIPTS = (
     "identification_node",
     "recorder_node",
     "bringup",
+    "monitor_node",
 )
 
 
