@@ -27,6 +27,7 @@ _LAZY: dict[str, str] = {
     "mujoco_xml": "pmdc_ident.exports.mujoco_xml",
     "urdf_xml": "pmdc_ident.exports.urdf",
     "ros2_control_yaml": "pmdc_ident.exports.urdf",
+    "write_exports": "pmdc_ident.exports",
 }
 
 __all__ = ["__version__", *_LAZY]

@@ -219,3 +219,18 @@ def test_cli_refuses_a_wrong_output_name_before_any_work(tmp_path, capsys) -> No
     assert rc == 2
     assert "--mujoco" in capsys.readouterr().err
     assert main(["export-model", "seed000_ebike", "--urdf", str(tmp_path / "no" / "m.urdf")]) == 2
+
+
+def test_write_exports_puts_every_format_beside_a_result(tmp_path) -> None:
+    from pmdc_ident import write_exports
+
+    paths = write_exports(load_motor("seed000_ebike"), tmp_path, stem="identified")
+    assert [p.name for p in paths] == [
+        "identified.mjcf.xml",
+        "identified.urdf",
+        "identified.ros2_control.yaml",
+        "identified.gains.yaml",
+    ]
+    mujoco.MjModel.from_xml_path(str(paths[0]))
+    gains = yaml.safe_load(paths[3].read_text())
+    assert all(v["within_promise"] for v in gains["verification"])
