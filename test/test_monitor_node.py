@@ -8,6 +8,7 @@ node each in their own process; the test commands voltage steps and listens to
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -35,7 +36,6 @@ from pmdc_ident.nodes.driver_harness import (  # noqa: E402
 from pmdc_ident.nodes.monitor_node import PARAMETERS  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-DOMAIN_ID = 16
 K_HEAT = 0.002  # 1/(A^2 s): R rises fast enough to cross +20 % within seconds
 
 
@@ -53,15 +53,16 @@ class MonitorProcess(DriverProcess):
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory):
+def session(tmp_path_factory, module_ros_domain):
     motor = yaml.safe_load((REPO / "config" / "motors" / "seed000_ebike.yaml").read_text())
     motor["effects"]["resistance_drift"] = {"coeff_per_a2s": K_HEAT}
     path = tmp_path_factory.mktemp("monitor") / "heating.yaml"
     path.write_text(yaml.safe_dump(motor))
-    apply_ros_env(DOMAIN_ID)
+    domain = module_ros_domain
+    apply_ros_env(domain)
     with (
-        DriverProcess({"motor": str(path), "watchdog_s": 0.5}, domain_id=DOMAIN_ID) as driver,
-        MonitorProcess({"params": "seed000_ebike"}, domain_id=DOMAIN_ID) as monitor,
+        DriverProcess({"motor": str(path), "watchdog_s": 0.5}, domain_id=domain) as driver,
+        MonitorProcess({"params": "seed000_ebike"}, domain_id=domain) as monitor,
     ):
         rclpy.init()
         client = DriverClient(1000.0, name="test_monitor_client")
@@ -165,8 +166,8 @@ def test_config_defaults_match_the_declared_parameters():
     assert data["/**"]["ros__parameters"] == declared
 
 
-def test_a_missing_motor_file_is_one_line_and_exit_2(tmp_path):
-    with MonitorProcess({"params": str(tmp_path / "none.yaml")}, domain_id=DOMAIN_ID) as proc:
+def test_a_missing_motor_file_is_one_line_and_exit_2(tmp_path, ros_domain):
+    with MonitorProcess({"params": str(tmp_path / "none.yaml")}, domain_id=ros_domain) as proc:
         proc.proc.wait(timeout=60)
     rc = proc.stop()
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
@@ -174,8 +175,21 @@ def test_a_missing_motor_file_is_one_line_and_exit_2(tmp_path):
     assert len(lines) == 1 and "parameter params" in lines[0]
 
 
-def test_sigint_stops_the_node_with_exit_0():
-    with MonitorProcess({"params": "seed000_ebike"}, domain_id=DOMAIN_ID) as proc:
-        time.sleep(3.0)  # well into its spin loop on a loaded machine
+def _dds_up(pid: int) -> bool:
+    """The process holds a socket: its DDS participant exists, imports are done."""
+    fd_dir = Path(f"/proc/{pid}/fd")
+    try:
+        links = [os.readlink(fd) for fd in fd_dir.iterdir()]
+    except OSError:
+        return False
+    return any(link.startswith("socket:") for link in links)
+
+
+def test_sigint_stops_the_node_with_exit_0(ros_domain):
+    with MonitorProcess({"params": "seed000_ebike"}, domain_id=ros_domain) as proc:
+        end = time.monotonic() + 60.0
+        while time.monotonic() < end and proc.alive() and not _dds_up(proc.pid):
+            time.sleep(0.02)
         assert proc.alive(), proc.stderr
         assert proc.stop(signal.SIGINT, timeout_s=20.0) == 0, proc.stderr
+        assert "Traceback" not in proc.stderr
