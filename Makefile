@@ -17,6 +17,13 @@ export FASTDDS_DEFAULT_PROFILES_FILE := $(CURDIR)/config/fastdds_localhost.xml
 export FASTRTPS_DEFAULT_PROFILES_FILE := $(FASTDDS_DEFAULT_PROFILES_FILE)
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 
+# One BLAS thread per process (pmdc_ident/_blas.py): our matrices are small and on a
+# shared machine extra OpenBLAS threads only spin (identify: 2.7 s CPU instead of 1.0 s).
+OPENBLAS_NUM_THREADS ?= 1
+MKL_NUM_THREADS ?= 1
+OMP_NUM_THREADS ?= 1
+export OPENBLAS_NUM_THREADS MKL_NUM_THREADS OMP_NUM_THREADS
+
 # Only the paths that exist (benchmarks/ and launch/ may not yet).
 LINT_PATHS := $(wildcard pmdc_ident test benchmarks launch setup.py)
 BENCHES := $(sort $(wildcard benchmarks/bench_*.py))

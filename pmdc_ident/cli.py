@@ -17,6 +17,7 @@ import sys
 from collections.abc import Sequence
 
 from pmdc_ident import __version__
+from pmdc_ident._blas import limit_blas_threads
 
 __all__ = ["EXIT_INTERNAL_ERROR", "EXIT_INTERRUPTED", "EXIT_USER_ERROR", "main"]
 
@@ -78,6 +79,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         command = next((w for w in words if w in COMMANDS), "")
         # Everything below, the imports of the command modules included, is
         # inside the try: a Ctrl-C at any moment is one line and exit 130.
+        limit_blas_threads()  # before numpy is imported (batch workers inherit it)
         from pmdc_ident.core.errors import PmdcError
 
         user_errors = (PmdcError,)

@@ -126,3 +126,38 @@ def test_kernels_are_cached_privately_when_no_cache_location_is_writable(tmp_pat
 def test_kernels_still_run_when_nothing_can_be_cached(tmp_path) -> None:
     res = _kernel_probe(tmp_path, "IPythonCacheLocator")
     assert res["value"] == 2.0
+
+
+_BLAS_PROBE = """
+import json, os, sys
+try:
+    {setup}
+except SystemExit:
+    pass
+print(json.dumps({{v: os.environ.get(v) for v in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}}))
+"""
+
+
+@pytest.mark.parametrize(
+    ("setup", "preset", "want"),
+    [
+        ("from pmdc_ident import cli; cli.main(['--version'])", None, "1"),
+        ("import pmdc_ident.nodes", None, "1"),
+        ("from pmdc_ident import cli; cli.main(['--version'])", "2", "2"),  # the user's choice
+        ("import numpy, pmdc_ident.nodes", None, "1"),  # too late here; for its children
+        ("import pmdc_ident.core.model", None, None),  # a library user's process: untouched
+    ],
+)
+def test_our_processes_ask_for_one_blas_thread(setup: str, preset: str | None, want) -> None:
+    env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    if preset is not None:
+        env["OPENBLAS_NUM_THREADS"] = preset
+    out = subprocess.run(
+        [sys.executable, "-c", _BLAS_PROBE.format(setup=setup)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+        check=False,
+    )
+    assert json.loads(out.stdout.strip().splitlines()[-1])["OPENBLAS_NUM_THREADS"] == want
