@@ -1,0 +1,252 @@
+"""Record shapes and unit slips of issue 9: what `pmdc-ident` makes of each (a table).
+
+Each record comes from the independent RK4 motor of ``test/motor_records.py`` (not
+the package's simulator) and is written under ``--out DIR`` (default a temporary
+folder), so every row's command can be re-run by hand. For a shape that should
+identify, the row gives the largest error of R, Ke, J (and L where the record
+resolves it) against the truth; for a slip, the gate's first error line.
+
+Run: ``.venv/bin/python benchmarks/bench_record_shapes.py [--out DIR]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import math
+import sys
+import tempfile
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
+
+from motor_records import Motor, Record, prbs, simulate, steps, write_csv  # noqa: E402
+
+from pmdc_ident.cli import main  # noqa: E402
+
+BASE = Motor(Tc=0.002)  # R 2, L 2 mH, Ke = Kt 0.05, J 2e-5, B 2e-6, Tc 2 mN*m
+
+
+def _run(argv: list[str]) -> tuple[int, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = main(argv)
+    return rc, out.getvalue() + err.getvalue()
+
+
+def _fit(path: Path, truth: Motor, extra: list[str], names: tuple[str, ...]) -> str:
+    js = path.with_suffix(".json")
+    rc, text = _run(["identify", str(path), "--quiet", "--json", str(js), *extra])
+    if rc != 0:
+        return f"exit {rc}: {text.strip().splitlines()[-1]}"
+    params = json.loads(js.read_text())["parameters"]
+    errs = {n: params[n]["value"] / getattr(truth, n) - 1.0 for n in names}
+    worst = max(errs, key=lambda n: abs(errs[n]))
+    flags = [n for n in ("R", "L", "J") if not params[n]["identifiable"]]
+    note = f"; flagged not identifiable: {', '.join(flags)}" if flags else ""
+    listed = ", ".join(f"{n} {100 * e:+.2f} %" for n, e in errs.items())
+    return f"exit 0; {listed} (worst {worst}){note}"
+
+
+def _check(path: Path, extra: list[str]) -> str:
+    rc, text = _run(["check", str(path), *extra])
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip().startswith(("error:", "warn"))]
+    first = lines[0] if lines else text.strip().splitlines()[-1]
+    return f"exit {rc}; {first[:240]}"
+
+
+def _cases(out: Path) -> list[tuple[str, Callable[[], tuple[str, str]]]]:
+    v_steps = steps([6, 12, None, -6, 0], 0.4, 1000)
+    base = simulate(
+        BASE, v_steps, 1000, noise_current=0.005, noise_speed=0.05, counts_per_rev=2048
+    )
+
+    def identify(name: str, rec: Record, truth: Motor, names=("R", "Ke", "J"), extra=(), **kw):
+        path = write_csv(out / f"{name}.csv", rec, **kw)
+        cmd = " ".join(["pmdc-ident identify", str(path), *extra])
+        return _fit(path, truth, list(extra), names), cmd
+
+    def check(name: str, rec: Record, extra=(), **kw):
+        path = write_csv(out / f"{name}.csv", rec, **kw)
+        return _check(path, list(extra)), " ".join(["pmdc-ident check", str(path), *extra])
+
+    def one_direction():
+        v = np.r_[np.zeros(50), np.full(1000, 8.0)]
+        m = Motor(R=10.0, L=0.5e-3, Ke=0.07, Kt=0.07, J=5e-6, B=1e-6, Tc=1e-3)
+        rec = simulate(m, v, 500, substeps=40, noise_current=0.002, noise_speed=0.05)
+        return identify("one_direction_500hz", rec, m, drop=("position",))
+
+    def held_from_first_sample():
+        m = Motor(R=10.0, L=0.5e-3, Ke=0.07, Kt=0.07, J=5e-6, B=1e-6, Tc=1e-3)
+        rec = simulate(
+            m, np.full(1000, 8.0), 500, substeps=40, noise_current=0.002, noise_speed=0.05
+        )
+        return identify("step_on_at_first_sample", rec, m, drop=("position",))
+
+    def continuous():
+        t = np.arange(3000) / 1000
+        chirp = 6 * np.sin(2 * np.pi * (t + 0.5 * 19 / 3 * t**2))
+        v = np.concatenate(
+            [
+                np.zeros(300),
+                np.full(800, 6.0),
+                np.full(800, 12.0),
+                chirp,
+                prbs(2000, 6.0, 15, seed=2),
+                np.full(800, 10.0),
+                np.full(1500, np.nan),
+                np.zeros(600),
+            ]
+        )
+        rec = simulate(BASE, v, 1000, substeps=10, noise_current=0.005, noise_speed=0.05)
+        return identify("continuous_unlabeled", rec, BASE, names=("R", "L", "Ke", "J"))
+
+    def closed_loop():
+        ref = np.repeat([100.0, 200.0, -100.0], 1000)
+        state = {"i": 0.0}
+
+        def pi(k: int, w: float) -> float:
+            state["i"] += (ref[k] - w) / 1000
+            return float(np.clip(0.05 * (ref[k] - w) + 2.0 * state["i"], -24, 24))
+
+        rec = simulate(
+            BASE,
+            np.zeros(3000),
+            1000,
+            substeps=10,
+            noise_current=0.005,
+            noise_speed=0.2,
+            counts_per_rev=1024,
+            controller=pi,
+        )
+        return identify("closed_loop_pi", rec, BASE, names=("R", "L", "Ke", "J"))
+
+    def current_driven():
+        rec = simulate(BASE, v_steps, 1000, noise_current=0.005, noise_speed=0.05)
+        path = write_csv(out / "current_driven.csv", rec, drop=("voltage", "position"))
+        return _fit(path, BASE, ["--fix", "Kt=0.05"], ("J",)), (
+            f"pmdc-ident identify {path} --fix Kt=0.05"
+        )
+
+    def rate(hz: int, m: Motor, name: str, names, seconds=0.1, sub=4):
+        rec = simulate(
+            m,
+            steps([3, 6, -3, 0], seconds, hz),
+            hz,
+            substeps=sub,
+            noise_current=0.002,
+            noise_speed=0.2,
+        )
+        return identify(name, rec, m, names=names, drop=("position",))
+
+    small = Motor(R=3.5, L=0.49e-3, Ke=0.012, Kt=0.012, J=1e-6, B=1e-8)
+    geared = Motor(R=1.1, L=1.0e-3, Ke=0.03, Kt=0.03, J=2e-5, B=1e-6)
+
+    def fifty_hz():
+        m = Motor(R=8.0, L=2e-3, Ke=0.008, Kt=0.008, J=2e-7, B=1e-8, Tc=2e-5)
+        rec = simulate(m, prbs(1000, 6.0, 1, seed=3), 50, substeps=100, noise_current=0.003)
+        q = 2 * math.pi / 12 / 0.02
+        rec.speed = np.round(rec.speed / q) * q
+        path = write_csv(out / "prbs_50hz_quantised.csv", rec, drop=("position",))
+        res = _fit(path, m, [], ("R", "Ke", "J"))
+        return res + " | " + _check(path, []), f"pmdc-ident identify {path}"
+
+    def encoder_only():
+        rec = simulate(BASE, v_steps, 1000, substeps=10, noise_current=0.005, counts_per_rev=256)
+        return identify(
+            "encoder_256_position_only", rec, BASE, names=("R", "L", "Ke", "J"), drop=("speed",)
+        )
+
+    def wrapped():
+        rec = replace(base, position=np.mod(base.position, 2 * math.pi))
+        return identify("position_wrapped_no_speed", rec, BASE, drop=("speed",))
+
+    def filtered():
+        up = 20
+        fine = simulate(BASE, np.repeat(v_steps, up), 1000 * up, substeps=1)
+        a = math.exp(-1.0 / (2e-3 * 1000 * up))
+        f = np.empty_like(fine.current)
+        f[0] = fine.current[0]
+        for k in range(1, f.size):
+            f[k] = a * f[k - 1] + (1 - a) * fine.current[k]
+        rng = np.random.default_rng(0)
+        rec = Record(
+            fine.t[::up],
+            v_steps,
+            f[::up] + rng.normal(0, 0.005, v_steps.size),
+            fine.speed[::up] + rng.normal(0, 0.05, v_steps.size),
+            fine.position[::up],
+        )
+        return check("current_sensor_rc_2ms", rec)
+
+    def slip(name: str, scale: dict, **kw):
+        return lambda: check(f"slip_{name}", base, scale=scale, **kw)
+
+    def empty_voltage():
+        return check(
+            "slip_voltage_empty", replace(base, voltage=np.full_like(base.voltage, np.nan))
+        )
+
+    def zero_current():
+        return check("slip_current_zero", replace(base, current=np.zeros_like(base.current)))
+
+    def twice():
+        path = write_csv(out / "twice.csv", base)
+        return _check(path, [str(path)]), f"pmdc-ident check {path} {path}"
+
+    return [
+        ("one direction (8 V step from rest, 500 Hz)", one_direction),
+        ("step with the voltage on at the first sample", held_from_first_sample),
+        ("one continuous unlabeled log (segmented)", continuous),
+        ("closed-loop speed control (PI)", closed_loop),
+        ("current-driven (no voltage column), J given Kt", current_driven),
+        (
+            "20 kHz, L/R = 0.14 ms",
+            lambda: rate(20000, small, "small_20khz", ("R", "L", "Ke", "J")),
+        ),
+        ("5 kHz, L/R = 0.14 ms", lambda: rate(5000, small, "small_5khz", ("R", "L", "Ke", "J"))),
+        (
+            "1 kHz geared, L/R = 0.9 ms",
+            lambda: rate(1000, geared, "geared_1khz", ("R", "L", "Ke", "J"), 0.5, 10),
+        ),
+        ("50 Hz PRBS, 12-count speed sensor", fifty_hz),
+        ("256-count encoder, no speed column", encoder_only),
+        ("position wrapped to [0, 2 pi), no speed column", wrapped),
+        ("current sensor behind a 2 ms RC filter", filtered),
+        ("slip: speed in rpm", slip("rpm", {"speed": 30 / math.pi})),
+        ("slip: speed in deg/s", slip("degs", {"speed": 180 / math.pi})),
+        ("slip: position in deg", slip("posdeg", {"position": 180 / math.pi})),
+        ("slip: position in counts", slip("counts", {"position": 2048 / (2 * math.pi)})),
+        ("slip: time in ms", slip("ms", {"t": 1e3})),
+        ("slip: time in ns", slip("ns", {"t": 1e9})),
+        ("slip: current in mA", slip("mA", {"current": 1e3})),
+        ("slip: voltage in mV", slip("mV", {"voltage": 1e3})),
+        ("slip: current wires swapped", slip("isign", {"current": -1.0})),
+        ("slip: voltage column all empty", empty_voltage),
+        ("slip: current all zero", zero_current),
+        ("slip: the same file twice", twice),
+    ]
+
+
+def main_() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=None, help="keep the records here")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = args.out or Path(tmp)
+        out.mkdir(parents=True, exist_ok=True)
+        print("| record shape or slip | outcome | command |")
+        print("| --- | --- | --- |")
+        for name, case in _cases(out):
+            outcome, cmd = case()
+            print(f"| {name} | {outcome.replace('|', '/')} | `{cmd}` |", flush=True)
+
+
+if __name__ == "__main__":
+    main_()
