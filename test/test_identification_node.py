@@ -530,8 +530,9 @@ def test_full_default_sequence_recovers_the_seed000_motor(tmp_path, ros_domain):
     assert got["B"] == pytest.approx(p.B * scale, rel=0.10)
     tc = truth.effect("coulomb_friction").torque_nm
     assert got["coulomb_friction.torque_nm"] == pytest.approx(tc * scale, rel=0.03)
-    # L/R = 0.22 ms at 1 kHz: reported as not identifiable, as DESIGN.md requires
-    assert res.result["parameters"]["L"]["identifiable"] is False
+    # L/R = 0.22 ms below the 1 ms period: flagged from the fit's own bound (issue 9), and
+    # the note says that L shows only in the first sample after a step and the current's lag
+    assert "below the sample period" in res.result["parameters"]["L"]["reason"]
     assert json.loads(probe["result"])["parameters"] == res.result["parameters"]
 
 

@@ -57,17 +57,25 @@ def test_seed001_six_parameters_within_1_percent_from_step_and_sweep_with_1_perc
     assert "Ke" in res.reasons["Kt"]  # the closure is stated
 
 
-def test_seed000_inductance_flagged_at_1khz_with_needed_rate():
+def test_seed000_inductance_from_the_bound_at_1khz_and_flagged_with_a_rate_when_tiny():
+    """L/R = 0.22 ms at 1 kHz: the first sample after each step and the current's lag
+    still pin L (the information matrix says so, and the fit recovers it). With L/R
+    = 0.7 us nothing does, and the reason names a rate and the LCR meter."""
     spec = load_motor("seed000_ebike")
+    init = _perturbed(spec.model.params, (CoulombFriction(0.01),))
     cfg = SequenceConfig(sweep_duration_tau=10.0)
     plan = plan_for_motor(spec, 1e-3, cfg)
+    tiny = Model(spec.model.params.replace(L=1e-6), spec.model.effects)
+    res_tiny = fit_output_error(synthesize_run(tiny, plan, spec.sensors, seed=1).segments, init)
+    assert not res_tiny.identifiable["L"]
+    assert res_tiny.ci95["L"] is None
+    assert "sample at >= " in res_tiny.reasons["L"] and "LCR" in res_tiny.reasons["L"]
+    assert any(w.startswith("L:") for w in res_tiny.warnings)
     run = synthesize_run(spec.model, plan, spec.sensors, seed=1)
-    init = _perturbed(spec.model.params, (CoulombFriction(0.01),))
     res = fit_output_error(run.segments, init)
-    assert not res.identifiable["L"]
-    assert res.ci95["L"] is None
-    assert "kHz" in res.reasons["L"] and "LCR" in res.reasons["L"]
-    assert any(w.startswith("L:") for w in res.warnings)
+    assert res.identifiable["L"]
+    assert res.values["L"] == pytest.approx(spec.model.params.L, rel=0.05)
+    assert res.reasons["L"].startswith("L/R ~ 0.22 ms is below the sample period 1 ms")
     # the rest is still right (J and B scaled by Ke/Kt through the closure Kt = Ke)
     p = spec.model.params
     assert res.values["R"] == pytest.approx(p.R, rel=0.01)

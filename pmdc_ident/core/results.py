@@ -52,6 +52,10 @@ def format_polynomial(coeffs: list[float], var: str = "s") -> str:
     return out
 
 
+# reasons shown in the table's note column although the parameter is identifiable
+_SHOWN = ("fixed", "assumed", "weakly", "L/R", "one term")
+
+
 def transfer_function_dict(model: Model) -> dict[str, Any]:
     """I/V and w/V in seed 001's eq. 4-5 form (J-normalised), with readable text."""
     tf = model.params.transfer_functions()
@@ -93,10 +97,15 @@ class IdentificationResult:
             else:
                 ci = f"[{p.ci95[0]:.5g}, {p.ci95[1]:.5g}]"
             note = "" if p.identifiable else "NOT IDENTIFIABLE"
-            if p.reason and (not p.identifiable or p.reason.startswith(("fixed", "assumed"))):
+            if p.reason and (not p.identifiable or p.reason.startswith(_SHOWN)):
                 note = (note + " " + p.reason).strip() if not p.identifiable else p.reason
             lines.append(f"{p.name:<28} {p.value:>12.6g}  {ci:<26} {p.unit:<11} {note}")
         return "\n".join(lines)
+
+    @property
+    def mechanical_only(self) -> bool:
+        """A fit of the mechanical side alone (current-driven data): no electrical model."""
+        return self.model_kind == "mechanical"
 
     def text_report(self) -> str:
         out = [f"model: {self.model_kind}  (data: {', '.join(self.sources)})", self.table()]
@@ -105,9 +114,15 @@ class IdentificationResult:
         if self.warnings:
             out.append("warnings:")
             out += [f"  - {w}" for w in self.warnings]
-        tf = transfer_function_dict(self.model)
-        out.append("transfer functions (seed 001 eq. 4-5 form):")
-        out += [f"  {v['text']}" for v in tf.values()]
+        if self.mechanical_only:
+            out.append(
+                "transfer functions: none (mechanical-only fit: R, L and Ke are not measured "
+                "here, so I(s)/V(s) and W(s)/V(s) would be built from placeholders)"
+            )
+        else:
+            tf = transfer_function_dict(self.model)
+            out.append("transfer functions (seed 001 eq. 4-5 form):")
+            out += [f"  {v['text']}" for v in tf.values()]
         for m, info in self.methods.items():
             notes = info.get("notes") or []
             if notes:
@@ -150,7 +165,9 @@ class IdentificationResult:
                 "warnings": list(self.warnings),
                 "methods": self.methods,
                 "validation": self.validation,
-                "transfer_functions": transfer_function_dict(self.model),
+                "transfer_functions": {}
+                if self.mechanical_only
+                else transfer_function_dict(self.model),
                 "noise": self.noise,
                 "fit": self.fit_info,
             }

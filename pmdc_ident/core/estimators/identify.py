@@ -149,11 +149,13 @@ def identify(
             fit, setup.dynamic, n=bootstrap, seed=seed, closure=setup.closure
         )
     freq = _frequency_response(setup, fit, report) if frequency else None
+    parameters = _estimates(fit, chosen, widen, setup.current_mode)
+    _one_direction_term(setup.dynamic, parameters, report)
     return IdentificationResult(
         sources=sources,
         model_kind="mechanical" if setup.current_mode else chosen,
         model=fit.model,
-        parameters=_estimates(fit, chosen, widen, setup.current_mode),
+        parameters=parameters,
         assumptions=tuple(report.assumptions),
         warnings=tuple(dict.fromkeys(report.warnings)),
         methods=report.methods,
@@ -625,6 +627,27 @@ def _estimates(
                 reason="no voltage in the data (value is a placeholder)",
             )
     return params
+
+
+def _one_direction_term(
+    dyn: Sequence[Segment], params: dict[str, ParameterEstimate], report: _Report
+) -> None:
+    """Name the Coulomb term for what it is when the rotor turned one way only."""
+    from pmdc_ident.core.estimators.equation_error import ONE_DIRECTION_NOTE, one_direction
+
+    speeds = [s.speed_or_derivative() for s in dyn]
+    if not speeds or not one_direction(np.concatenate(speeds)):
+        return
+    if ONE_DIRECTION_NOTE not in report.assumptions:
+        report.assumptions.append(ONE_DIRECTION_NOTE)
+    report.warnings[:] = [w for w in report.warnings if w != ONE_DIRECTION_NOTE]
+    name = "coulomb_friction.torque_nm"
+    if name in params and params[name].method != "fixed":
+        params[name] = replace(
+            params[name],
+            reason="one term: Coulomb friction + a constant load torque (the rotor turned one "
+            "way only; a run in reverse separates them)",
+        )
 
 
 def _fit_info(fit: FitResult, dyn: Sequence[Segment]) -> dict[str, Any]:

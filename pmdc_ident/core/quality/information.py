@@ -348,10 +348,19 @@ def _information(blocks: list[FloatArray], n_par: int) -> FloatArray | None:
 def rate_for_inductance_hz(rsd_now: float, tau_e_s: float, dt_s: float, target: float) -> float:
     """Sample rate at which L's relative sd falls to ``target`` (same noise per sample).
 
-    L's information comes from the samples inside the current's transients:
-    ``sum_k (k h / tau)^2 exp(-2 k h / tau)`` per edge, which grows as 1/h once
-    the transient is resolved and vanishes when it settles within a sample.
+    When the current's transient after a voltage step spans samples, L's information
+    is ``sum_k (k h / tau)^2 exp(-2 k h / tau)`` per edge: it grows as 1/h once the
+    transient is resolved and vanishes when it settles within a sample. When it
+    settles far inside a sample (h > 8 tau) that term is nil and what is left - the
+    current's lag behind the back-EMF while the speed changes - grows only with the
+    number of samples: the sd falls as sqrt(h).
     """
+    if not (math.isfinite(rsd_now) and rsd_now > 0):
+        return math.inf
+    if rsd_now <= target:
+        return 1.0 / dt_s
+    if dt_s > 8.0 * tau_e_s:
+        return (rsd_now / target) ** 2 / dt_s
 
     def g(h: float) -> float:
         x = h / tau_e_s
@@ -359,8 +368,6 @@ def rate_for_inductance_hz(rsd_now: float, tau_e_s: float, dt_s: float, target: 
         return x * x * a * (1.0 + a) / (1.0 - a) ** 3
 
     base = g(dt_s)
-    if not (base > 0 and math.isfinite(rsd_now)):
-        return math.inf
     rate = 1.0 / dt_s
     for _ in range(200):
         if rsd_now * math.sqrt(base / g(1.0 / rate)) <= target:
@@ -403,6 +410,26 @@ def _advice(name: str, info: Information) -> str:
     if not math.isfinite(rate):
         where = "record sharper voltage steps"
     return f"{where}, or --fix L=... from an LCR meter"
+
+
+def advice_for(name: str, rsd: float, *, tau_e: float, dt_s: float) -> str:
+    """What would pin ``name`` down, given its relative sd now (the fit's or the gate's)."""
+    if name != "L":
+        return _ADVICE.get(name.split(".")[0].replace("coulomb_friction", "Tc"), "")
+    if not (math.isfinite(tau_e) and tau_e > 0):
+        return "fix L from an LCR meter (--fix L=...)"
+    rate = rate_for_inductance_hz(rsd, tau_e, dt_s, WEAK) if math.isfinite(rsd) else math.inf
+    if math.isfinite(rate) and rate > 1.0 / dt_s * 1.01:
+        where = f"sample at >= {_hz(rate)} (the bound drops below 10 % there)"
+    elif math.isfinite(rate):
+        where = "record more or sharper voltage steps"
+    else:
+        where = f"sample at >= {_hz(10.0 / tau_e)} (10 samples per L/R)"
+    return f"{where}, or fix L from an LCR meter (--fix L=...)"
+
+
+def _hz(rate: float) -> str:
+    return f"{rate / 1e3:.3g} kHz" if rate >= 1e3 else f"{rate:.3g} Hz"
 
 
 def information_findings(where: str, segments: Sequence[Segment], fixed: Mapping[str, float]):

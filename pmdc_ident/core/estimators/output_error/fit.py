@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
@@ -42,9 +43,6 @@ __all__ = ["CLOSURE_KT_KE", "fit_output_error"]
 
 FloatArray = NDArray[np.float64]
 CLOSURE_KT_KE = "Kt=Ke"
-# L is not identifiable from dynamic data when the current settles within a sample.
-_MIN_TAU_E_SAMPLES = 1.0
-_NEEDED_TAU_E_SAMPLES = 5.0
 _ELECTRICAL = ("R", "L", "Ke", "Kt")
 
 
@@ -100,8 +98,8 @@ def fit_output_error(
         prob, z, lm, reasons, fixed, closure if tie_kt else None, warnings, t_start
     )
     result = _flag_scale_ambiguity(result)
-    if check_inductance and not current_mode and "L" in result.free:
-        result = _flag_inductance(result, segs, t_start)
+    if check_inductance and not current_mode:
+        result = _flag_from_bound(result, segs, t_start)
     return result
 
 
@@ -208,32 +206,44 @@ def _flag_scale_ambiguity(result: FitResult) -> FitResult:
     return replace(result, reasons={**result.reasons, **dict.fromkeys(scale, why)})
 
 
-def _inductance_reason(tau_e: float, dt_min: float) -> str:
-    need_hz = _NEEDED_TAU_E_SAMPLES / tau_e
-    return (
-        f"L/R ~ {tau_e * 1e3:.2g} ms is below the sample period "
-        f"{dt_min * 1e3:.3g} ms: the current settles within one sample, so L is "
-        f"not identifiable from these data; sample at >= {need_hz / 1e3:.3g} kHz "
-        f"or fix L from an LCR meter (--fix L=...)"
-    )
+def _flag_from_bound(res: FitResult, segs: Sequence[PreparedSegment], t_start: float) -> FitResult:
+    """Identifiability from the fit's own information matrix (the Cramer-Rao bound on
+    these data): relative sd > 50 % not identifiable, 10-50 % weakly, each reason
+    saying what would pin the parameter down; for L the sample rate at which its
+    bound drops below 10 %. L/R below the sample period alone is no longer a flag:
+    the first sample after each voltage step may still pin L (a note says so)."""
+    from pmdc_ident.core.quality.information import WEAK, advice_for
 
-
-def _flag_inductance(res: FitResult, segs: Sequence[PreparedSegment], t_start: float) -> FitResult:
-    """Mark L not identifiable when L/R is below the sample period.
-
-    The fitted (rough) value is kept: holding L at a guess would add nothing.
-    """
-    tau_e = res.values["L"] / res.values["R"]
     dt_min = min(s.dt for s in segs)
-    if tau_e >= _MIN_TAU_E_SAMPLES * dt_min:
-        return res
-    reason = _inductance_reason(tau_e, dt_min)
+    tau_e = res.values["L"] / res.values["R"] if "L" in res.values else math.inf
+    reasons, identifiable = dict(res.reasons), dict(res.identifiable)
+    ci95, stderr, warnings = dict(res.ci95), dict(res.stderr), list(res.warnings)
+    for name in res.free:
+        se = res.stderr.get(name)
+        value = abs(res.values.get(name, math.nan))
+        rel = se / value if se is not None and value > 0 else math.inf
+        hint = advice_for(name, rel, tau_e=tau_e, dt_s=dt_min)
+        if not identifiable.get(name, True):
+            reasons[name] = f"{reasons.get(name, 'not identifiable')}; {hint}"
+            if name == "L":
+                ci95[name], stderr[name] = None, None
+                warnings.append(f"L: {reasons[name]}")
+        elif rel > WEAK:
+            reasons[name] = f"weakly identifiable: relative sd {rel:.0%} on these data; {hint}"
+        elif name == "L" and tau_e < dt_min:
+            reasons[name] = (
+                f"L/R ~ {tau_e * 1e3:.2g} ms is below the sample period {dt_min * 1e3:.3g} ms: "
+                "L shows only in the current's first sample after a step and its lag behind "
+                f"the back-EMF (relative sd {rel:.2%} on these data); a delay or a filtered "
+                "current sensor would bias it "
+                "(`pmdc-ident check` looks for both), an LCR meter confirms it"
+            )
     return replace(
         res,
-        reasons={**res.reasons, "L": reason + " (the value is the fit's rough estimate)"},
-        identifiable={**res.identifiable, "L": False},
-        ci95={**res.ci95, "L": None},
-        stderr={**res.stderr, "L": None},
-        warnings=(*res.warnings, "L: " + reason),
+        reasons=reasons,
+        identifiable=identifiable,
+        ci95=ci95,
+        stderr=stderr,
+        warnings=tuple(warnings),
         elapsed_s=time.perf_counter() - t_start,
     )
