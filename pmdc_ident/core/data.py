@@ -25,6 +25,7 @@ __all__ = [
     "Run",
     "Segment",
     "TestKind",
+    "check_excitation",
     "link_history",
     "segment_kind",
     "unique_labels",
@@ -359,3 +360,53 @@ def _float_array(name: str, value: object, label: str) -> FloatArray:
         msg = f"segment {label!r}: {name} is not numeric"
         raise DataError(msg) from None
     return arr
+
+
+# Smallest swing that counts as excitation: far below any real test (a tenth of a
+# volt, a milliamp, a fraction of a rad/s), far above rounding noise of data in
+# SI units; a record that swings less is flat or in the wrong unit.
+EXCITATION_FLOOR: dict[str, float] = {"voltage": 1e-6, "current": 1e-9, "speed": 1e-9}
+# Fewest driven (voltage given) samples a record with a voltage column needs.
+MIN_DRIVEN_SAMPLES = 3
+
+
+def check_excitation(segments: Sequence[Segment]) -> None:
+    """Refuse a record that carries no information: nothing moves or nothing is driven.
+
+    One line (a :class:`DataError`) saying what is flat, before any fit runs into
+    a singular problem.
+    """
+    segs = list(segments)
+    speeds = np.concatenate([s.speed_or_derivative() for s in segs])
+    volts = [s.voltage[~np.isnan(s.voltage)] for s in segs if s.voltage is not None]
+    v = np.concatenate(volts) if volts else np.zeros(0)
+    has_open = any(s.open_mask.any() for s in segs)
+    cur = [s.current for s in segs if s.current is not None]
+    floor = EXCITATION_FLOOR
+    moving = float(np.ptp(speeds)) > floor["speed"]
+    v_flat = v.size == 0 or float(np.ptp(v)) <= floor["voltage"]
+    still_input = v.size == 0 or (v_flat and float(np.max(np.abs(v))) <= floor["voltage"])
+    if not moving and still_input and not has_open:
+        held = f"{v[0]:g} V" if v.size else "no voltage column"
+        msg = (
+            f"no excitation: the motor never moves ({held}, speed constant); "
+            "record a step, sweep, staircase or coast-down"
+        )
+        raise DataError(msg)
+    if not moving:
+        msg = (
+            f"no excitation: the speed never changes (it spans {np.ptp(speeds):.3g} rad/s), "
+            "so nothing mechanical can be identified"
+        )
+        raise DataError(msg)
+    driven = int(v.size)
+    if volts and driven < MIN_DRIVEN_SAMPLES:
+        msg = (
+            f"no excitation: only {driven} driven sample(s), the armature is open in every "
+            "other row: nothing drives the motor long enough to tell R, L or Ke"
+        )
+        raise DataError(msg)
+    cur_flat = all(float(np.ptp(c)) <= floor["current"] for c in cur)
+    if cur and cur_flat and v_flat and not has_open:
+        msg = "no excitation: voltage and current are constant in every segment"
+        raise DataError(msg)

@@ -82,36 +82,49 @@ def data_scales(segments: Sequence[Segment], kt: float, periods: Sequence[int] =
     )
 
 
+def _start(cls: type[Effect], *values: float) -> Effect:
+    """``cls(*values)`` with each value moved into its physical range: a start sized
+    from data in odd units must still be a valid effect, not an error."""
+    specs = list(cls.SPECS.values())
+    return cls(
+        *(min(max(float(v), sp.lower), sp.upper) for v, sp in zip(values, specs, strict=True))
+    )
+
+
 def starting_effects(name: str, sc: DataScales) -> list[Effect]:
-    """Starting values to scan for one effect, sized from the data."""
+    """Starting values to scan for one effect, sized from the data (within its range)."""
     t, v, w = sc.torque_nm, sc.voltage_v, sc.speed_rad_s
     if name == "coulomb_friction":
-        return [CoulombFriction(t * f) for f in (0.03, 0.1, 0.3)]
+        return [_start(CoulombFriction, t * f) for f in (0.03, 0.1, 0.3)]
     if name == "stribeck_friction":
-        return [StribeckFriction(t * f, max(w * g, 1e-3)) for f in (0.1, 0.4) for g in (0.02, 0.1)]
+        return [
+            _start(StribeckFriction, t * f, max(w * g, 1e-3))
+            for f in (0.1, 0.4)
+            for g in (0.02, 0.1)
+        ]
     if name == "quadratic_drag":
-        return [QuadraticDrag(t * f / w**2) for f in (0.1, 0.3, 1.0)]
+        return [_start(QuadraticDrag, t * f / w**2) for f in (0.1, 0.3, 1.0)]
     if name == "load_torque":
-        return [LoadTorque(t * f) for f in (-0.2, -0.05, 0.05, 0.2)]
+        return [_start(LoadTorque, t * f) for f in (-0.2, -0.05, 0.05, 0.2)]
     if name == "brush_drop":
-        return [BrushDrop(v * f) for f in (0.01, 0.02, 0.035, 0.05, 0.075, 0.1)]
+        return [_start(BrushDrop, v * f) for f in (0.01, 0.02, 0.035, 0.05, 0.075, 0.1)]
     if name == "dead_zone":
-        return [DeadZone(v * f) for f in (0.01, 0.02, 0.035, 0.05, 0.075, 0.1)]
+        return [_start(DeadZone, v * f) for f in (0.01, 0.02, 0.035, 0.05, 0.075, 0.1)]
     if name == "cogging":
         return [
-            Cogging(t * 0.1, float(n), ph)
+            _start(Cogging, t * 0.1, float(n), ph)
             for n in sc.periods_per_rev
             for ph in (-2.5, -1.0, 0.5, 2.0)
         ]
     if name == "resistance_drift":
-        return [ResistanceDrift(min(f / sc.charge_a2s, 10.0)) for f in (0.05, 0.2)]
+        return [_start(ResistanceDrift, min(f / sc.charge_a2s, 10.0)) for f in (0.05, 0.2)]
     if name == "delay":
         # every whole sample: at high sweep frequencies the cost wraps with the phase
-        return [Delay(min(k * sc.dt_s, 1.0)) for k in (*range(1, 25), 30, 40)]
+        return [_start(Delay, min(k * sc.dt_s, 1.0)) for k in (*range(1, 25), 30, 40)]
     if name == "current_offset":
-        return [CurrentOffset(sc.current_a * f) for f in (-0.05, -0.01, 0.01, 0.05)]
+        return [_start(CurrentOffset, sc.current_a * f) for f in (-0.05, -0.01, 0.01, 0.05)]
     if name == "inductance_saturation":
-        return [InductanceSaturation(max(sc.current_a * f, 1e-3)) for f in (0.5, 1.0, 2.0)]
+        return [_start(InductanceSaturation, max(sc.current_a * f, 1e-3)) for f in (0.5, 1.0, 2.0)]
     msg = f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}"
     raise ValueError(msg)
 

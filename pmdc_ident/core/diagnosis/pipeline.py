@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from pmdc_ident.core.data import Run, Segment, unique_labels
+from pmdc_ident.core.data import Run, Segment, check_excitation, unique_labels
 from pmdc_ident.core.diagnosis.candidates import (
     DataScales,
     data_scales,
@@ -106,6 +106,7 @@ def diagnose(
     cfg = config or DiagnosisConfig()
     t_start = time.perf_counter()
     segments = _flatten(runs_or_segments)
+    check_excitation(segments)  # a flat record: one line, not a singular fit
     split = split_segments(segments, cfg.holdout or None)
     noise = estimate_noise(segments)
     search = _Search(split, noise, cfg, progress)

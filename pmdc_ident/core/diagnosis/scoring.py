@@ -72,6 +72,9 @@ def estimate_noise(segments: Sequence[Segment]) -> NoiseModel:
     return NoiseModel(sigma, scale)
 
 
+_REL_ERROR_CAP = 1e100
+
+
 @dataclass(frozen=True)
 class Residuals:
     """Per-sample simulation errors over a set of segments, concatenated."""
@@ -86,7 +89,11 @@ class Residuals:
         cnt = np.zeros(self.seg_index.size)
         for sig, err in self.error.items():
             ok = np.isfinite(err)
-            acc[ok] += (err[ok] ** 2 - self.noise.sigma[sig] ** 2) / self.noise.scale[sig] ** 2
+            scale = self.noise.scale[sig]
+            # a diverged simulation (errors of 1e200) is just very wrong: relative errors
+            # are capped where their square stays finite
+            rel = np.minimum(np.abs(err[ok]) / scale, _REL_ERROR_CAP)
+            acc[ok] += rel**2 - (self.noise.sigma[sig] / scale) ** 2
             cnt += ok
         return acc / np.maximum(cnt, 1)
 

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from pmdc_ident.core.data import Run, Segment, TestKind, unique_labels
+from pmdc_ident.core.data import Run, Segment, TestKind, check_excitation, unique_labels
 from pmdc_ident.core.effects import CoulombFriction, parameter_unit
 from pmdc_ident.core.errors import DataError, ParameterError
 from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit
@@ -198,7 +198,7 @@ def _setup(
         msg = "no data"
         raise DataError(msg)
     segs = list(segments)
-    _check_excitation(segs)
+    check_excitation(segs)
     current_mode = all(s.voltage is None for s in segs)
     if not current_mode and any(s.voltage is None for s in segs):
         msg = "some inputs have a voltage column and some do not; identify them separately"
@@ -259,30 +259,6 @@ def _closure(
         "an empty cell is an open armature"
     )
     return closure_used, assumptions
-
-
-def _check_excitation(segs: Sequence[Segment]) -> None:
-    speeds = np.concatenate([s.speed_or_derivative() for s in segs])
-    volts = [s.voltage[~np.isnan(s.voltage)] for s in segs if s.voltage is not None]
-    v = np.concatenate(volts) if volts else np.zeros(0)
-    has_open = any(s.open_mask.any() for s in segs)
-    cur = [s.current for s in segs if s.current is not None]
-    moving = float(np.ptp(speeds)) > 0 and float(np.max(np.abs(speeds))) > 0
-    still_input = (v.size == 0 or (np.ptp(v) == 0 and abs(v[0]) == 0)) and not has_open
-    if not moving and still_input:
-        held = f"{v[0]:g} V" if v.size else "no voltage column"
-        msg = (
-            f"no excitation: the motor never moves ({held}, speed constant); "
-            "record a step, sweep, staircase or coast-down"
-        )
-        raise DataError(msg)
-    if not moving:
-        msg = "no excitation: the speed never changes, so nothing mechanical can be identified"
-        raise DataError(msg)
-    if cur and not any(np.ptp(c) > 0 for c in cur) and (v.size == 0 or np.ptp(v) == 0):
-        if not has_open:
-            msg = "no excitation: voltage and current are constant in every segment"
-            raise DataError(msg)
 
 
 def _is_dynamic(s: Segment) -> bool:
@@ -455,7 +431,7 @@ def _restart_coulomb(setup: _Setup, fits: dict[str, FitResult], say: ProgressCal
 def minus_two_log_likelihood(fit: FitResult) -> float:
     """-2 log L of Gaussian white residuals with per-signal variances set to their ML value."""
     n_per = fit.n_samples
-    return float(sum(n_per * math.log(max(r, 1e-300) ** 2) for r in fit.rms.values()))
+    return float(sum(n_per * 2.0 * math.log(max(r, 1e-300)) for r in fit.rms.values()))
 
 
 def _choose(fits: Mapping[str, FitResult], model: str) -> str:
