@@ -12,6 +12,7 @@ import enum
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -170,9 +171,9 @@ class Segment:
     def duration_s(self) -> float:
         return float(self.t[-1] - self.t[0])
 
-    @property
+    @cached_property
     def dt_s(self) -> float:
-        """Median sample period."""
+        """Median sample period (computed once: fits ask for it at every evaluation)."""
         return float(np.median(np.diff(self.t)))
 
     @property

@@ -103,6 +103,31 @@ def fast_kernel(
     for c in nc:
         if c < 6:
             need6[c] = True
+    # The mixing matrix is sparse (each kernel column feeds one or two Jacobian columns):
+    # its non-zero entries in the order of nc, so each Jacobian entry sums the same
+    # terms in the same order as the dense product did (zero terms add nothing).
+    n_mix = 0
+    for c in nc:
+        for c2 in range(m):
+            if mx[c, c2] != 0.0:
+                n_mix += 1
+    mix_c = np.empty(n_mix, dtype=np.int64)
+    mix_c2 = np.empty(n_mix, dtype=np.int64)
+    mix_f = np.empty(n_mix)
+    q = 0
+    for c in nc:
+        for c2 in range(m):
+            if mx[c, c2] != 0.0:
+                mix_c[q], mix_c2[q], mix_f[q] = c, c2, mx[c, c2]
+                q += 1
+    # The angle's sensitivities are needed only when the angle is an output: nothing
+    # else depends on it (its column of Phi is zero in the current and speed rows).
+    ns_rows = 2
+    for o in range(no):
+        if oidx[o] == 2:
+            ns_rows = 3
+    if phc[0, 2] != 0.0 or phc[1, 2] != 0.0 or pho[0, 2] != 0.0 or pho[1, 2] != 0.0:
+        ns_rows = 3
     x = np.empty(3)
     xn = np.empty(3)
     st5 = np.zeros(5)
@@ -127,10 +152,11 @@ def fast_kernel(
                 val = x[idx] + (cur_off if idx == 0 else 0.0)
                 r = (val - y[k, o]) * osc[o]
                 for c2 in range(m):
-                    acc = off[c2] if idx == 0 else 0.0
-                    for c in nc:
-                        acc += s[idx, c] * mx[c, c2]
-                    jr[c2] = acc * osc[o]
+                    jr[c2] = off[c2] if idx == 0 else 0.0
+                for q in range(n_mix):
+                    jr[mix_c2[q]] += s[idx, mix_c[q]] * mix_f[q]
+                for c2 in range(m):
+                    jr[c2] *= osc[o]
                 for c2 in range(m):
                     g[c2] += jr[c2] * r
                     for c3 in range(c2 + 1):
@@ -205,7 +231,7 @@ def fast_kernel(
             xn[a] = ph[a, 0] * x[0] + ph[a, 1] * x[1] + ph[a, 2] * x[2] + ga[a, 0] * u0
             xn[a] += ga[a, 1] * u1
         if want_s:
-            for a in range(3):
+            for a in range(ns_rows):
                 for c in nc:
                     sn[a, c] = ph[a, 0] * s[0, c] + ph[a, 1] * s[1, c] + ph[a, 2] * s[2, c]
                 for j in range(6):
@@ -259,7 +285,8 @@ def fast_kernel(
                         sn[1, c] = 0.0
         for a in range(3):
             x[a] = xn[a]
-            if want_s:
+        if want_s:
+            for a in range(ns_rows):
                 for c in nc:
                     s[a, c] = sn[a, c]
     for c2 in range(m):
