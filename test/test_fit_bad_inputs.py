@@ -99,3 +99,12 @@ def test_a_diverged_simulation_is_a_large_finite_gap_without_warnings():
 def test_a_perfect_fit_has_a_finite_likelihood():
     fit = SimpleNamespace(n_samples=100, rms={"current": 0.0, "speed": 1e-320})
     assert math.isfinite(minus_two_log_likelihood(fit))  # type: ignore[arg-type]
+
+
+def test_irregular_sampling_says_where_instead_of_too_short(tmp_path, capsys):
+    d = _record()
+    d["t"][::7] += 0.0009  # a logger on a busy PC: every 7th stamp late by 45 % of a period
+    rc = main(["identify", _csv(tmp_path / "r.csv", d), "--quiet", "--no-auto-segments"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc == EXIT_USER_ERROR
+    assert "gaps in time" in err and "worst: " in err and "median period 0.002 s" in err

@@ -207,11 +207,12 @@ def _setup(
     closure_used, assumptions = _closure(closure, fixed, added, current_mode)
     report = _Report(assumptions)
     dyn = [s for s in segs if _is_dynamic(s)]
-    skipped = [s.label for s in segs if not _is_dynamic(s) and s.n > TABLE_MAX_ROWS]
+    skipped = [s for s in segs if not _is_dynamic(s) and s.n > TABLE_MAX_ROWS]
     if skipped:
         report.warnings.append(
             "segments with gaps in time (a sample period off the median by more than 25 %), "
-            f"left out of the dynamic fit: {', '.join(skipped)}"
+            f"left out of the dynamic fit: {', '.join(s.label for s in skipped)} "
+            f"({_worst_gap(skipped)})"
         )
     return _Setup(segs, dyn, fixed, closure_used, added, current_mode), report
 
@@ -263,6 +264,22 @@ def _closure(
 
 def _is_dynamic(s: Segment) -> bool:
     return s.n > TABLE_MAX_ROWS and regular_sampling(s)
+
+
+def _worst_gap(segs: Sequence[Segment]) -> str:
+    """Where the sampling is least regular, in words."""
+    worst, where = 0.0, ""
+    for s in segs:
+        dt = np.diff(s.t)
+        k = int(np.argmax(np.abs(dt - s.dt_s)))
+        off = abs(dt[k] - s.dt_s) / s.dt_s
+        if off > worst:
+            worst = off
+            where = (
+                f"worst: {dt[k]:.3g} s between samples at t = {s.t[k]:.6g} s of "
+                f"{s.label!r}, median period {s.dt_s:.3g} s"
+            )
+    return where
 
 
 def regular_sampling(s: Segment, jitter: float = 0.25) -> bool:
@@ -660,7 +677,11 @@ def _classical_only(
     """The result when there is no time series: the classical chain's values, with
     placeholders for what the tables cannot give."""
     if classical is None or not classical.values:
-        msg = "no segment long enough for a dynamic fit and no staircase/coast-down table"
+        gaps = [w for w in report.warnings if w.startswith("segments with gaps in time")]
+        if gaps:
+            msg = f"no dynamic fit possible and no staircase/coast-down table: {gaps[0]}"
+        else:
+            msg = "no segment long enough for a dynamic fit and no staircase/coast-down table"
         raise DataError(msg)
     vals = dict(classical.values)
     vals.update(fixed)
