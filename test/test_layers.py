@@ -21,6 +21,7 @@ PACKAGE_DIR = REPO / "pmdc_ident"
 LAYERS: dict[str, int] = {
     "__init__": 0,
     "_lazy": 0,
+    "_blas": 0,
     "core": 0,
     "protocol": 1,
     "dataio": 2,
