@@ -27,7 +27,11 @@ from pmdc_ident.core.estimators.output_error.parameters import (
     parameter_info,
 )
 from pmdc_ident.core.estimators.output_error.segments import SIGNALS, PreparedSegment
-from pmdc_ident.core.estimators.output_error.simulators import FastSim, general_sim
+from pmdc_ident.core.estimators.output_error.simulators import (
+    FastSim,
+    general_sim,
+    run_segments,
+)
 from pmdc_ident.core.model import Model
 
 __all__ = ["Problem"]
@@ -66,6 +70,7 @@ class Problem:
             k += len(ps.nuis)
         self.n_total = k
         self.n_rows = sum(len(ps.outputs) * ps.seg.n for ps in segs)
+        self._out_cache: dict[int, tuple[FloatArray, NDArray[np.int64]]] = {}
         z0 = self.z0()
         self.bounds: list[tuple[float, float]] = []
         for j, info in enumerate(self.info):
@@ -145,26 +150,15 @@ class Problem:
         fd_cache: list[FloatArray] = []
         if want_jac and not self.fast:
             fd_cache = self._fd_global(z, model)
+        fast_runs = self._fast_runs(z, model, sim, want_jac) if self.fast else None
         for q, ps in enumerate(self.segs):
-            x0 = self.x0_of(z, q)
             idxs = list(range(self.n_global)) + [self.offsets[q] + k for k in range(len(ps.nuis))]
             ii = np.array(idxs)
             A_loc = g_loc = None
-            if self.fast:
-                assert sim is not None
-                acc = None
-                if want_jac:
-                    mx, off = self._mixing(z, model, ps)
-                    acc = (
-                        np.column_stack([y for _i, y in ps.outputs]),
-                        np.array([i for i, _y in ps.outputs], dtype=np.int64),
-                        np.array([self.scale(i) for i, _y in ps.outputs]),
-                        mx,
-                        off,
-                    )
-                X, A_loc, g_loc = sim.run(ps.seg, x0, acc, ps.dJ)
+            if fast_runs is not None:
+                X, A_loc, g_loc = fast_runs[q]
             else:
-                X = general_sim(model, ps.seg, x0, ps.dJ)
+                X = general_sim(model, ps.seg, self.x0_of(z, q), ps.dJ)
             r_seg = []
             for idx, y in ps.outputs:
                 raw_parts.append((idx, X[:, idx] - y))
@@ -182,6 +176,39 @@ class Problem:
         r = np.concatenate(r_parts)
         self._last = (z.copy(), raw_parts, r, A, g, dict(self.noise))
         return r, A, g
+
+    def _outputs(self, q: int) -> tuple[FloatArray, NDArray[np.int64]]:
+        """Measured outputs (n, k) and their state indices of segment q (built once)."""
+        got = self._out_cache.get(q)
+        if got is None:
+            ps = self.segs[q]
+            got = (
+                np.column_stack([y for _i, y in ps.outputs]),
+                np.array([i for i, _y in ps.outputs], dtype=np.int64),
+            )
+            self._out_cache[q] = got
+        return got
+
+    def _fast_runs(
+        self, z: FloatArray, model: Model, sim: FastSim | None, want_jac: bool
+    ) -> list[tuple[FloatArray, FloatArray | None, FloatArray | None]]:
+        """Every segment through the fast kernel, in worker threads when it pays.
+
+        The kernel releases the GIL; each segment's states and normal-equation blocks
+        are its own, and the caller sums them in segment order as before, so the result
+        does not depend on the threads.
+        """
+        assert sim is not None
+        jobs = []
+        for q, ps in enumerate(self.segs):
+            acc = None
+            if want_jac:
+                y, oidx = self._outputs(q)
+                mx, off = self._mixing(z, model, ps)
+                acc = (y, oidx, np.array([self.scale(i) for i in oidx.tolist()]), mx, off)
+            sim.mats(ps.seg.dt_s, ps.dJ)  # fill the cache here, not in the threads
+            jobs.append((ps.seg, self.x0_of(z, q), acc, ps.dJ))
+        return run_segments(sim, jobs)
 
     def cached(self, z: FloatArray, want_jac: bool):
         """The last evaluation if it was at ``z`` with the current weights, else a new one."""

@@ -11,6 +11,8 @@
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +35,7 @@ __all__ = [
     "FastSim",
     "general_sim",
     "predict",
+    "run_segments",
     "system_matrices",
     "zoh_with_derivatives",
 ]
@@ -205,6 +208,33 @@ class FastSim:
         if acc is None:
             return X, None, None
         return X, A, g
+
+
+# Below this many samples in all segments together, threads cost more than they save.
+THREADED_MIN_SAMPLES = 20_000
+_POOL: list[ThreadPoolExecutor] = []
+
+
+def _pool() -> ThreadPoolExecutor:
+    if not _POOL:
+        workers = max(1, min(4, os.cpu_count() or 1))
+        _POOL.append(ThreadPoolExecutor(max_workers=workers, thread_name_prefix="pmdc-fit"))
+    return _POOL[0]
+
+
+def run_segments(
+    sim: FastSim, jobs: list[tuple[Segment, FloatArray, tuple | None, float]]
+) -> list[tuple[FloatArray, FloatArray | None, FloatArray | None]]:
+    """``sim.run(seg, x0, acc, dJ)`` for every job, results in job order.
+
+    On a machine with more than one CPU and enough samples, the segments run in
+    worker threads (the kernel releases the GIL): the wall time of a fit falls, its
+    numbers do not change (each segment's result is computed alone).
+    """
+    n = sum(job[0].n for job in jobs)
+    if len(jobs) < 2 or n < THREADED_MIN_SAMPLES or (os.cpu_count() or 1) < 2:
+        return [sim.run(*job) for job in jobs]
+    return list(_pool().map(lambda job: sim.run(*job), jobs))
 
 
 _NO_ACC = (
