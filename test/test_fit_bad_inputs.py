@@ -108,3 +108,46 @@ def test_irregular_sampling_says_where_instead_of_too_short(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert rc == EXIT_USER_ERROR
     assert "gaps in time" in err and "worst: " in err and "median period 0.002 s" in err
+
+
+class _Bowl:
+    """A one-parameter least-squares problem whose simulation diverges beyond z = 0.8
+    (residual 1e300, sensitivities inf), as a motor model does in odd corners."""
+
+    n_total = n_global = 1
+    bounds = [(-5.0, 5.0)]
+
+    def __init__(self, start_diverges: bool = False) -> None:
+        self.start_diverges = start_diverges
+
+    def clip(self, z):
+        return np.clip(z, -5.0, 5.0)
+
+    def limit_step(self, step):
+        return step
+
+    def evaluate(self, z, want_jac):
+        bad = z[0] > 0.8 or self.start_diverges
+        r = np.array([1e300 if bad else z[0] - 2.0, 0.1])
+        if not want_jac:
+            return r, None, None
+        j = np.array([[np.inf if bad else 1.0], [0.0]])
+        return r, np.where(bad, np.inf, 1.0) * np.ones((1, 1)), j[0] * r[:1]
+
+
+def test_the_solver_refuses_a_diverged_start_in_one_line():
+    from pmdc_ident.core.estimators.output_error.solver import levenberg_marquardt
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(DataError, match="the fit cannot start"):
+            levenberg_marquardt(_Bowl(start_diverges=True), np.zeros(1), 20, None)
+
+
+def test_the_solver_steps_back_from_diverged_trial_points():
+    from pmdc_ident.core.estimators.output_error.solver import levenberg_marquardt
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        z, state = levenberg_marquardt(_Bowl(), np.zeros(1), 50, None)
+    assert np.isfinite(z).all() and 0.0 < z[0] <= 0.8 and math.isfinite(state.cost)

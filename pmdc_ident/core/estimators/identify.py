@@ -31,7 +31,7 @@ import numpy as np
 
 from pmdc_ident.core.data import Run, Segment, TestKind, check_excitation, unique_labels
 from pmdc_ident.core.effects import CoulombFriction, parameter_unit
-from pmdc_ident.core.errors import DataError, ParameterError
+from pmdc_ident.core.errors import DataError, ParameterError, PmdcError
 from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit
 from pmdc_ident.core.estimators.classical import ClassicalResult, CoastFit, classical_chain
 from pmdc_ident.core.estimators.equation_error import (
@@ -411,10 +411,11 @@ def _output_error(
                 m0,
                 progress=lambda it, cost, k=kind: say(f"  {k}: iteration {it}, cost {cost:.6g}"),
             )
-        except DataError as exc:
+        except PmdcError as exc:
             report.warnings.append(f"output error ({kind}) failed: {exc}")
     if not fits:
-        msg = "the output-error fit failed on every model"
+        why = "; ".join(w for w in report.warnings if w.startswith("output error ("))
+        msg = f"the output-error fit failed on every model: {why}"
         raise DataError(msg)
     _restart_coulomb(setup, fits, say)
     for kind, f in fits.items():

@@ -169,8 +169,12 @@ class Problem:
                 continue
             if A_loc is None:
                 cols = self._local_jac(q, ps, X, z, model, fd_cache)
-                A_loc = cols.T @ cols
-                g_loc = cols.T @ r_q
+                if _bounded(cols) and _bounded(r_q):
+                    A_loc = cols.T @ cols
+                    g_loc = cols.T @ r_q
+                else:  # a diverged simulation: the solver refuses this point
+                    A_loc = np.full((ii.size, ii.size), np.nan)
+                    g_loc = np.full(ii.size, np.nan)
             A[np.ix_(ii, ii)] += A_loc  # type: ignore[index]
             g[ii] += g_loc  # type: ignore[index]
         r = np.concatenate(r_parts)
@@ -313,3 +317,8 @@ class Problem:
             rms = float(np.sqrt(np.mean(res**2)))
             out[k] = max(rms, 1e-3 * self.noise[k], 1e-12)
         return out
+
+
+def _bounded(a: FloatArray, cap: float = 1e100) -> bool:
+    """Finite and small enough that products of two entries summed cannot overflow."""
+    return bool(np.isfinite(a).all()) and (a.size == 0 or float(np.max(np.abs(a))) <= cap)

@@ -10,11 +10,27 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from pmdc_ident.core.errors import DataError
 from pmdc_ident.core.estimators.output_error.problem import Problem
 
 __all__ = ["LMState", "levenberg_marquardt"]
 
 FloatArray = NDArray[np.float64]
+
+# Residuals (noise-normalised) beyond this are a diverged simulation: their cost is
+# infinite, and they never reach a product that could overflow.
+RESIDUAL_CAP = 1e100
+
+
+def half_squared(r: FloatArray) -> float:
+    """0.5 |r|^2, or inf when ``r`` holds a non-finite or diverged entry."""
+    if r.size and not (np.isfinite(r).all() and float(np.max(np.abs(r))) <= RESIDUAL_CAP):
+        return math.inf
+    return 0.5 * float(r @ r)
+
+
+def _finite(*arrays: FloatArray | None) -> bool:
+    return all(a is not None and bool(np.isfinite(a).all()) for a in arrays)
 
 
 @dataclass(frozen=True)
@@ -43,7 +59,13 @@ def levenberg_marquardt(
     """
     z = prob.clip(z)
     r, A, g = prob.evaluate(z, True)
-    cost = 0.5 * float(r @ r)
+    cost = half_squared(r)
+    if not (math.isfinite(cost) and _finite(A, g)):
+        msg = (
+            "the fit cannot start: simulating the start model on these data diverges "
+            "(are the signals in SI units, and is the voltage the armature's?)"
+        )
+        raise DataError(msg)
     nfev = 1
     lam = 1e-3
     it = 0
@@ -71,13 +93,17 @@ def levenberg_marquardt(
                 if not (out & active).any():
                     break
                 active &= ~out
+            if not np.isfinite(step).all():  # a singular system: damp harder
+                step = np.zeros(prob.n_total)
             z_new = prob.clip(z + prob.limit_step(step))
             # After an accepted step the next trial is usually accepted too: compute
             # its Jacobian at once; after a rejection, try residuals only.
             r_new, A_new, g_new = prob.evaluate(z_new, last_ok)
             nfev += 1
-            cost_new = 0.5 * float(r_new @ r_new)
-            if math.isfinite(cost_new) and cost_new <= cost:
+            cost_new = half_squared(r_new)
+            # a point whose sensitivities diverge is no better than one that does
+            usable = A_new is None or _finite(A_new, g_new)
+            if math.isfinite(cost_new) and cost_new <= cost and usable:
                 rel = (cost - cost_new) / max(cost, 1e-300)
                 small_step = np.all(np.abs(z_new - z) <= 1e-9 * (1.0 + np.abs(z)))
                 decrease = cost - cost_new
@@ -93,7 +119,12 @@ def levenberg_marquardt(
                 elif A_new is not None:
                     r, A, g = r_new, A_new, g_new
                 else:
-                    r, A, g = prob.evaluate(z, True)
+                    r, A_try, g_try = prob.evaluate(z, True)
+                    if not _finite(A_try, g_try):
+                        converged = True
+                        message = "sensitivities not finite beyond this point"
+                        break
+                    A, g = A_try, g_try
                 break
             last_ok = False
             lam *= 6.0
