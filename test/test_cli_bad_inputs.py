@@ -98,6 +98,12 @@ ARGS_BAD = {
     ),
     "the same DATA twice": (["identify", "run.csv", "./run.csv"], "given twice"),
     "diagnose: the same bag twice": (["diagnose", "bag", "bag/"], "given twice"),
+    "identify --batch into a missing folder": (
+        ["identify", "--batch", "/nonexistent/out", "run.csv"],
+        "folder /nonexistent does not exist",
+    ),
+    "diagnose --batch onto a file": (["diagnose", "--batch", "f", "run.csv"], "not a folder"),
+    "identify --batch into the input bag": (["identify", "--batch", "bag", "bag"], "input"),
     "benchmark --json into a missing folder (before the long run)": (
         ["benchmark", "--json", "nodir/b.json"],
         "folder nodir does not exist",

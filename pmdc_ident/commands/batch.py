@@ -238,11 +238,11 @@ def run_batch(
         msg = f"--jobs must be >= 1, got {jobs}"
         raise ParameterError(msg)
     paths = expand_inputs(args.data)
-    out = Path(args.batch)
-    if out.exists() and not out.is_dir():
-        msg = f"--batch {out}: exists and is not a folder"
-        raise ParameterError(msg)
-    out.mkdir(parents=True, exist_ok=True)
+    from pmdc_ident.commands.outputs import check_folder_output
+
+    out = check_folder_output("--batch", args.batch, paths)
+    assert out is not None
+    out.mkdir(exist_ok=True)  # its parent exists (checked): no tree of new folders
     items = [
         BatchItem(p, out / f"{name}.json", out / f"{name}.txt")
         for p, name in zip(paths, _names(paths), strict=True)
