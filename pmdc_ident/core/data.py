@@ -347,8 +347,9 @@ def _check_magnitude(label: str, name: str, arr: FloatArray, t: FloatArray) -> N
         beyond = np.abs(arr) > limit  # NaN (an open armature) is never beyond
     if beyond.any():
         k = int(np.argmax(beyond))
+        at = "" if name == "t" else f" at t = {t[k]:.6g} s"
         msg = (
-            f"segment {label!r}: {name} = {arr[k]:.6g} {unit} at t = {t[k]:.6g} s is beyond "
+            f"segment {label!r}: {name} = {arr[k]:.6g} {unit}{at} is beyond "
             f"any motor test (|{name}| <= {limit:g} {unit}): a unit mistake?"
         )
         raise DataError(msg)
