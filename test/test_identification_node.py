@@ -26,7 +26,7 @@ import yaml
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.dataio.bagio import read_bag, read_driver_arrays
-from pmdc_ident.nodes.bringup import BringupResult, node_env, run_session
+from pmdc_ident.nodes.bringup import BringupResult, node_env, priority_setter, run_session
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -120,6 +120,7 @@ def _session(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=priority_setter(-5, realtime=True),  # it observes as the nodes run
     )
 
     def probe_receiving() -> None:  # the whole session is seen by the probe

@@ -30,7 +30,7 @@ import yaml
 from pmdc_ident.core.motors import share_file
 from pmdc_ident.nodes.dds_domain import HELD_ENV, DomainBusyError, child_env, lock_domain
 
-__all__ = ["BringupResult", "main", "node_env", "run_session"]
+__all__ = ["BringupResult", "main", "node_env", "priority_setter", "run_session"]
 
 
 def node_env(
@@ -80,6 +80,37 @@ class BringupResult:
     cpu_s: dict[str, float | None] = field(default_factory=dict)  # per node, user+system
 
 
+# SCHED_RR priority of the session's nodes where the system permits it: low among
+# real-time tasks (the kernel's own threads use 50 and more).
+RT_PRIORITY = 10
+
+
+def priority_setter(nice: int, realtime: bool) -> Callable[[], None]:
+    """A ``preexec_fn`` giving a child node its scheduling before it starts any thread.
+
+    ``realtime``: SCHED_RR at :data:`RT_PRIORITY` where the system permits it (root,
+    CAP_SYS_NICE or an RLIMIT_RTPRIO), so a node closing the loop is never queued
+    behind CPU-bound work (the kernel keeps 5 % of each second for other tasks);
+    otherwise, and for the others, ``nice`` (a negative value raises the priority)
+    where permitted. Nothing is refused: on a plain account the node runs normally.
+    """
+
+    def set_priority() -> None:  # runs in the child before exec
+        if realtime:
+            try:
+                os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(RT_PRIORITY))
+                return
+            except (OSError, AttributeError):
+                pass  # not permitted: nice instead
+        if nice:
+            try:
+                os.setpriority(os.PRIO_PROCESS, 0, nice)
+            except OSError:
+                pass  # not permitted: run at the normal priority
+
+    return set_priority
+
+
 class _Proc:
     def __init__(
         self,
@@ -89,21 +120,15 @@ class _Proc:
         env: dict[str, str],
         log: IO[str] | None,
         nice: int = 0,
+        realtime: bool = False,
     ) -> None:
         self.name = name
         cmd = [sys.executable, "-m", module, *ros_args]
 
-        def raise_priority() -> None:  # runs in the child before exec
-            if nice:
-                try:
-                    os.setpriority(os.PRIO_PROCESS, 0, nice)
-                except OSError:
-                    pass  # not permitted: run at the normal priority
-
         self.popen = subprocess.Popen(
             cmd,
             env=env,
-            preexec_fn=raise_priority,
+            preexec_fn=priority_setter(nice, realtime),
             stdout=log if log is not None else None,
             stderr=subprocess.STDOUT if log is not None else None,
             start_new_session=True,  # our Ctrl-C is forwarded, not delivered twice
@@ -156,6 +181,7 @@ def run_session(
     quiet: bool = False,
     with_recorder: bool = True,
     nice: int = -5,
+    realtime: Sequence[str] = ("driver", "recorder", "identification"),
     during: Callable[[dict[str, subprocess.Popen[bytes]], float], None] | None = None,
     before_identification: Callable[[], None] | None = None,
 ) -> BringupResult:
@@ -166,10 +192,10 @@ def run_session(
     observer receives the driver's samples, so it sees the whole session).
 
     ``during(processes, elapsed_s)`` is called about every 50 ms while the
-    session runs (tests use it to break things on purpose). ``nice`` is applied to
-    the three nodes where the system permits it (a negative
-    value raises their priority: a motor loop should not wait behind a compiler);
-    it is ignored otherwise.
+    session runs (tests use it to break things on purpose). The nodes named in
+    ``realtime`` run SCHED_RR where the system permits it, the others (and all of
+    them where it does not) at ``nice`` (see :func:`priority_setter`): a motor loop
+    and its recorder must not wait behind a compiler or another test suite.
     """
     t0 = time.monotonic()
     out = Path(output_dir).resolve()
@@ -223,6 +249,7 @@ def run_session(
             env,
             files["driver"],
             nice,
+            realtime="driver" in realtime,
         )
         if with_recorder:
             procs["recorder"] = _Proc(
@@ -232,6 +259,7 @@ def run_session(
                 env,
                 files["recorder"],
                 nice,
+                realtime="recorder" in realtime,
             )
         if before_identification is not None:
             before_identification()
@@ -242,6 +270,7 @@ def run_session(
             env,
             files["identification"],
             nice,
+            realtime="identification" in realtime,
         )
         ident = procs["identification"]
         deadline = time.monotonic() + timeout_s

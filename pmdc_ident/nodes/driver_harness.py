@@ -33,6 +33,7 @@ from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.model import simulate
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.nodes.bringup import node_env as ros_env
+from pmdc_ident.nodes.bringup import priority_setter
 from pmdc_ident.nodes.dds_domain import HELD_ENV, lock_domain
 from pmdc_ident.nodes.qos import COMMAND_QOS, sample_qos
 
@@ -69,9 +70,16 @@ def _param_arg(name: str, value: Any) -> str:
 class DriverProcess:
     """The driver node as a child process (a context manager that always stops it)."""
 
-    def __init__(self, params: Mapping[str, Any] | None = None, *, domain_id: int | None = None):
+    def __init__(
+        self,
+        params: Mapping[str, Any] | None = None,
+        *,
+        domain_id: int | None = None,
+        realtime: bool = False,
+    ):
         self.params = dict(params or {})
         self.env = ros_env(domain_id)
+        self.realtime = realtime  # SCHED_RR where permitted, as bringup runs it
         self.proc: subprocess.Popen[str] | None = None
         self.returncode: int | None = None
         self.stderr = ""
@@ -82,7 +90,12 @@ class DriverProcess:
         for name, value in self.params.items():
             cmd += ["-p", _param_arg(name, value)]
         self.proc = subprocess.Popen(
-            cmd, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            cmd,
+            env=self.env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            preexec_fn=priority_setter(0, self.realtime) if self.realtime else None,
         )
         return self
 

@@ -32,6 +32,7 @@ from __future__ import annotations
 import enum
 import json
 import math
+import os
 import signal
 import sys
 import threading
@@ -744,6 +745,7 @@ class IdentificationNode(Node):
 
     def _identify(self, arrays: DriverArrays, s: Session) -> None:
         log = self.get_logger()
+        _normal_priority()  # the fit is batch work: never at the loop's real-time priority
         try:
             source = self._recorder_paths.get(s.name) or f"session {s.name}"
             run = assemble_run(arrays, source=source, session=s.name)
@@ -797,6 +799,15 @@ class IdentificationNode(Node):
         if self.session is not None:
             d["bag"] = self._recorder_paths.get(self.session.name, "")
         self.pub_status.publish(String(data=json.dumps(d)))
+
+
+def _normal_priority() -> None:
+    """This thread back to the normal scheduler if the node runs real-time (bringup)."""
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
 
 
 def _completeness(arrays: DriverArrays, s: Session) -> Completeness:
