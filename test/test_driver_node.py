@@ -24,6 +24,7 @@ rclpy = pytest.importorskip("rclpy")
 
 from pmdc_ident.core.model import simulate  # noqa: E402
 from pmdc_ident.core.motors import load_motor  # noqa: E402
+from pmdc_ident.nodes.bringup import realtime_thread  # noqa: E402
 from pmdc_ident.nodes.driver_harness import (  # noqa: E402
     DriverClient,
     DriverProcess,
@@ -41,10 +42,13 @@ SPEC = load_motor("seed000_ebike")
 @pytest.fixture(scope="module")
 def client(module_ros_domain):
     apply_ros_env(module_ros_domain)
-    with DriverProcess(
-        {"rate_hz": RATE_HZ, "watchdog_s": 0.5, "motor": "seed000_ebike"},
-        domain_id=module_ros_domain,
-    ) as driver:
+    params = {"rate_hz": RATE_HZ, "watchdog_s": 0.5, "motor": "seed000_ebike"}
+    # driver and client at the priority bringup gives the nodes (where permitted): a
+    # client held up on a busy machine would let the 0.5 s watchdog trip between commands
+    with (
+        realtime_thread(),
+        DriverProcess(params, domain_id=module_ros_domain, realtime=True) as driver,
+    ):
         rclpy.init()
         node = DriverClient(RATE_HZ, name="test_driver_client")
         try:

@@ -30,6 +30,7 @@ def test_driver_over_serial_streams_then_survives_the_port_closing(
     rclpy = pytest.importorskip("rclpy")
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
+    from pmdc_ident.nodes.bringup import priority_setter, realtime_thread
     from pmdc_ident.nodes.driver_harness import DriverClient, DriverProcess, apply_ros_env
 
     apply_ros_env(ros_domain)
@@ -40,6 +41,7 @@ def test_driver_over_serial_streams_then_survives_the_port_closing(
         + ["--link", str(link)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        preexec_fn=priority_setter(-5, realtime=True),  # hardware is never held up
     )
     end = time.monotonic() + 30.0
     while not link.exists() and time.monotonic() < end:
@@ -52,7 +54,9 @@ def test_driver_over_serial_streams_then_survives_the_port_closing(
         "poll_rate_hz": 100.0,
         "watchdog_s": 2.0,
     }
-    driver = DriverProcess(params, domain_id=ros_domain).start()
+    driver = DriverProcess(params, domain_id=ros_domain, realtime=True).start()
+    rt = realtime_thread()  # the client keeps up as the nodes do (DDS threads inherit it)
+    rt.__enter__()
     rclpy.init()
     client = DriverClient(RATE_HZ, name="serial_dds_client")
     diags: list[tuple[int, str]] = []
@@ -84,6 +88,7 @@ def test_driver_over_serial_streams_then_survives_the_port_closing(
     finally:
         client.destroy_node()
         rclpy.try_shutdown()
+        rt.__exit__(None, None, None)
         t0 = time.monotonic()
         rc = driver.stop(signal.SIGINT, timeout_s=15.0)
         stop_s = time.monotonic() - t0

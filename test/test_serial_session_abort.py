@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from pmdc_ident.nodes.bringup import node_env
+from pmdc_ident.nodes.bringup import node_env, priority_setter
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.timeout(150)]
 
@@ -45,6 +45,7 @@ def test_unplugging_the_board_mid_session_aborts_cleanly_with_the_motor_safe(
         env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        preexec_fn=priority_setter(-5, realtime=True),  # hardware is never held up
     )
     lines: list[str] = []
     session = None

@@ -20,7 +20,8 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -30,7 +31,14 @@ import yaml
 from pmdc_ident.core.motors import share_file
 from pmdc_ident.nodes.dds_domain import HELD_ENV, DomainBusyError, child_env, lock_domain
 
-__all__ = ["BringupResult", "main", "node_env", "priority_setter", "run_session"]
+__all__ = [
+    "BringupResult",
+    "main",
+    "node_env",
+    "priority_setter",
+    "realtime_thread",
+    "run_session",
+]
 
 
 def node_env(
@@ -109,6 +117,26 @@ def priority_setter(nice: int, realtime: bool) -> Callable[[], None]:
                 pass  # not permitted: run at the normal priority
 
     return set_priority
+
+
+@contextmanager
+def realtime_thread() -> Iterator[bool]:
+    """This thread (and the threads it starts meanwhile) at the nodes' SCHED_RR priority.
+
+    For an in-process ROS client that talks to the nodes (the step demo, a test's
+    client): enter before ``rclpy.init`` so DDS's threads inherit it. Yields whether
+    the system permitted it; the previous scheduling is restored on exit.
+    """
+    try:
+        old = os.sched_getscheduler(0), os.sched_getparam(0)
+        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(RT_PRIORITY))
+    except (OSError, AttributeError):
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        os.sched_setscheduler(0, old[0], old[1])
 
 
 class _Proc:

@@ -33,7 +33,7 @@ from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.model import simulate
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.nodes.bringup import node_env as ros_env
-from pmdc_ident.nodes.bringup import priority_setter
+from pmdc_ident.nodes.bringup import priority_setter, realtime_thread
 from pmdc_ident.nodes.dds_domain import HELD_ENV, lock_domain
 from pmdc_ident.nodes.qos import COMMAND_QOS, sample_qos
 
@@ -298,7 +298,8 @@ def run_step_demo(
 ) -> StepDemoResult:
     """Start the driver, apply a voltage step, print a table and the steady state."""
     apply_ros_env(domain_id)
-    with lock_domain(int(os.environ["ROS_DOMAIN_ID"]), purpose="step demo"):
+    # the client at the nodes' priority where permitted (see bringup.realtime_thread)
+    with lock_domain(int(os.environ["ROS_DOMAIN_ID"]), purpose="step demo"), realtime_thread():
         return _step_demo(volts, motor, step_s, rate_hz, command_hz, out)
 
 
@@ -314,6 +315,7 @@ def _step_demo(
     driver = DriverProcess(
         {"motor": motor, "rate_hz": float(rate_hz)},
         domain_id=int(os.environ["ROS_DOMAIN_ID"]),
+        realtime=True,
     ).start()
     rclpy.init()
     client = DriverClient(rate_hz)
