@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,6 +31,7 @@ from pmdc_ident.core.estimators.output_error.segments import SIGNALS, PreparedSe
 from pmdc_ident.core.estimators.output_error.simulators import (
     FastSim,
     general_sim,
+    map_simulations,
     run_segments,
 )
 from pmdc_ident.core.model import Model
@@ -37,6 +39,17 @@ from pmdc_ident.core.model import Model
 __all__ = ["Problem"]
 
 FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class _GeneralRuns:
+    """The simulations of one general-path evaluation (see Problem._general_runs)."""
+
+    base: list[FloatArray]  # per segment, at z
+    plus_global: list[list[FloatArray]]  # [global j][segment]
+    h_global: list[float]
+    plus_nuis: list[list[FloatArray]]  # [segment][free initial state]
+    h_nuis: list[list[float]]
 
 
 class Problem:
@@ -147,10 +160,8 @@ class Problem:
         A = np.zeros((self.n_total, self.n_total)) if want_jac else None
         g = np.zeros(self.n_total) if want_jac else None
         sim = FastSim(model) if self.fast else None
-        fd_cache: list[FloatArray] = []
-        if want_jac and not self.fast:
-            fd_cache = self._fd_global(z, model)
         fast_runs = self._fast_runs(z, model, sim, want_jac) if self.fast else None
+        general = None if self.fast else self._general_runs(z, model, want_jac)
         for q, ps in enumerate(self.segs):
             idxs = list(range(self.n_global)) + [self.offsets[q] + k for k in range(len(ps.nuis))]
             ii = np.array(idxs)
@@ -158,7 +169,8 @@ class Problem:
             if fast_runs is not None:
                 X, A_loc, g_loc = fast_runs[q]
             else:
-                X = general_sim(model, ps.seg, self.x0_of(z, q), ps.dJ)
+                assert general is not None
+                X = general.base[q]
             r_seg = []
             for idx, y in ps.outputs:
                 raw_parts.append((idx, X[:, idx] - y))
@@ -168,7 +180,8 @@ class Problem:
             if not want_jac:
                 continue
             if A_loc is None:
-                cols = self._local_jac(q, ps, X, z, model, fd_cache)
+                assert general is not None
+                cols = self._local_jac(q, ps, X, general)
                 if _bounded(cols) and _bounded(r_q):
                     A_loc = cols.T @ cols
                     g_loc = cols.T @ r_q
@@ -272,7 +285,7 @@ class Problem:
             mx[COL_I0 + sidx, self.n_global + k] = 1.0
         return mx, off
 
-    def _local_jac(self, q, ps, X, z, model, fd_cache) -> FloatArray:
+    def _local_jac(self, q: int, ps: PreparedSegment, X: FloatArray, runs: _GeneralRuns):
         """Forward-difference Jacobian block of one segment (general path)."""
         n = ps.seg.n
         m_loc = self.n_global + len(ps.nuis)
@@ -281,35 +294,60 @@ class Problem:
             rows = slice(o * n, (o + 1) * n)
             sc = self.scale(idx)
             for j in range(self.n_global):
-                cols[rows, j] = fd_cache[j][q][:, idx] * sc
-        for k, sidx in enumerate(ps.nuis):
-            h = 1e-6 * max(1.0, abs(z[self.offsets[q] + k]))
-            x0 = self.x0_of(z, q)
-            x0[sidx] += h
-            Xp = general_sim(model, ps.seg, x0, ps.dJ)
+                cols[rows, j] = (
+                    (runs.plus_global[j][q] - runs.base[q])[:, idx] / runs.h_global[j] * sc
+                )
+        for k in range(len(ps.nuis)):
+            h = runs.h_nuis[q][k]
+            Xp = runs.plus_nuis[q][k]
             for o, (idx, _y) in enumerate(ps.outputs):
                 rows = slice(o * n, (o + 1) * n)
                 cols[rows, self.n_global + k] = (Xp[:, idx] - X[:, idx]) / h * self.scale(idx)
         return cols
 
-    def _fd_global(self, z: FloatArray, model: Model) -> list[list[FloatArray]]:
-        """Forward differences of every segment's states w.r.t. each global z."""
-        base = [
-            general_sim(model, ps.seg, self.x0_of(z, q), ps.dJ) for q, ps in enumerate(self.segs)
+    def _general_runs(self, z: FloatArray, model: Model, want_jac: bool) -> _GeneralRuns:
+        """Every simulation of one evaluation on the general path, as one batch.
+
+        The states at ``z`` and, for the Jacobian, forward differences: each global
+        ``z`` stepped on every segment, each segment's free initial states stepped on
+        that segment. The states at ``z`` serve both the residuals and the differences
+        (they were simulated twice before). The batch runs in the worker threads; each
+        simulation is computed alone, so the numbers do not depend on them.
+        """
+        jobs: list[tuple[Model, int, FloatArray]] = [
+            (model, q, self.x0_of(z, q)) for q in range(len(self.segs))
         ]
-        out: list[list[FloatArray]] = []
-        for j in range(self.n_global):
-            h = 1e-6 * max(1.0, abs(z[j]))
-            zp = z.copy()
-            zp[j] += h
-            mp = self.model_at(zp)
-            out.append(
-                [
-                    (general_sim(mp, ps.seg, self.x0_of(z, q), ps.dJ) - base[q]) / h
-                    for q, ps in enumerate(self.segs)
-                ]
-            )
-        return out
+        h_global: list[float] = []
+        h_nuis: list[list[float]] = []
+        if want_jac:
+            for j in range(self.n_global):
+                h = 1e-6 * max(1.0, abs(z[j]))
+                zp = z.copy()
+                zp[j] += h
+                mp = self.model_at(zp)
+                h_global.append(h)
+                jobs += [(mp, q, self.x0_of(z, q)) for q in range(len(self.segs))]
+            for q, ps in enumerate(self.segs):
+                hs = []
+                for k, sidx in enumerate(ps.nuis):
+                    h = 1e-6 * max(1.0, abs(z[self.offsets[q] + k]))
+                    x0 = self.x0_of(z, q)
+                    x0[sidx] += h
+                    hs.append(h)
+                    jobs.append((model, q, x0))
+                h_nuis.append(hs)
+        segs = self.segs
+        states = map_simulations(
+            lambda job: general_sim(job[0], segs[job[1]].seg, job[2], segs[job[1]].dJ),
+            jobs,
+            sum(segs[q].seg.n for _m, q, _x in jobs),
+        )
+        nq = len(segs)
+        base = states[:nq]
+        plus_global = [states[nq * (1 + j) : nq * (2 + j)] for j in range(len(h_global))]
+        rest = iter(states[nq * (1 + len(h_global)) :])
+        plus_nuis = [[next(rest) for _ in hs] for hs in h_nuis]
+        return _GeneralRuns(base, plus_global, h_global, plus_nuis, h_nuis)
 
     def residual_noise(self, z: FloatArray) -> dict[str, float]:
         out = {}

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,6 +36,7 @@ __all__ = [
     "SUBSTEPS",
     "FastSim",
     "general_sim",
+    "map_simulations",
     "predict",
     "run_segments",
     "system_matrices",
@@ -41,6 +44,8 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
+_T = TypeVar("_T")
+_R = TypeVar("_R")
 FAST_EFFECTS = frozenset(
     {"coulomb_friction", "stribeck_friction", "quadratic_drag", "load_torque", "current_offset"}
 )
@@ -222,6 +227,14 @@ def _pool() -> ThreadPoolExecutor:
     return _POOL[0]
 
 
+def map_simulations(fn: Callable[[_T], _R], jobs: Sequence[_T], n_samples: int) -> list[_R]:
+    """``[fn(job) for job in jobs]``, in the worker threads when there is enough work
+    (``n_samples`` in all) and more than one CPU; the numba simulators release the GIL."""
+    if len(jobs) < 2 or n_samples < THREADED_MIN_SAMPLES or (os.cpu_count() or 1) < 2:
+        return [fn(job) for job in jobs]
+    return list(_pool().map(fn, jobs))
+
+
 def run_segments(
     sim: FastSim, jobs: list[tuple[Segment, FloatArray, tuple | None, float]]
 ) -> list[tuple[FloatArray, FloatArray | None, FloatArray | None]]:
@@ -231,10 +244,7 @@ def run_segments(
     worker threads (the kernel releases the GIL): the wall time of a fit falls, its
     numbers do not change (each segment's result is computed alone).
     """
-    n = sum(job[0].n for job in jobs)
-    if len(jobs) < 2 or n < THREADED_MIN_SAMPLES or (os.cpu_count() or 1) < 2:
-        return [sim.run(*job) for job in jobs]
-    return list(_pool().map(lambda job: sim.run(*job), jobs))
+    return map_simulations(lambda job: sim.run(*job), jobs, sum(job[0].n for job in jobs))
 
 
 _NO_ACC = (
