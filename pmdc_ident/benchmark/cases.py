@@ -120,16 +120,17 @@ def context(motor: BenchMotor, rate_hz: float, one_direction: bool) -> Context:
 def draw_sensors(motor: BenchMotor, rate_hz: float, rng: np.random.Generator) -> SensorSetup:
     ds = motor.sensors
     source = str(rng.choice(ds.speed_sources))
+    order = int(rng.choice([1, 2]))
     return SensorSetup(
         current_range_a=ds.current_range_a,
         current_adc_bits=ds.current_adc_bits,
         current_noise_a=ds.current_noise_a * rng.uniform(0.5, 2.0),
-        current_fc_hz=rate_hz * rng.uniform(0.5, 2.0),
-        current_order=int(rng.choice([1, 2])),
+        current_fc_hz=rate_hz * rng.uniform(1.5, 5.0) * order,
+        current_order=order,
         counts_per_rev=motor.counts_per_rev,
         speed_source=source,
         speed_noise_rad_s=ds.tacho_noise_rad_s * rng.uniform(0.5, 2.0),
-        speed_fc_hz=rate_hz * rng.uniform(0.5, 2.0) if source == "tacho" else 0.0,
+        speed_fc_hz=rate_hz * rng.uniform(1.5, 5.0) if source == "tacho" else 0.0,
     )
 
 

@@ -176,7 +176,7 @@ MOTORS: dict[str, BenchMotor] = {
         current_rated_a=4.0,
         gear_ratio=1.0,
         power_rated_w=100.0,
-        rates_hz=(1000.0, 2000.0, 5000.0, 10000.0),
+        rates_hz=(1000.0, 2000.0, 5000.0),
         sensors=DriverSensors(50.0, 12, 0.03, 2000.0, ("position", "tacho"), 0.5),
         cogging_motor_periods=(14,),
     ),

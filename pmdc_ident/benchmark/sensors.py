@@ -1,13 +1,17 @@
 """Sensor models of real drivers: what ends up in the user's log.
 
-* Current: Hall or shunt amplifier -> analog anti-alias RC filter (first or second
-  order, corner 0.5-2x the sample rate, simulated inside the plant) -> white noise
-  -> ADC quantisation (10 or 12 bits over the driver's range); an offset (the
-  ``current_offset`` effect) sits before the ADC.
+* Current: Hall or shunt amplifier -> analog anti-alias RC filter (first order
+  with its corner at 1.5-5x the sample rate, or second order at 3-10x; simulated
+  inside the plant) -> white noise -> ADC quantisation (10 or 12 bits over the
+  driver's range); an offset (the ``current_offset`` effect) sits before the ADC.
+  The filters' group delay stays within 0.03-0.11 sample periods: a sensor that
+  lags by a good part of a sample is a delay the user should be told about, so
+  effect-free runs keep their sensors faster than that.
 * Angle: a quadrature encoder on the motor shaft; the log holds whole counts
   (floor) at the measured shaft, ``counts_per_motor_rev x gear ratio`` per turn.
 * Speed: either absent (the tool differentiates the counted angle, as with the
-  project's own firmware), or a tachogenerator: filtered analog speed with noise.
+  project's own firmware), or a tachogenerator: analog speed with noise through a
+  first-order filter at 1.5-5x the sample rate.
 """
 
 from __future__ import annotations
