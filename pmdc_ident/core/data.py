@@ -27,6 +27,7 @@ __all__ = [
     "Segment",
     "TestKind",
     "check_excitation",
+    "heat_state",
     "link_history",
     "segment_kind",
     "unique_labels",
@@ -87,7 +88,11 @@ class Segment:
     ``history_voltage`` V holds the commanded voltages of the samples just before
     the segment, oldest first (NaN = open), on the segment's sample period;
     ``history_heat_a2s`` A^2*s is the measured ``int i^2 dt`` over the driven
-    samples of the record before the segment's first sample.
+    samples of the record before the segment's first sample;
+    ``history_heat_profile`` says when that heat was dissipated, so a winding that
+    cools (first-order heating) can start warm by the right amount: rows of [age in
+    sample periods of this segment, share of ``history_heat_a2s``] (unit-free, so a
+    change of time or current unit leaves it valid), see :func:`heat_state`.
     """
 
     label: str
@@ -100,6 +105,7 @@ class Segment:
     kind: TestKind = field(default=TestKind.OTHER)
     history_voltage: FloatArray | None = field(default=None, repr=False)
     history_heat_a2s: float | None = None
+    history_heat_profile: FloatArray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         t = _float_array("t", self.t, self.label)
@@ -161,6 +167,12 @@ class Segment:
                 msg = f"segment {self.label!r}: history_heat_a2s must be >= 0 A^2*s, got {q}"
                 raise DataError(msg)
             object.__setattr__(self, "history_heat_a2s", q)
+        if self.history_heat_profile is not None:
+            hp = np.asarray(self.history_heat_profile, dtype=float).reshape(-1, 2)
+            if not (np.isfinite(hp).all() and (hp >= 0.0).all()):
+                msg = f"segment {self.label!r}: history_heat_profile must be finite and >= 0"
+                raise DataError(msg)
+            object.__setattr__(self, "history_heat_profile", hp)
 
     # -- derived ------------------------------------------------------------------
     @property
@@ -221,13 +233,19 @@ class Segment:
             return None if a is None else a[start:stop]
 
         hist_v, hist_q = self.history_voltage, self.history_heat_a2s
+        hist_p = self.history_heat_profile
         if start > 0:
             if self.voltage is not None:
                 before = self.voltage[:start]
                 hist_v = before if hist_v is None else np.concatenate([hist_v, before])
             heat = self.driven_heat_a2s(start + 1)
             if heat is not None:
+                ages, a2s = _heat_blocks(self, start + 1, float(self.t[start]))
+                old_ages, old_a2s = _profile_blocks(self, float(self.t[start] - self.t[0]))
                 hist_q = (hist_q or 0.0) + heat
+                hist_p = _profile(
+                    np.concatenate([old_ages, ages]), np.concatenate([old_a2s, a2s]), self.dt_s
+                )
         return replace(
             self,
             label=label or self.label,
@@ -239,6 +257,7 @@ class Segment:
             terminal_voltage=cut(self.terminal_voltage),
             history_voltage=hist_v,
             history_heat_a2s=hist_q,
+            history_heat_profile=hist_p,
         )
 
 
@@ -303,7 +322,7 @@ def link_history(segments: Sequence[Segment]) -> tuple[Segment, ...]:
                 ]
             )
             hist_v = np.concatenate(parts)
-        hist_q = None
+        hist_q, hist_p = None, None
         heat = prev.driven_heat_a2s()
         if heat is not None and seg.current is not None:
             # the interval from the previous segment's last sample to this one's first
@@ -312,7 +331,19 @@ def link_history(segments: Sequence[Segment]) -> tuple[Segment, ...]:
             if prev.voltage is not None and np.isnan(prev.voltage[-1]):
                 gap = 0.0
             hist_q = (prev.history_heat_a2s or 0.0) + heat + gap
-        out.append(replace(seg, history_voltage=hist_v, history_heat_a2s=hist_q))
+            t0 = float(seg.t[0])
+            ages, a2s = _heat_blocks(prev, prev.n, t0)
+            old_ages, old_a2s = _profile_blocks(prev, t0 - float(prev.t[0]))
+            hist_p = _profile(
+                np.concatenate([old_ages, ages, [0.5 * (t0 - float(prev.t[-1]))]]),
+                np.concatenate([old_a2s, a2s, [gap]]),
+                seg.dt_s,
+            )
+        out.append(
+            replace(
+                seg, history_voltage=hist_v, history_heat_a2s=hist_q, history_heat_profile=hist_p
+            )
+        )
     return tuple(out)
 
 
@@ -331,6 +362,56 @@ def unique_labels(segments: Iterable[Segment]) -> list[Segment]:
         taken.add(label)
         out.append(s if label == s.label else replace(s, label=label))
     return out
+
+
+def heat_state(seg: Segment, time_constant_s: float) -> float:
+    """The winding heat state ``q`` (A^2*s) at the segment's first sample for
+    first-order heating ``dq/dt = i^2 - q/tau``: the history's heat, each part decayed
+    by its age; without a profile (or with an infinite tau), ``history_heat_a2s``."""
+    q = seg.history_heat_a2s or 0.0
+    hp = seg.history_heat_profile
+    if hp is None or not (math.isfinite(time_constant_s) and time_constant_s > 0.0):
+        return q
+    return q * float(np.sum(hp[:, 1] * np.exp(-hp[:, 0] * seg.dt_s / time_constant_s)))
+
+
+def _heat_blocks(seg: Segment, stop: int, t_ref: float) -> tuple[FloatArray, FloatArray]:
+    """Driven ``i^2 dt`` (trapezoid) of each interval before sample ``stop``, and the
+    interval centres' ages (s) at time ``t_ref``."""
+    if seg.current is None or stop < 2:
+        return np.zeros(0), np.zeros(0)
+    i2 = seg.current[:stop] ** 2
+    t = seg.t[:stop]
+    area = 0.5 * (i2[:-1] + i2[1:]) * np.diff(t)
+    if seg.voltage is not None:
+        area = np.where(np.isnan(seg.voltage[: stop - 1]), 0.0, area)
+    return t_ref - 0.5 * (t[:-1] + t[1:]), area
+
+
+def _profile_blocks(seg: Segment, shift_s: float) -> tuple[FloatArray, FloatArray]:
+    """A segment's own heat profile as (age s, A^2*s), aged by ``shift_s``."""
+    hp, q = seg.history_heat_profile, seg.history_heat_a2s
+    if hp is None or not q:
+        if q:  # heat of unknown age: taken as dissipated just before the segment
+            return np.array([shift_s]), np.array([q])
+        return np.zeros(0), np.zeros(0)
+    return hp[:, 0] * seg.dt_s + shift_s, hp[:, 1] * q
+
+
+HEAT_PROFILE_BINS = 192  # geometric bins in age: a few % wide, fine for any tau
+
+
+def _profile(ages_s: FloatArray, a2s: FloatArray, dt_s: float) -> FloatArray | None:
+    """(age s, A^2*s) blocks binned geometrically in age -> rows [age in samples, share]."""
+    total = float(np.sum(a2s))
+    if not (total > 0.0 and math.isfinite(total)):
+        return None
+    x = np.maximum(ages_s / dt_s, 0.5)
+    edges = np.geomspace(0.5, float(np.max(x)) * 1.001 + 0.5, HEAT_PROFILE_BINS + 1)
+    w, _ = np.histogram(x, bins=edges, weights=a2s)
+    wx, _ = np.histogram(x, bins=edges, weights=a2s * x)
+    keep = w > 0.0
+    return np.column_stack([wx[keep] / w[keep], w[keep] / total])
 
 
 def _contiguous(prev: Segment, seg: Segment) -> bool:

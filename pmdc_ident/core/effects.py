@@ -11,8 +11,10 @@ effect enters the equations::
     measured current = i + I_offset
 
 with ``friction(w) = (Tc + Ts exp(-(w/ws)^2)) sign(w)`` while turning and a rotor
-held at rest while ``|drive torque| <= Tc + Ts`` (stiction), ``R(t) = R (1 + k
-int i^2 dt)`` (winding heating) and ``L(i) = L / (1 + (i/I_sat)^2)``.
+held at rest while ``|drive torque| <= Tc + Ts`` (stiction), ``R(t) = R (1 + k q)``
+with ``dq/dt = i^2 - q/tau`` (first-order winding heating: ``q`` is the
+dissipated ``int i^2 dt`` that has not yet flowed away; ``tau`` -> infinity is the
+plain integral) and ``L(i) = L / (1 + (i/I_sat)^2)``.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from pmdc_ident.core.params import PARAMETER_UNITS
 
 __all__ = [
     "EFFECT_NAMES",
+    "NO_COOLING_S",
     "EFFECT_TYPES",
     "BrushDrop",
     "Cogging",
@@ -44,6 +47,9 @@ __all__ = [
     "effects_to_mapping",
     "parameter_unit",
 ]
+
+
+NO_COOLING_S = 1e6  # a winding time constant this long is the plain heat integral
 
 
 @dataclass(frozen=True)
@@ -169,11 +175,17 @@ class Cogging(Effect):
 @dataclass(frozen=True)
 class ResistanceDrift(Effect):
     NAME: ClassVar[str] = "resistance_drift"
-    DESCRIPTION: ClassVar[str] = "winding heats, R rises with the dissipated charge-squared"
+    DESCRIPTION: ClassVar[str] = (
+        "winding heats, R rises: first-order heating by i^2 with a thermal time constant"
+    )
     SPECS: ClassVar[dict[str, ParamSpec]] = {
-        "coeff_per_a2s": ParamSpec("1/(A^2*s)", 0.0, 10.0, "k in R(t) = R (1 + k int i^2 dt)"),
+        "coeff_per_a2s": ParamSpec("1/(A^2*s)", 0.0, 10.0, "k in R(t) = R (1 + k q)"),
+        "time_constant_s": ParamSpec(
+            "s", 0.1, NO_COOLING_S, "winding thermal time constant (dq/dt = i^2 - q/tau)"
+        ),
     }
     coeff_per_a2s: float
+    time_constant_s: float = NO_COOLING_S  # the plain integral within any run
 
 
 @dataclass(frozen=True)

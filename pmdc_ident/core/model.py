@@ -30,6 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from pmdc_ident.core._jit import njit
 from pmdc_ident.core.effects import (
+    NO_COOLING_S,
     BrushDrop,
     Cogging,
     CoulombFriction,
@@ -54,6 +55,7 @@ __all__ = [
     "apply_delay",
     "continuous_state_space",
     "discretize_zoh",
+    "heat_time_constant",
     "effect_coefficients",
     "effects_kernel",
     "expm_small",
@@ -115,7 +117,7 @@ class SimResult:
     speed: FloatArray  # rad/s
     position: FloatArray  # rad
     applied_voltage: FloatArray  # V at the armature after dead zone and delay (NaN = open)
-    final_state: FloatArray = field(repr=False)  # [i, w, theta, int i^2 dt, stuck]
+    final_state: FloatArray = field(repr=False)  # [i, w, theta, heat state q, stuck]
 
 
 # ---------------------------------------------------------------------------
@@ -261,8 +263,8 @@ def _linear_kernel(v, tl, phi, gam, decay, a_mech, j, dt, x):  # pragma: no cove
 # ---------------------------------------------------------------------------
 # Layout of the coefficient vector handed to the kernel.
 _R, _L, _KE, _KT, _J, _B = 0, 1, 2, 3, 4, 5
-_TC, _TS, _WS, _CQ, _TL, _VB, _TCOG, _NCOG, _PHCOG, _KR, _ISAT = range(6, 17)
-_NCOEF = 17
+_TC, _TS, _WS, _CQ, _TL, _VB, _TCOG, _NCOG, _PHCOG, _KR, _ISAT, _TAUQ = range(6, 18)
+_NCOEF = 18
 
 
 def effect_coefficients(model: Model) -> FloatArray:
@@ -287,9 +289,19 @@ def effect_coefficients(model: Model) -> FloatArray:
             c[_TCOG], c[_NCOG], c[_PHCOG] = e.torque_nm, e.periods_per_rev, e.phase_rad
         elif isinstance(e, ResistanceDrift):
             c[_KR] = e.coeff_per_a2s
+            c[_TAUQ] = e.time_constant_s if e.time_constant_s < NO_COOLING_S else 0.0
         elif isinstance(e, InductanceSaturation):
             c[_ISAT] = e.saturation_current_a
     return c
+
+
+def heat_time_constant(model: Model) -> float:
+    """The winding's thermal time constant of the model's resistance drift (s);
+    infinite without cooling or without the effect (then the heat is the integral)."""
+    e = model.effect("resistance_drift")
+    if isinstance(e, ResistanceDrift) and e.time_constant_s < NO_COOLING_S:
+        return float(e.time_constant_s)
+    return math.inf
 
 
 def apply_dead_zone(voltage: FloatArray, dead_zone_v: float) -> FloatArray:
@@ -345,7 +357,8 @@ def simulate(
     For a segment cut from a longer record: ``pre_voltage`` (V, oldest first, NaN =
     open) are the commands of the samples just before it, which fill a delay line
     (commands older than those given are taken as the oldest one given);
-    ``heat0_a2s`` (A^2*s) is the ``int i^2 dt`` a resistance drift starts from.
+    ``heat0_a2s`` (A^2*s) is the heat state a resistance drift starts from (the
+    ``int i^2 dt`` before the segment, decayed by cooling: ``core.data.heat_state``).
     """
     _check_dt(dt_s)
     if substeps < 1:
@@ -438,11 +451,14 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
     """Simulate ``v`` (one value per sample) with every effect, ``nsub`` sub-steps of ``h``
     per sample; ``c`` from :func:`effect_coefficients`, ``phi``/``gam`` the sub-step ZOH
     matrices (``varying``: R or L change with the state, so the step is re-discretised);
-    ``st`` = [i, w, th, heat, stuck] is the state, updated in place. Returns the states
+    ``st`` = [i, w, th, heat, stuck] is the state, updated in place (heat: the winding
+    heat state q of :class:`~pmdc_ident.core.effects.ResistanceDrift`). Returns the states
     (n, 3) at the sample instants."""
     r0, l0, ke, kt, j, b = c[0], c[1], c[2], c[3], c[4], c[5]
     tc, ts, ws, cq, tl, vb = c[6], c[7], c[8], c[9], c[10], c[11]
     tcog, ncog, phcog, kr, isat = c[12], c[13], c[14], c[15], c[16]
+    # winding heat q: dq/dt = i^2 - q/tau (tau = c[17]; 0 = no cooling, the integral)
+    cool = math.exp(-h / c[17]) if c[17] > 0.0 else 1.0
     t_static = tc + ts
     a_mech = b / j
     n = v.shape[0]
@@ -456,6 +472,7 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
         vk = v[k]
         is_open = math.isnan(vk)
         for _ in range(nsub):
+            q *= cool
             # Torques that do not depend on the sign of w (opposing +w when positive).
             t_pos = tl
             if tcog > 0.0:
@@ -575,6 +592,11 @@ class Plant:
     @property
     def position_rad(self) -> float:
         return float(self._state[2])
+
+    @property
+    def resistance_ohm(self) -> float:
+        """The winding resistance now: ``R (1 + k q)`` with a resistance drift."""
+        return float(self._coef[_R] * (1.0 + self._coef[_KR] * self._state[3]))
 
     def step(self, voltage_v: float | None) -> None:
         v = math.nan if voltage_v is None else float(voltage_v)

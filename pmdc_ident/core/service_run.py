@@ -76,12 +76,10 @@ def simulate_service(
     ramp = 0.3 * p.Kt * spec.limits.current_max_a / p.J * dt
     plant = Plant(spec.model, dt)
     ctrl = CascadeController(design)
-    drift = spec.model.effect("resistance_drift")
-    k_r = getattr(drift, "coeff_per_a2s", 0.0) if drift is not None else 0.0
     s = spec.sensors
     t = np.arange(n) * dt
     v_out, i_out, w_out, r_out = (np.empty(n) for _ in range(4))
-    ref, v_next, heat = 0.0, 0.0, 0.0
+    ref, v_next = 0.0, 0.0
     noise_i = rng.normal(0.0, s.current_noise_a, n) if s.current_noise_a else np.zeros(n)
     noise_w = rng.normal(0.0, s.speed_noise_rad_s, n) if s.speed_noise_rad_s else np.zeros(n)
     for k in range(n):
@@ -91,8 +89,7 @@ def simulate_service(
         ref += float(np.clip(sp[k] - ref, -ramp, ramp))
         v = ctrl.update(ref, w_meas, i_meas)
         i_out[k], w_out[k], v_out[k] = i_meas, w_meas, v_next
-        r_out[k] = p.R * (1.0 + k_r * heat)
-        heat += plant.current_a**2 * dt
+        r_out[k] = plant.resistance_ohm  # the winding as the plant heats (and cools) it
         plant.step(v_next)
         v_next = v
     return ServiceRun(t, v_out, i_out, w_out, sp, r_out)

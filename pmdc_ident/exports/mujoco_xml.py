@@ -45,7 +45,9 @@ _NOT_CARRIED: dict[str, str] = {
     "brush_drop": "brush voltage drop (no such term in MuJoCo's motor)",
     "dead_zone": "driver dead zone (put it in your controller's output stage)",
     "cogging": "cogging torque (dcmotor's cogging needs integer poles; not exported)",
-    "resistance_drift": "winding heating R(1 + k int i^2 dt) (MuJoCo's thermal model differs)",
+    "resistance_drift": (
+        "winding heating R(1 + k q), dq/dt = i^2 - q/tau (MuJoCo's thermal model differs)"
+    ),
     "delay": "command delay (use MuJoCo's actuator delay/nsample history if you need it)",
     "current_offset": "current-sensor offset (a measurement effect, not dynamics)",
     "inductance_saturation": "inductance falling with current (MuJoCo's L is constant)",

@@ -10,7 +10,8 @@ verdict: ``no_gap``, ``explained`` by named effects, or ``unexplained``.
 
 from __future__ import annotations
 
-from pmdc_ident.core.diagnosis.pipeline import DiagnosisConfig, diagnose
+from pmdc_ident.core.diagnosis.config import DiagnosisConfig
+from pmdc_ident.core.diagnosis.pipeline import diagnose
 from pmdc_ident.core.diagnosis.results import (
     CandidateScore,
     DiagnosisResult,

@@ -10,15 +10,16 @@ from __future__ import annotations
 
 import inspect
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from pmdc_ident.core.data import Segment
+from pmdc_ident.core.data import Segment, heat_state
 from pmdc_ident.core.diagnosis.scoring import NoiseModel, residuals
 from pmdc_ident.core.effects import (
     EFFECT_NAMES,
+    NO_COOLING_S,
     BrushDrop,
     Cogging,
     CoulombFriction,
@@ -33,13 +34,14 @@ from pmdc_ident.core.effects import (
     StribeckFriction,
 )
 from pmdc_ident.core.estimators.output_error import FitResult, fit_output_error
-from pmdc_ident.core.model import Model, simulate
+from pmdc_ident.core.model import Model, heat_time_constant, simulate
 
 __all__ = [
     "BASE_FREE",
     "DataScales",
     "data_scales",
     "fit_model",
+    "free_fields",
     "predict",
     "starting_effects",
 ]
@@ -58,6 +60,7 @@ class DataScales:
     current_a: float  # largest |current|
     dt_s: float  # median sample period
     charge_a2s: float  # int i^2 dt over all segments
+    span_s: float  # from the first segment's start to the last one's end
     periods_per_rev: tuple[int, ...]  # shaft-angle harmonics to try for cogging
 
 
@@ -78,6 +81,7 @@ def data_scales(segments: Sequence[Segment], kt: float, periods: Sequence[int] =
         current_a=max(float(np.max(np.abs(i_all))), 1e-6),
         dt_s=float(np.median([s.dt_s for s in segments])),
         charge_a2s=max(charge, 1e-9),
+        span_s=max(float(max(s.t[-1] for s in segments) - min(s.t[0] for s in segments)), 1e-6),
         periods_per_rev=tuple(periods) or (1,),
     )
 
@@ -117,7 +121,13 @@ def starting_effects(name: str, sc: DataScales) -> list[Effect]:
             for ph in (-2.5, -1.0, 0.5, 2.0)
         ]
     if name == "resistance_drift":
-        return [_start(ResistanceDrift, min(f / sc.charge_a2s, 10.0)) for f in (0.05, 0.2)]
+        # first-order heating: q levels off near (mean i^2) x tau when tau < the span
+        power = sc.charge_a2s / sc.span_s
+        return [
+            _start(ResistanceDrift, f / (power * min(tau, sc.span_s)), tau)
+            for f in (0.05, 0.2)
+            for tau in (0.25 * sc.span_s, sc.span_s, NO_COOLING_S)
+        ]
     if name == "delay":
         # every whole sample: at high sweep frequencies the cost wraps with the phase
         return [_start(Delay, min(k * sc.dt_s, 1.0)) for k in (*range(1, 25), 30, 40)]
@@ -145,6 +155,7 @@ def _x0(seg: Segment) -> list[float]:
 def predict(model: Model, segments: Sequence[Segment], substeps: int = 4) -> list[_Pred]:
     """Free-run simulation of each segment from its measured initial state and history."""
     out = []
+    tau = heat_time_constant(model)
     for s in segments:
         v = s.voltage if s.voltage is not None else np.full(s.n, math.nan)
         sim = simulate(
@@ -154,16 +165,32 @@ def predict(model: Model, segments: Sequence[Segment], substeps: int = 4) -> lis
             x0=_x0(s),
             substeps=substeps,
             pre_voltage=s.history_voltage,
-            heat0_a2s=s.history_heat_a2s or 0.0,
+            heat0_a2s=heat_state(s, tau),
         )
         out.append(_Pred(sim.current, sim.speed, sim.position))
     return out
 
 
+def free_fields(e: Effect) -> tuple[str, ...]:
+    """The fields a candidate fit estimates: a resistance drift without cooling (the
+    integral, ``time_constant_s`` at :data:`NO_COOLING_S`) holds its time constant, so
+    it costs one parameter; first-order heating costs two."""
+    names = e.fitted_names()
+    if isinstance(e, ResistanceDrift) and e.time_constant_s >= NO_COOLING_S:
+        return tuple(n for n in names if n != "time_constant_s")
+    return names
+
+
 def scan_start(
-    base: Model, name: str, sc: DataScales, segments: Sequence[Segment], noise: NoiseModel
+    base: Model,
+    name: str,
+    sc: DataScales,
+    segments: Sequence[Segment],
+    noise: NoiseModel,
+    keep: Callable[[Effect], bool] | None = None,
 ) -> Model:
-    """The baseline plus the starting effect whose simulation best matches the data.
+    """The baseline plus the starting effect whose simulation best matches the data
+    (among the starts ``keep`` accepts).
 
     L is scanned too: when L/R is near the sample period the linear fit places L to
     mimic the effect (a delay most of all), and the fit holds L where it starts.
@@ -174,6 +201,8 @@ def scan_start(
     best, best_gap = None, math.inf
     for b in bases:
         for eff in starting_effects(name, sc):
+            if keep is not None and not keep(eff):
+                continue
             m = b.with_effects(eff)
             g = residuals(segments, predict(m, segments), noise).gap()
             if g < best_gap:
@@ -194,7 +223,7 @@ def fit_model(
     if fixed:
         free = [n for n in free if n not in fixed]
     for e in model.effects:
-        free += [f"{e.NAME}.{f}" for f in e.fitted_names()]
+        free += [f"{e.NAME}.{f}" for f in free_fields(e)]
     # Large data: the engine's noise estimate is good, one pass is enough. Few samples
     # per segment (tables): the estimate degenerates, the residual re-weighting fixes it.
     small = sum(s.n for s in segments) < REFINE_BELOW_SAMPLES

@@ -30,7 +30,6 @@ class Thresholds:
     penalty_noise_per_param: float = 0.3  # of the relative noise energy
     no_gap_noise: float = 1.0  # baseline gap below this many noise energies: no gap
     explained_shrink: float = 0.5  # "most of the gap"
-    combine_below_shrink: float = 0.8  # try combinations when the best single shrinks less
     tie_fraction: float = 0.1  # improvements within 10 % of each other are a tie
 
 
@@ -83,6 +82,57 @@ SEPARATING_TESTS: dict[frozenset[str], str] = {
     ),
     frozenset({"resistance_drift", "brush_drop"}): (
         "repeat the staircase at the end of the run: drift makes it differ from the first"
+    ),
+    frozenset({"stribeck_friction", "load_torque"}): (
+        "run in reverse and a slow staircase near zero speed: Stribeck friction changes "
+        "sign with the direction and falls off with speed, a load torque does neither"
+    ),
+    frozenset({"stribeck_friction", "quadratic_drag"}): (
+        "a staircase from near zero to full speed: Stribeck friction falls with speed, "
+        "drag grows with its square"
+    ),
+    frozenset({"quadratic_drag", "load_torque"}): (
+        "a staircase to full speed in both directions: drag grows with speed squared and "
+        "changes sign, a load torque does neither"
+    ),
+    frozenset({"brush_drop", "load_torque"}): (
+        "compare a coast-down (open armature: no brush drop, the load still acts) with a "
+        "powered staircase"
+    ),
+    frozenset({"dead_zone", "load_torque"}): (
+        "compare a coast-down (no command, the load still acts) with a low-voltage staircase"
+    ),
+    frozenset({"current_offset", "brush_drop"}): (
+        "read the current with the armature open: an offset reads non-zero"
+    ),
+    frozenset({"current_offset", "dead_zone"}): (
+        "read the current with the armature open: an offset reads non-zero"
+    ),
+    frozenset({"cogging", "coulomb_friction"}): (
+        "a slow run over several turns: cogging repeats with the shaft angle"
+    ),
+    frozenset({"cogging", "stribeck_friction"}): (
+        "a slow run over several turns: cogging repeats with the shaft angle"
+    ),
+    frozenset({"resistance_drift", "load_torque"}): (
+        "repeat the first test at the end of the run: a drift makes the two differ"
+    ),
+    frozenset({"resistance_drift", "coulomb_friction"}): (
+        "repeat the first test at the end of the run: a drift makes the two differ"
+    ),
+    frozenset({"resistance_drift", "current_offset"}): (
+        "read the current with the armature open at the start and the end of the run"
+    ),
+    frozenset({"inductance_saturation", "brush_drop"}): (
+        "steps to a low and a high current, sampled at >= 10 samples per L/R: saturation "
+        "speeds up only the high-current rise"
+    ),
+    frozenset({"delay", "dead_zone"}): (
+        "a small sweep around a held offset and a large step: a delay shifts both in time, "
+        "a dead zone removes only small commands"
+    ),
+    frozenset({"delay", "current_offset"}): (
+        "read the current with the armature open: an offset reads non-zero, a delay does not"
     ),
 }
 

@@ -19,7 +19,7 @@ from typing import TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from pmdc_ident.core.data import Segment
+from pmdc_ident.core.data import Segment, heat_state
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.estimators.output_error.kernel import N_SENS, fast_kernel
 from pmdc_ident.core.model import (
@@ -27,6 +27,7 @@ from pmdc_ident.core.model import (
     discretize_zoh,
     effect_coefficients,
     expm_small,
+    heat_time_constant,
     simulate,
 )
 from pmdc_ident.core.params import MotorParams
@@ -284,6 +285,6 @@ def general_sim(model: Model, seg: Segment, x0: FloatArray, dJ: float = 0.0) -> 
         seg.dt_s,
         x0=x0,
         pre_voltage=seg.history_voltage,
-        heat0_a2s=seg.history_heat_a2s or 0.0,
+        heat0_a2s=heat_state(seg, heat_time_constant(model)),
     )
     return np.column_stack([sim.current, sim.speed, sim.position])

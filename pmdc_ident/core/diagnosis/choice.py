@@ -1,0 +1,154 @@
+"""The choice among candidates: the best significant one, honest ties, combinations.
+
+Two candidates are a **tie** when the held-out evidence cannot separate them: the
+held-out samples are cut into contiguous blocks, and the second candidate is tied
+with the best one unless its excess error (plus the penalty of any extra parameter)
+is larger by at least two standard errors of the block means, or the two close the
+gap within ``tie_fraction`` of each other. A tie is reported with the test that
+would separate the two (:func:`~pmdc_ident.core.diagnosis.verdict.separating_test`).
+
+**Combinations** are tried whenever an effect is named, not only when much of the
+gap remains: an effect is added to the chosen model when that beats the chosen
+model on held-out data by the penalty of what it adds (greedy, up to
+``max_effects``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pmdc_ident.core.diagnosis.results import CandidateScore, Tie
+from pmdc_ident.core.diagnosis.search import Fitted, Scoring, Search, n_added
+from pmdc_ident.core.diagnosis.verdict import order_tie, separating_test
+
+__all__ = ["Choice", "choose"]
+
+
+@dataclass
+class Choice:
+    """The chosen candidate (the baseline when none helps), ties and every score."""
+
+    chosen: Fitted
+    gap_significant: bool
+    ties: list[Tie] = field(default_factory=list)
+    scores: list[CandidateScore] = field(default_factory=list)
+
+
+TIE_BLOCKS = 20  # contiguous blocks of held-out samples for the evidence test
+TIE_SIGMAS = 2.0  # a difference of fewer standard errors than this separates nothing
+
+
+def choose(search: Search, scoring: Scoring, base: Fitted, singles: list[Fitted]) -> Choice:
+    th, g0 = scoring.thresholds, scoring.g0
+    scored = sorted(((scoring.score(f), f) for f in singles), key=lambda sf: sf[0].penalized_gap)
+    helping = [(s, f) for s, f in scored if s.significant]
+    # A gap below the noise level still counts when an effect, fitted without the
+    # held-out samples, beats its penalty on them and closes most of that gap: the
+    # held-out improvement is the evidence (on effect-free runs no candidate does).
+    shown = bool(helping) and g0 > 0 and (g0 - helping[0][0].gap) >= th.explained_shrink * g0
+    gap_significant = g0 > th.no_gap_noise * scoring.noise_rel or shown
+    choice = Choice(base, gap_significant, scores=[s for s, _ in scored])
+    if not (helping and gap_significant):
+        return choice
+    choice.chosen = break_ties(helping, scoring, choice.ties)
+    by_name = {f.effects[0]: f for f in singles}
+    ranked_names = [s.effects[0] for s, f in helping if not f.failed]
+    combine(search, scoring, choice, by_name, ranked_names)
+    return choice
+
+
+def separated(best: Fitted, other: Fitted, extra_params: int, penalty: float) -> bool:
+    """Whether the held-out evidence prefers ``best`` to ``other`` beyond doubt.
+
+    ``extra_params``: parameters ``other`` has beyond ``best`` (negative when fewer),
+    each costing ``penalty``. The per-sample excess errors of the two are compared in
+    contiguous blocks; the mean difference must exceed :data:`TIE_SIGMAS` standard
+    errors of the block means.
+    """
+    d = other.res.excess_per_sample() - best.res.excess_per_sample()
+    if d.size < 2:
+        return False
+    blocks = [b for b in np.array_split(d, min(TIE_BLOCKS, d.size)) if b.size]
+    means = np.array([float(np.mean(b)) for b in blocks])
+    margin = float(np.mean(d)) + extra_params * penalty
+    se = float(np.std(means, ddof=1)) / np.sqrt(means.size) if means.size > 1 else 0.0
+    return margin > TIE_SIGMAS * se
+
+
+def break_ties(
+    helping: list[tuple[CandidateScore, Fitted]], scoring: Scoring, ties: list[Tie]
+) -> Fitted:
+    """The best helping candidate, and the ties the held-out data leave it.
+
+    Another helping candidate is tied with the best when it too closes most of the
+    gap and either closes nearly as much (within ``tie_fraction``) or the held-out
+    evidence cannot separate the two (:func:`separated`), whatever their parameter
+    counts. The group is ordered by :func:`order_tie` and every pair with the first
+    goes into ``ties`` with its separating test.
+    """
+    th, g0, penalty = scoring.thresholds, scoring.g0, scoring.penalty
+    best_s, best_f = helping[0]
+    gain_best = g0 - best_s.gap
+    tied = [
+        (s, f)
+        for s, f in helping[1:]
+        if (g0 - s.gap) >= th.explained_shrink * g0
+        and (
+            (g0 - s.gap) >= (1.0 - th.tie_fraction) * gain_best
+            or not separated(best_f, f, s.added_parameters - best_s.added_parameters, penalty)
+        )
+    ]
+    if not tied:
+        return best_f
+    group = order_tie([best_s.effects[0]] + [s.effects[0] for s, _ in tied])
+    lookup = {s.effects[0]: f for s, f in [(best_s, best_f), *tied]}
+    for other in group[1:]:
+        ties.append(Tie((group[0], other), separating_test(group[0], other)))
+    return lookup[group[0]]
+
+
+def combine(
+    search: Search,
+    scoring: Scoring,
+    choice: Choice,
+    by_name: Mapping[str, Fitted],
+    ranked_names: Sequence[str],
+) -> None:
+    """Greedy forward selection: add the helping effect that lowers the penalized gap
+    most, while the held-out evidence prefers the larger model beyond the penalty of
+    what it adds (:func:`separated`). Tried whatever share of the gap is left, also
+    with effects tied with the chosen one (both may be at work)."""
+    penalty = scoring.penalty
+    while len(choice.chosen.effects) < search.cfg.max_effects:
+        chosen = choice.chosen
+        pool_names = [n for n in ranked_names if n not in chosen.effects][:4]
+        if not pool_names:
+            break
+
+        def combo(n: str, base_fit: Fitted = chosen) -> Fitted:
+            e = by_name[n].fit.model.effect(n)
+            assert e is not None
+            m = base_fit.fit.model.with_effects(e)
+            out = search.try_evaluate((*base_fit.effects, n), m, base_fit)
+            search.say(f"combination {'+'.join(out.effects)}: held-out gap {out.gap:.3g}")
+            return out
+
+        with ThreadPoolExecutor(max_workers=search.cfg.workers) as pool:
+            trials = [t for t in pool.map(combo, pool_names) if not t.failed]
+        if not trials:
+            break
+        best_trial = min(trials, key=lambda f: f.gap + n_added(f.fit.model, f.effects) * penalty)
+        choice.scores.extend(scoring.score(f, chosen) for f in trials)
+        k_new = n_added(best_trial.fit.model, best_trial.effects[-1:])
+        if chosen.gap - best_trial.gap > k_new * penalty and separated(
+            best_trial, chosen, -k_new, penalty
+        ):
+            choice.chosen = best_trial
+            named = set(best_trial.effects)
+            choice.ties[:] = [t for t in choice.ties if not set(t.effects) <= named]
+        else:
+            break

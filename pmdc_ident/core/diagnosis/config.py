@@ -1,0 +1,48 @@
+"""What the diagnosis tries and how it decides (:class:`DiagnosisConfig`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from pmdc_ident.core.diagnosis.verdict import Thresholds
+from pmdc_ident.core.effects import EFFECT_NAMES
+from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
+
+__all__ = ["DiagnosisConfig"]
+
+
+@dataclass(frozen=True)
+class DiagnosisConfig:
+    """What the diagnosis tries and how it decides.
+
+    ``holdout``: segment labels to hold out (default: the split of
+    :mod:`~pmdc_ident.core.diagnosis.holdout`). ``effects``: the vocabulary to
+    try. ``fixed``: parameters held at known values (e.g. ``{"L": 3e-4}`` from an
+    LCR meter). ``initial``: starting parameters (e.g. from ``identify``).
+    """
+
+    holdout: tuple[str, ...] = ()
+    effects: tuple[str, ...] = EFFECT_NAMES
+    max_effects: int = 3
+    fixed: Mapping[str, float] = field(default_factory=dict)
+    initial: MotorParams | None = None
+    max_nfev: int = 30
+    workers: int = 2
+    thresholds: Thresholds = field(default_factory=Thresholds)
+
+    def __post_init__(self) -> None:
+        unknown = [e for e in self.effects if e not in EFFECT_NAMES]
+        if unknown:
+            msg = f"unknown effect(s) {', '.join(unknown)}; known: {', '.join(EFFECT_NAMES)}"
+            raise ParameterError(msg)
+        bad = [k for k in self.fixed if k not in PARAMETER_NAMES]
+        if bad:
+            msg = f"only motor parameters {PARAMETER_NAMES} can be fixed, not {', '.join(bad)}"
+            raise ParameterError(msg)
+        if self.max_effects < 1 or self.workers < 1 or self.max_nfev < 1:
+            msg = "max_effects, workers and max_nfev must be >= 1"
+            raise ParameterError(msg)
+        object.__setattr__(self, "holdout", tuple(self.holdout))
+        object.__setattr__(self, "effects", tuple(self.effects))

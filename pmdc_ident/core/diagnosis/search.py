@@ -1,0 +1,138 @@
+"""Candidate fits and their scores: the fit set, the held-out set, the penalty.
+
+A :class:`Search` fits a model on the diagnosis' fit segments and measures its
+held-out gap; :class:`Scoring` turns a fit into a :class:`CandidateScore` against
+the baseline, each added parameter costing ``penalty`` (gap units).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from pmdc_ident.core.data import Segment
+from pmdc_ident.core.diagnosis.candidates import DataScales, fit_model, free_fields, scan_start
+from pmdc_ident.core.diagnosis.config import DiagnosisConfig
+from pmdc_ident.core.diagnosis.holdout import HoldoutSplit
+from pmdc_ident.core.diagnosis.results import CandidateScore
+from pmdc_ident.core.diagnosis.scoring import NoiseModel, Residuals, residuals
+from pmdc_ident.core.diagnosis.verdict import Thresholds
+from pmdc_ident.core.effects import Effect
+from pmdc_ident.core.estimators.output_error import FitResult, Prediction
+from pmdc_ident.core.model import Model
+from pmdc_ident.core.progress import ProgressCallback
+
+__all__ = ["FIT_ERRORS", "Fitted", "Scoring", "Search", "n_added", "predictions"]
+
+FIT_ERRORS = (ValueError, ArithmeticError, np.linalg.LinAlgError)
+
+
+def predictions(fit: FitResult, segments: Sequence[Segment]) -> list[Prediction]:
+    return list(fit.simulate_segments(list(segments)))
+
+
+@dataclass
+class Fitted:
+    effects: tuple[str, ...]
+    fit: FitResult
+    res: Residuals
+    gap: float
+    seconds: float
+    failed: bool = False
+
+
+class Search:
+    """Fits candidates on the fit segments and scores them on the held-out ones."""
+
+    def __init__(
+        self,
+        split: HoldoutSplit,
+        noise: NoiseModel,
+        cfg: DiagnosisConfig,
+        progress: ProgressCallback | None,
+    ) -> None:
+        self.split = split
+        self.noise = noise
+        self.cfg = cfg
+        self.progress = progress
+        self.fixed = dict(cfg.fixed)
+
+    def say(self, text: str) -> None:
+        if self.progress is not None:
+            self.progress(text)
+
+    def evaluate(self, effects: tuple[str, ...], model: Model) -> Fitted:
+        t0 = time.perf_counter()
+        fixed = dict(self.fixed)
+        if "L" in fixed and "L" not in self.cfg.fixed:
+            fixed["L"] = float(model.params.L)  # held where the candidate's scan put it
+        fit = fit_model(self.split.fit, model, max_nfev=self.cfg.max_nfev, fixed=fixed or None)
+        res = residuals(self.split.held_out, predictions(fit, self.split.held_out), self.noise)
+        return Fitted(effects, fit, res, res.gap(), time.perf_counter() - t0)
+
+    def try_evaluate(self, effects: tuple[str, ...], model: Model, fallback: Fitted) -> Fitted:
+        """Like :meth:`evaluate`, but a fit that fails numerically scores as no better
+        than ``fallback`` (the candidate is then simply not chosen)."""
+        try:
+            return self.evaluate(effects, model)
+        except FIT_ERRORS as exc:
+            self.say(f"candidate {'+'.join(effects)}: fit failed ({exc})")
+            return Fitted(effects, fallback.fit, fallback.res, fallback.gap, 0.0, failed=True)
+
+    def single(
+        self, base: Fitted, name: str, sc: DataScales, keep: Callable[[Effect], bool] | None = None
+    ) -> Fitted:
+        start = scan_start(base.fit.model, name, sc, self.split.fit, self.noise, keep)
+        out = self.try_evaluate((name,), start, base)
+        self.say(f"candidate {name}: held-out gap {out.gap:.3g} ({out.seconds:.1f} s)")
+        return out
+
+
+def n_added(model: Model, names: Sequence[str]) -> int:
+    return sum(len(free_fields(e)) for e in model.effects if e.NAME in names)
+
+
+@dataclass(frozen=True)
+class Scoring:
+    """Scores candidates against the baseline's held-out gap ``g0``: each added
+    parameter costs ``penalty`` (gap units)."""
+
+    g0: float
+    penalty: float
+    noise_rel: float
+    thresholds: Thresholds
+
+    @classmethod
+    def for_baseline(cls, base: Fitted, noise: NoiseModel, th: Thresholds) -> Scoring:
+        g0 = base.gap
+        noise_rel = float(np.mean([noise.noise_rel(s) for s in noise.signals]))
+        penalty = max(
+            th.penalty_rel_per_param * max(g0, 0.0), th.penalty_noise_per_param * noise_rel
+        )
+        return cls(g0, penalty, noise_rel, th)
+
+    def score(self, f: Fitted, parent: Fitted | None = None) -> CandidateScore:
+        g0, penalty = self.g0, self.penalty
+        k = n_added(f.fit.model, f.effects)
+        gain = g0 - f.gap
+        # a combination must beat its parent by the penalty of what it adds
+        k_new = k if parent is None else k - n_added(parent.fit.model, parent.effects)
+        gain_new = gain if parent is None else parent.gap - f.gap
+        eff_params = {
+            f"{e.NAME}.{fld}": float(v)
+            for e in f.fit.model.effects
+            for fld, v in e.as_dict().items()
+        }
+        return CandidateScore(
+            effects=f.effects,
+            gap=f.gap,
+            shrink=(gain / g0) if g0 > 0 else 0.0,
+            added_parameters=k,
+            penalized_gap=f.gap + k * penalty,
+            significant=bool(gain_new > k_new * penalty and not f.failed),
+            parameters=eff_params,
+            fit_seconds=f.seconds,
+        )

@@ -1,0 +1,77 @@
+"""Decision rules of the diagnosis: evidence ties, first-order winding heating."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from pmdc_ident.core.data import heat_state
+from pmdc_ident.core.diagnosis import VerdictStatus, diagnose
+from pmdc_ident.core.diagnosis.choice import separated
+from pmdc_ident.core.effects import ResistanceDrift
+from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
+from pmdc_ident.core.model import Model, Plant, simulate
+from pmdc_ident.core.motors import load_motor
+
+
+def _cand(excess: np.ndarray) -> SimpleNamespace:
+    """What :func:`separated` reads of a fitted candidate: its held-out excess error."""
+    return SimpleNamespace(res=SimpleNamespace(excess_per_sample=lambda: excess))
+
+
+def test_evidence_separates_only_what_the_held_out_blocks_show():
+    rng = np.random.default_rng(0)
+    a = rng.normal(1.0, 1.0, 4000)
+    same = a + rng.normal(0.0, 1.0, 4000)  # as good as a, up to noise
+    worse = a + 0.5 + rng.normal(0.0, 1.0, 4000)  # worse by half a unit everywhere
+    assert not separated(_cand(a), _cand(same), 0, 0.0)
+    assert separated(_cand(a), _cand(worse), 0, 0.0)
+    # a candidate with an extra parameter must beat the best by that parameter's penalty
+    assert separated(_cand(a), _cand(same), 1, 0.5)
+    assert not separated(_cand(a), _cand(worse), -1, 0.5)
+
+
+def _session(tau_s: float, k: float = 0.02):  # type: ignore[no-untyped-def]
+    spec = load_motor("seed000_ebike")
+    plan = plan_for_motor(spec, 1 / 500.0, SequenceConfig(sweep_duration_tau=20.0))
+    model = Model(spec.model.params, (ResistanceDrift(k, tau_s),))
+    return spec, plan, model
+
+
+def test_heat_history_of_a_cut_segment_follows_first_order_cooling():
+    spec, plan, model = _session(4.0)
+    run = synthesize_run(model, plan, None, seed=1)
+    v = np.concatenate([s.voltage for s in plan.segments])
+    start = 0
+    for seg in run.segments:
+        if start:
+            truth = simulate(model, v[:start], plan.dt_s, substeps=8).final_state[3]
+            assert heat_state(seg, 4.0) == pytest.approx(truth, rel=0.03), seg.label
+            # without cooling the same history is the plain integral, larger
+            assert heat_state(seg, np.inf) > 1.2 * heat_state(seg, 4.0)
+        start += seg.n
+
+
+def test_plant_reports_the_winding_resistance_as_it_heats_and_cools():
+    spec, plan, model = _session(2.0, k=0.05)
+    plant = Plant(model, 1e-3)
+    for _ in range(3000):
+        plant.step(12.0)
+    hot = plant.resistance_ohm
+    for _ in range(6000):
+        plant.step(None)  # open armature: no current, the winding cools
+    assert hot > 1.05 * spec.model.params.R
+    assert plant.resistance_ohm < spec.model.params.R + 0.1 * (hot - spec.model.params.R)
+
+
+def test_first_order_heating_is_named_with_its_time_constant():
+    spec, plan, model = _session(6.0)
+    run = synthesize_run(model, plan, spec.sensors, seed=3)
+    r = diagnose(run)
+    assert r.verdict.status is VerdictStatus.EXPLAINED
+    assert r.verdict.effects[:1] == ("resistance_drift",)
+    got = {p.name: p.value for p in r.augmented}
+    assert got["resistance_drift.time_constant_s"] == pytest.approx(6.0, rel=0.3)
+    assert got["resistance_drift.coeff_per_a2s"] == pytest.approx(0.02, rel=0.3)
