@@ -188,9 +188,9 @@ def scan_start(
     segments: Sequence[Segment],
     noise: NoiseModel,
     keep: Callable[[Effect], bool] | None = None,
-) -> Model:
+) -> tuple[Model, float]:
     """The baseline plus the starting effect whose simulation best matches the data
-    (among the starts ``keep`` accepts).
+    (among the starts ``keep`` accepts), and its gap on ``segments``.
 
     L is scanned too: when L/R is near the sample period the linear fit places L to
     mimic the effect (a delay most of all), and the fit holds L where it starts.
@@ -208,7 +208,7 @@ def scan_start(
             if g < best_gap:
                 best, best_gap = m, g
     assert best is not None
-    return best
+    return best, best_gap
 
 
 def fit_model(

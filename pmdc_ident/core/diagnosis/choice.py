@@ -125,6 +125,8 @@ def combine(
     penalty = scoring.penalty
     while len(choice.chosen.effects) < search.cfg.max_effects:
         chosen = choice.chosen
+        if chosen.gap <= penalty:
+            break  # the gap left is within one parameter's penalty: nothing can pass
         pool_names = [n for n in ranked_names if n not in chosen.effects][:4]
         if not pool_names:
             break

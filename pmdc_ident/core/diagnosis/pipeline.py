@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
@@ -245,7 +245,8 @@ def _single_candidates(
 
     Cogging is tried when the residuals are periodic in the shaft angle (it is the
     costliest fit, and the output error of a rotor caught in detents is multimodal).
-    A resistance drift is fitted twice, as the heat integral (one parameter) and as
+    A resistance drift is fitted as the heat integral (one parameter); where that
+    beats its penalty on held-out data (the winding heats), it is fitted again as
     first-order heating with its time constant (two), and the one with the smaller
     penalized held-out gap stands for the name.
     """
@@ -257,23 +258,19 @@ def _single_candidates(
         untestable["cogging"] = "no periodicity in shaft angle in the residuals"
     if "L" in search.fixed:
         untestable["inductance_saturation"] = "L is held (the data do not resolve L/R)"
-    jobs: list[tuple[str, Callable[[Effect], bool] | None]] = []
-    for n in cfg.effects:
-        if n in untestable:
-            continue
-        if n == "resistance_drift":
-            jobs.append((n, _integral))
-            jobs.append((n, lambda e: not _integral(e)))
-        else:
-            jobs.append((n, None))
+    names = [n for n in cfg.effects if n not in untestable]
+
+    def one(n: str) -> Fitted:
+        return search.single(base, n, sc, _integral if n == "resistance_drift" else None)
+
     with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
-        fits = list(pool.map(lambda job: search.single(base, job[0], sc, job[1]), jobs))
-    best: dict[str, Fitted] = {}
-    for f in fits:
-        name = f.effects[0]
-        if name not in best or _penalized(f, scoring) < _penalized(best[name], scoring):
-            best[name] = f
-    return untestable, list(best.values())
+        singles = list(pool.map(one, names))
+    for k, f in enumerate(singles):
+        if f.effects[0] == "resistance_drift" and scoring.score(f).significant:
+            first = search.single(base, f.effects[0], sc, lambda e: not _integral(e))
+            if _penalized(first, scoring) < _penalized(f, scoring):
+                singles[k] = first
+    return untestable, singles
 
 
 def _integral(e: Effect) -> bool:

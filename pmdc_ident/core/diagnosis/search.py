@@ -82,10 +82,22 @@ class Search:
             self.say(f"candidate {'+'.join(effects)}: fit failed ({exc})")
             return Fitted(effects, fallback.fit, fallback.res, fallback.gap, 0.0, failed=True)
 
-    def single(
+    def scan(
         self, base: Fitted, name: str, sc: DataScales, keep: Callable[[Effect], bool] | None = None
+    ) -> tuple[Model, float]:
+        """The best start for a candidate and its gap on the fit segments."""
+        return scan_start(base.fit.model, name, sc, self.split.fit, self.noise, keep)
+
+    def single(
+        self,
+        base: Fitted,
+        name: str,
+        sc: DataScales,
+        keep: Callable[[Effect], bool] | None = None,
+        start: Model | None = None,
     ) -> Fitted:
-        start = scan_start(base.fit.model, name, sc, self.split.fit, self.noise, keep)
+        if start is None:
+            start, _ = self.scan(base, name, sc, keep)
         out = self.try_evaluate((name,), start, base)
         self.say(f"candidate {name}: held-out gap {out.gap:.3g} ({out.seconds:.1f} s)")
         return out
