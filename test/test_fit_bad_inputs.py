@@ -58,17 +58,21 @@ FLAT = {
 
 
 @pytest.mark.parametrize("case", sorted(FLAT))
-@pytest.mark.parametrize("command", ["identify", "diagnose"])
+@pytest.mark.parametrize("command", ["identify", "diagnose", "check"])
 def test_a_record_without_information_is_one_line(case, command, tmp_path, capsys):
+    """check, identify and diagnose share one rule (core/data.excitation_problem)."""
     make, match = FLAT[case]
+    quiet = [] if command == "check" else ["--quiet"]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        rc = main([command, _csv(tmp_path / "r.csv", make()), "--quiet"])
+        rc = main([command, _csv(tmp_path / "r.csv", make()), *quiet])
     err = capsys.readouterr().err
     assert not caught, [str(w.message) for w in caught]
     assert rc == EXIT_USER_ERROR, err
     assert err.strip().splitlines()[-1].startswith(f"pmdc-ident {command}: error:"), err
-    assert match in err
+    assert match in err.strip().splitlines()[-1]
+    if command == "check":
+        assert "error: data quality: no-excitation:" in err and "fix: " in err
 
 
 def test_excitation_check_keeps_a_real_record():

@@ -27,6 +27,7 @@ __all__ = [
     "Segment",
     "TestKind",
     "check_excitation",
+    "excitation_problem",
     "heat_state",
     "link_history",
     "segment_kind",
@@ -453,11 +454,11 @@ EXCITATION_FLOOR: dict[str, float] = {"voltage": 1e-6, "current": 1e-9, "speed":
 MIN_DRIVEN_SAMPLES = 3
 
 
-def check_excitation(segments: Sequence[Segment]) -> None:
-    """Refuse a record that carries no information: nothing moves or nothing is driven.
+def excitation_problem(segments: Sequence[Segment]) -> tuple[str, str] | None:
+    """What makes a record carry no information (what is flat, what to record), or None.
 
-    One line (a :class:`DataError`) saying what is flat, before any fit runs into
-    a singular problem.
+    The one rule shared by :func:`check_excitation` (identify, diagnose) and the
+    data-quality gate (``pmdc-ident check``), so they agree.
     """
     segs = list(segments)
     speeds = np.concatenate([s.speed_or_derivative() for s in segs])
@@ -471,25 +472,35 @@ def check_excitation(segments: Sequence[Segment]) -> None:
     still_input = v.size == 0 or (v_flat and float(np.max(np.abs(v))) <= floor["voltage"])
     if not moving and still_input and not has_open:
         held = f"{v[0]:g} V" if v.size else "no voltage column"
-        msg = (
-            f"no excitation: the motor never moves ({held}, speed constant); "
-            "record a step, sweep, staircase or coast-down"
-        )
-        raise DataError(msg)
+        what = f"the motor never moves ({held}, speed constant)"
+        return what, "record a step, sweep, staircase or coast-down"
     if not moving:
-        msg = (
-            f"no excitation: the speed never changes (it spans {np.ptp(speeds):.3g} rad/s), "
+        what = (
+            f"the speed never changes (it spans {np.ptp(speeds):.3g} rad/s), "
             "so nothing mechanical can be identified"
         )
-        raise DataError(msg)
+        return what, "record a run in which the motor speeds up or slows down, in SI units"
     driven = int(v.size)
     if volts and driven < MIN_DRIVEN_SAMPLES:
-        msg = (
-            f"no excitation: only {driven} driven sample(s), the armature is open in every "
-            "other row: nothing drives the motor long enough to tell R, L or Ke"
+        what = (
+            f"only {driven} driven sample(s), the armature is open in every other row: "
+            "nothing drives the motor long enough to tell R, L or Ke"
         )
-        raise DataError(msg)
+        return what, f"drive the motor for at least {MIN_DRIVEN_SAMPLES} samples (a step)"
     cur_flat = all(float(np.ptp(c)) <= floor["current"] for c in cur)
     if cur and cur_flat and v_flat and not has_open:
-        msg = "no excitation: voltage and current are constant in every segment"
+        return "voltage and current are constant in every segment", "record a step or a sweep"
+    return None
+
+
+def check_excitation(segments: Sequence[Segment]) -> None:
+    """Refuse a record that carries no information: nothing moves or nothing is driven.
+
+    One line (a :class:`DataError`) saying what is flat and what to record, before
+    any fit runs into a singular problem.
+    """
+    problem = excitation_problem(segments)
+    if problem is not None:
+        what, fix = problem
+        msg = f"no excitation: {what}; {fix}"
         raise DataError(msg)

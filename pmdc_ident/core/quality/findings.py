@@ -26,6 +26,7 @@ CODES: tuple[str, ...] = (
     "jitter",
     "no-current",
     "no-drive",
+    "no-excitation",
     "one-direction",
     "position-unit",
     "position-wrap",

@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from pmdc_ident.core.data import Run, Segment
+from pmdc_ident.core.data import Run, Segment, excitation_problem
 from pmdc_ident.core.quality.findings import Finding, QualityReport, Severity
 from pmdc_ident.core.quality.physics import (
     check_current_filter,
@@ -123,6 +123,17 @@ def _guarded(check: Callable[[], list[Finding]], where: str) -> list[Finding]:
         ]
 
 
+def _excitation(names: str, segs: list[Segment], found: list[Finding]) -> list[Finding]:
+    """identify's and diagnose's own no-excitation rule, so check agrees with them."""
+    if any(f.code == "no-drive" for f in found):  # the same record, already said
+        return []
+    problem = excitation_problem(segs)
+    if problem is None:
+        return []
+    what, fix = problem
+    return [Finding("no-excitation", Severity.ERROR, names, what, fix)]
+
+
 def check_inputs(
     inputs: Sequence[GateInput], *, fixed: Mapping[str, float] | None = None
 ) -> QualityReport:
@@ -158,6 +169,7 @@ def _check_inputs(inputs: Sequence[GateInput], fixed: Mapping[str, float] | None
                     "or add a driven run",
                 )
             )
+        findings += _excitation(names, segs, findings)
     rsd: dict[str, float] = {}
     if segs and not any(f.severity is Severity.ERROR for f in findings):
         from pmdc_ident.core.quality.information import information_findings
