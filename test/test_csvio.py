@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,8 @@ from pmdc_ident.core.data import Run, Segment, TestKind
 from pmdc_ident.core.errors import DataError
 from pmdc_ident.dataio import load_data
 from pmdc_ident.dataio.csvio import read_csv, write_csv
+
+FIXTURES = Path(__file__).parent / "fixtures"
 
 
 def _write(tmp_path, text: str, name: str = "run.csv"):
@@ -79,3 +83,72 @@ def test_binary_file_is_refused(tmp_path):
     p.write_bytes(b"\xff\xfe\x00\x81garbage")
     with pytest.raises(DataError, match="not a text"):
         read_csv(p)
+
+
+def _plain_text(n: int = 400) -> str:
+    """A logger's plain file: segment label in the middle column, open (empty) voltage
+    cells, spaces around a few numbers."""
+    rng = np.random.default_rng(3)
+    rows = ["time,Voltage,segment,current,speed"]
+    for k in range(n):
+        v = "" if 150 <= k < 250 else repr(float(rng.normal(6, 1)))
+        label = "coast" if 150 <= k < 250 else ("up" if k < 150 else "down")
+        i, w = (repr(float(x)) for x in rng.normal(size=2))
+        rows.append(f"{k * 1e-3!r},{v},{label},{' ' + i if k % 7 == 0 else i},{w}")
+    return "\n".join(rows) + "\n"
+
+
+def test_plain_files_take_the_fast_reader_and_match_the_careful_one(tmp_path):
+    from pmdc_ident.dataio import csvio
+
+    cols = {"t": "time"}
+    for p in (_write(tmp_path, _plain_text()), *sorted(FIXTURES.glob("*.csv"))):
+        text = csvio._text(p)
+        fast = csvio._fast_table(p, text, cols if p.parent == tmp_path else {})
+        careful = csvio._careful_table(p, text, cols if p.parent == tmp_path else {})
+        assert fast is not None, p  # a plain file: numpy's C parser
+        assert fast[0].keys() == careful[0].keys()
+        for name, arr in fast[0].items():
+            np.testing.assert_array_equal(arr, careful[0][name], err_msg=f"{p} {name}")
+        assert list(fast[1]) == list(careful[1]) and list(fast[2]) == list(careful[2])
+
+
+ODD = {
+    "a comment line": lambda lines: lines.insert(200, "# the rig was re-zeroed here"),
+    "a blank line": lambda lines: lines.insert(100, ""),
+    "quoted cells": lambda lines: lines.__setitem__(5, lines[5].replace(",up,", ',"up",')),
+    "a trailing separator": lambda lines: lines.__setitem__(9, lines[9] + ","),
+}
+
+
+@pytest.mark.parametrize("case", sorted(ODD))
+def test_odd_files_take_the_careful_reader_with_the_same_result(case, tmp_path):
+    from pmdc_ident.dataio import csvio
+
+    lines = _plain_text().splitlines()
+    plain = read_csv(_write(tmp_path, "\n".join(lines) + "\n", "plain.csv"), {"t": "time"})
+    ODD[case](lines)
+    odd = _write(tmp_path, "\n".join(lines) + "\n", "odd.csv")
+    assert csvio._fast_table(odd, csvio._text(odd), {"t": "time"}) is None
+    back = read_csv(odd, {"t": "time"})
+    assert back.labels == plain.labels
+    for a, b in zip(back.segments, plain.segments, strict=True):
+        np.testing.assert_array_equal(a.current, b.current)
+        np.testing.assert_array_equal(a.voltage, b.voltage)
+
+
+@pytest.mark.parametrize(
+    ("cell", "match"),
+    [
+        ("nan", "'voltage' is 'nan'"),
+        ("inf", "'voltage' is 'inf'"),
+        ("6 V", "'voltage' is not a number"),
+    ],
+)
+def test_a_bad_cell_in_a_plain_file_names_its_line(cell, match, tmp_path):
+    lines = _plain_text().splitlines()
+    head, _v, rest = lines[300].split(",", 2)
+    lines[300] = f"{head},{cell},{rest}"  # file line 301
+    p = _write(tmp_path, "\n".join(lines) + "\n")
+    with pytest.raises(DataError, match=f"line 301: {match}"):
+        read_csv(p, {"t": "time"})
