@@ -38,7 +38,9 @@ COMMANDS: dict[str, str] = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every command, or of command ``only`` alone (its module is then the
+    only one imported: a command's own start-up does not pay for the others)."""
     parser = argparse.ArgumentParser(
         prog="pmdc-ident",
         description="Identify brushed PMDC motor parameters and diagnose the sim-to-real gap.",
@@ -47,6 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name, module_name in COMMANDS.items():
+        if only is not None and name != only:
+            continue
         module = importlib.import_module(f"pmdc_ident.commands.{module_name}")
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
@@ -83,7 +87,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from pmdc_ident.core.errors import PmdcError
 
         user_errors = (PmdcError,)
-        parser = build_parser()
+        # the command word first (options aside): only its parser is built; anything
+        # else (a typo, --help) gets the full parser and its own message
+        first = next((w for w in words if not w.startswith("-")), "")
+        parser = build_parser(first if first in COMMANDS else None)
         args = parser.parse_args(argv)
         command = args.command
         return int(args._run(args) or 0)

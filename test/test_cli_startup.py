@@ -64,6 +64,21 @@ def test_help_and_argument_errors_import_no_numerical_stack(argv: list[str]) -> 
     assert rc == (0 if "--help" in argv else 2), out.stderr  # help, or one line + exit 2
 
 
+def test_a_command_imports_only_its_own_command_module() -> None:
+    """``pmdc-ident check RUN`` does not pay for identify's or batch's imports."""
+    probe = (
+        "import json, sys\nfrom pmdc_ident import cli\n"
+        "try:\n    cli.main(['check', '--help'])\nexcept SystemExit:\n    pass\n"
+        "print(json.dumps(sorted(m for m in sys.modules if m.startswith('pmdc_ident.commands.'))))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, timeout=120, check=True
+    )
+    loaded = json.loads(out.stdout.strip().splitlines()[-1])
+    assert "pmdc_ident.commands.check" in loaded
+    assert not {"pmdc_ident.commands.identify", "pmdc_ident.commands.batch"} & set(loaded)
+
+
 def test_core_package_names_resolve_lazily() -> None:
     import pmdc_ident.core as core
 
