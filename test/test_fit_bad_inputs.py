@@ -86,8 +86,8 @@ def test_excitation_check_keeps_a_real_record():
 @pytest.mark.parametrize("name", EFFECT_NAMES)
 def test_starting_effects_stay_in_range_for_data_in_odd_units(name):
     # torque, voltage and current of mV/mA logs read as V/A, speed of a stalled rotor
-    odd = DataScales(1e7, 1e5, 1e-6, 1e5, 1e-3, 1e-9, (1,))
-    for scales in (odd, DataScales(1e-9, 1e-9, 1e6, 1e-9, 1e-3, 1e12, (1,))):
+    odd = DataScales(1e7, 1e5, 1e-6, 1e5, 1e-3, 1e-9, 60.0, (1,))
+    for scales in (odd, DataScales(1e-9, 1e-9, 1e6, 1e-9, 1e-3, 1e12, 1e-3, (1,))):
         assert starting_effects(name, scales)  # each a valid effect, no range error
 
 
