@@ -128,6 +128,7 @@ class Outcome:
     error: str = ""
     elapsed_s: float = 0.0
     summary: dict[str, Any] = field(default_factory=dict)
+    cpu_s: float = 0.0  # CPU time of the worker process on this input
 
 
 def _run_one(
@@ -140,7 +141,7 @@ def _run_one(
     args.json = str(item.json_path)
     args.quiet = True
     buf = io.StringIO()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
             rc = int(module.run(args) or 0)
@@ -154,11 +155,11 @@ def _run_one(
         return Outcome(item, False, f"internal error: {type(exc).__name__}: {exc}", 0.0)
     finally:
         item.text_path.write_text(buf.getvalue())
-    elapsed = time.perf_counter() - t0
+    elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
     if rc != 0:
-        return Outcome(item, False, f"exit status {rc}", elapsed)
+        return Outcome(item, False, f"exit status {rc}", elapsed, cpu_s=cpu)
     summarize: Callable[[Path], dict[str, Any]] = getattr(module, summarize_name)
-    return Outcome(item, True, "", elapsed, summarize(item.json_path))
+    return Outcome(item, True, "", elapsed, summarize(item.json_path), cpu)
 
 
 class _Progress:
@@ -262,9 +263,10 @@ def run_batch(
     failed = [o for o in outcomes if not o.ok]
     n_ok = len(outcomes) - len(failed)
     rate = 60.0 * len(outcomes) / wall if wall > 0 else float("inf")
+    cpu = sum(o.cpu_s for o in outcomes)
     print(
-        f"{n_ok} of {len(outcomes)} inputs done in {wall:.1f} s with {jobs} job(s) "
-        f"({rate:.1f} per minute); results in {out}"
+        f"{n_ok} of {len(outcomes)} inputs done in {wall:.1f} s wall ({cpu:.1f} s CPU in the "
+        f"workers) with {jobs} job(s): {rate:.1f} per minute; results in {out}"
     )
     for o in failed:
         print(f"FAILED {o.item.path}: {o.error}")
