@@ -15,11 +15,21 @@ for the test's duration, so no two of them ever share one. The pool leaves out
 from __future__ import annotations
 
 import os
+import signal
 from collections.abc import Iterator
 
 import pytest
 
 from pmdc_ident.nodes.dds_domain import HELD_ENV, allocate_domain
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    # A suite started as a background job of a non-interactive shell (`make test &`)
+    # inherits SIGINT ignored, and every process it starts would ignore Ctrl-C too:
+    # the tests that send SIGINT (CLI interrupts, nodes, bring-up) would then test
+    # nothing. A handler here is reset to the default in each child at exec.
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session", autouse=True)
