@@ -5,12 +5,15 @@
         motor:=/path/to/nominal.yaml output_dir:=$HOME/pmdc_sessions
 
 The same graph as the ``bringup`` command (which needs no ``ros2 launch``): the
-parameters files in ``share/pmdc_ident/config/`` give the defaults, the launch
-arguments override the most used ones. With ``exit_when_done:=true`` (default)
-the launch ends when the session is over; the driver makes the motor safe and the
-recorder closes its bag on the way out. For a larger stack that asks for runs on
-demand, use ``exit_when_done:=false autostart:=false`` and call the
-``run_session`` service; the result stays latched on ``identified_parameters``.
+parameters files in ``share/pmdc_ident/config/`` give the defaults (keyed ``/**``,
+so they reach the nodes under any namespace), the launch arguments override the
+most used ones; their defaults are the nodes', from their parameter tables
+(``pmdc_ident/nodes/parameter_tables.py``), except ``exit_when_done``: with
+``exit_when_done:=true`` (the launch's default) the launch ends when the session is
+over; the driver makes the motor safe and the recorder closes its bag on the way out.
+For a larger stack that asks for runs on demand, use ``exit_when_done:=false
+autostart:=false`` and call the ``run_session`` service; the result stays latched on
+``identified_parameters``.
 """
 
 from __future__ import annotations
@@ -26,21 +29,31 @@ from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
 from launch import LaunchDescription
+from pmdc_ident.nodes.parameter_tables import (
+    DRIVER,
+    IDENTIFICATION,
+    RECORDER,
+    ParameterTable,
+)
 
 
 def generate_launch_description() -> LaunchDescription:
     share = get_package_share_directory("pmdc_ident")
     config = os.path.join(share, "config")
     arg = LaunchConfiguration
+
+    def declare(name: str, table: ParameterTable) -> DeclareLaunchArgument:
+        p = table[name]
+        default = str(p.default).lower() if isinstance(p.default, bool) else str(p.default)
+        return DeclareLaunchArgument(name, default_value=default, description=p.description)
+
     args = [
-        DeclareLaunchArgument("backend", default_value="sim", description="'sim' or 'serial'"),
-        DeclareLaunchArgument("port", default_value="/dev/ttyACM0", description="serial port"),
-        DeclareLaunchArgument(
-            "motor", default_value="seed000_ebike", description="motor (driver) / nominal motor"
-        ),
-        DeclareLaunchArgument("output_dir", default_value="pmdc_sessions", description="bags"),
-        DeclareLaunchArgument("safe_mode", default_value="zero", description="'zero' or 'open'"),
-        DeclareLaunchArgument("autostart", default_value="true", description="run at once"),
+        declare("backend", DRIVER),
+        declare("port", DRIVER),
+        declare("motor", DRIVER),  # the driver's motor, and the nominal motor of the plan
+        declare("output_dir", RECORDER),  # the bags, and the results beside them
+        declare("safe_mode", IDENTIFICATION),
+        declare("autostart", IDENTIFICATION),
         DeclareLaunchArgument(
             "exit_when_done", default_value="true", description="end the launch after one run"
         ),
@@ -49,33 +62,33 @@ def generate_launch_description() -> LaunchDescription:
     driver = Node(
         package="pmdc_ident",
         executable="driver_node",
-        name="driver_node",
+        name=DRIVER.node,
         namespace=arg("namespace"),
         output="screen",
         emulate_tty=True,
         parameters=[
-            os.path.join(config, "driver.yaml"),
+            os.path.join(config, DRIVER.config),
             {"backend": arg("backend"), "port": arg("port"), "motor": arg("motor")},
         ],
     )
     recorder = Node(
         package="pmdc_ident",
         executable="recorder_node",
-        name="recorder_node",
+        name=RECORDER.node,
         namespace=arg("namespace"),
         output="screen",
         emulate_tty=True,
-        parameters=[os.path.join(config, "recorder.yaml"), {"output_dir": arg("output_dir")}],
+        parameters=[os.path.join(config, RECORDER.config), {"output_dir": arg("output_dir")}],
     )
     identification = Node(
         package="pmdc_ident",
         executable="identification_node",
-        name="identification_node",
+        name=IDENTIFICATION.node,
         namespace=arg("namespace"),
         output="screen",
         emulate_tty=True,
         parameters=[
-            os.path.join(config, "identification.yaml"),
+            os.path.join(config, IDENTIFICATION.config),
             {
                 "motor": arg("motor"),
                 "output_dir": arg("output_dir"),

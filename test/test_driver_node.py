@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -31,7 +30,6 @@ from pmdc_ident.nodes.driver_harness import (  # noqa: E402
     apply_ros_env,
     ros_env,
 )
-from pmdc_ident.nodes.driver_node import PARAMETERS  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 RATE_HZ = 1000.0
@@ -362,15 +360,6 @@ def test_bad_start_parameter_is_one_line_and_a_non_zero_exit(args, fragment, ros
     errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("driver_node:")]
     assert len(errors) == 1 and fragment in errors[0]
     assert "Traceback" not in proc.stderr
-
-
-def test_config_defaults_match_the_declared_parameters():
-    data = yaml.safe_load((REPO / "config" / "driver.yaml").read_text())
-    values = data["driver_node"]["ros__parameters"]
-    assert set(values) == set(PARAMETERS)
-    for name, p in PARAMETERS.items():
-        assert values[name] == p.default, name
-        assert type(values[name]) is type(p.default), name
 
 
 @pytest.mark.parametrize("name", ["driver.launch.py", "session.launch.py"])

@@ -1,4 +1,4 @@
-"""Only pmdc_ident.nodes may import rclpy or ROS message packages (DESIGN.md §3).
+"""Only pmdc_ident.nodes may import rclpy or ROS message packages (docs/design.md §3).
 
 Every other module is imported in a fresh interpreter and the test checks that
 no ROS module was pulled in, directly or through another module. The module

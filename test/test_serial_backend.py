@@ -304,6 +304,29 @@ def test_port_unplugged_mid_run_is_reported_and_never_hangs(board: VirtualBoard)
     assert not any("unplugged?" in line for line in lines)  # poll() carries it, once
 
 
+def test_a_pseudo_terminal_taken_by_another_program_is_never_written_to(
+    board: VirtualBoard, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A freed /dev/pts/N goes to the next program that asks (ros2 launch gives every
+    node one): the backend must not reconnect into it and write its handshake."""
+    from pmdc_ident.backends import serial_board
+
+    be = _backend(board, reconnect_interval_s=0.05)
+    c = Collector(be)
+    try:
+        c.run(0.1)
+        first = serial_board._pty_identity(board.port)
+        assert first is not None  # the virtual board is a pseudo-terminal
+        assert serial_board._pty_identity("/dev/null") is None
+        rdev, ctime_ns = first
+        monkeypatch.setattr(serial_board, "_pty_identity", lambda _port: (rdev, ctime_ns + 1))
+        board.reset()  # the backend closes the port and reopens it
+        assert c.until(lambda: be.state is LinkState.FAILED, 2.0)
+        assert any("another program's terminal" in e for e in c.errors)
+    finally:
+        be.close()
+
+
 def test_board_watchdog_opens_the_armature_when_the_host_goes_quiet(
     board: VirtualBoard,
 ) -> None:

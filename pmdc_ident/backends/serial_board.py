@@ -18,7 +18,11 @@ board's own watchdog opens the armature if nothing gets through), and raise
 a one-line :class:`BackendError` from the next :meth:`poll`, once. It then
 reopens the port and re-handshakes every ``reconnect_interval_s`` in the
 background; commands are refused until it streams again. A protocol version
-mismatch or a refused stream rate is fatal (no reconnect).
+mismatch or a refused stream rate is fatal (no reconnect). A pseudo-terminal (a
+virtual board) is reopened only while it is the same terminal: the kernel hands a
+freed ``/dev/pts/N`` to the next program that asks for one (``ros2 launch`` gives
+each node a pty), and a reconnecting driver must not write its handshake into
+another program's terminal.
 
 Host stalls: if the caller polls so late that more than ``max_catch_up_s`` of
 samples wait, only the newest are returned; the first carries
@@ -213,6 +217,7 @@ class SerialBackend:
         self._board_errors = 0
         self._board_resets = 0
         self._reconnects = 0
+        self._pty: tuple[int, int] | None = None  # the pseudo-terminal first opened
         self._seen_errors = 0
         self._last_link_log = 0.0
         self._applied_v = math.nan
@@ -402,6 +407,15 @@ class SerialBackend:
     def _connect(self) -> None:
         """Open, handshake, start the stream. Raises _LinkLostError."""
         self._close_port()
+        pty = _pty_identity(self.port)
+        if self._pty is None:
+            self._pty = pty
+        elif pty is not None and pty != self._pty:
+            msg = (
+                f"{self.port} is now another program's terminal (the pseudo-terminal "
+                "number was reused after the board closed it)"
+            )
+            raise _LinkLostError(msg, fatal=True)
         try:
             self._ser = serial.Serial(
                 self.port, self.baud, timeout=0.02, write_timeout=0.5, exclusive=True
@@ -676,6 +690,20 @@ class SerialBackend:
         self._log(
             f"serial board: reconnected to {self.port}; streaming again with the armature open"
         )
+
+
+def _pty_identity(port: str) -> tuple[int, int] | None:
+    """(device, inode change time) of a pseudo-terminal; ``None`` for anything else.
+
+    A reallocated ``/dev/pts/N`` has the same device number but a new inode."""
+    path = os.path.realpath(port)
+    if not path.startswith("/dev/pts/"):
+        return None
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_rdev, st.st_ctime_ns
 
 
 def _error_name(code: int) -> str:

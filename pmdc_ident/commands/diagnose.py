@@ -3,7 +3,7 @@
 Fits the linear model on part of the segments, measures its free-run error on
 the held-out rest, localizes the gap, tries every effect of the vocabulary (and
 combinations), and prints the verdict: ``no_gap``, ``explained`` by named
-effects, or ``unexplained``. ``--json`` writes the DESIGN.md keys, ``--report``
+effects, or ``unexplained``. ``--json`` writes the keys of docs/design.md §4, ``--report``
 an HTML page with plots.
 """
 

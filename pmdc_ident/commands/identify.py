@@ -1,7 +1,7 @@
 """``pmdc-ident identify DATA... [--fix NAME=VALUE]... [--json PATH] [--report DIR]``.
 
 Prints the parameter table with 95 % intervals, the assumptions, the transfer
-functions and the method comparison; writes the JSON of DESIGN.md §4, a motor
+functions and the method comparison; writes the JSON of docs/design.md §4, a motor
 YAML that ``load_motor`` (and the simulated driver) reads, and with
 ``--report`` plots of measured against simulated response per segment.
 """

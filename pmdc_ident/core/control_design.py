@@ -1,7 +1,7 @@
 """Cascade PI gains (current loop, speed loop) designed from the identified motor.
 
 The design is loop shaping on the identified linear model, with the sampling
-delay of a digital controller included (DESIGN.md model, units SI):
+delay of a digital controller included (the model of docs/design.md §2, units SI):
 
 * **Current loop** (PI, output armature voltage V): the PI zero cancels the
   electrical pole, ``Ki/Kp = R/L``, and ``Kp = wc L``, so the open loop is

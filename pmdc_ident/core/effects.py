@@ -1,4 +1,4 @@
-"""Unmodelled effects of the DESIGN.md vocabulary, as composable model additions.
+"""Unmodelled effects of the vocabulary (docs/design.md §4), as composable model additions.
 
 Each effect is a frozen dataclass with its physical parameters (units in the
 field names). A :class:`~pmdc_ident.core.model.Model` is the linear motor plus

@@ -4,7 +4,7 @@ State ``x = [i (A), w (rad/s), theta (rad)]``. Sample convention (zero-order
 hold): ``voltage[k]`` is held over ``[t_k, t_k + dt)`` and the outputs at index
 ``k`` are the state at ``t_k``, so ``current[0]`` is the initial current.
 A NaN voltage means the armature is open over that interval: no current flows
-and the rotor coasts (DESIGN.md §2: commanding 0 V would brake it instead).
+and the rotor coasts (docs/design.md §2: commanding 0 V would brake it instead).
 
 Two simulators share this convention:
 

@@ -6,7 +6,7 @@ The model (both seeds)::
     J dw/dt = Kt i - B w - T_load
 
 Parameter table (the single place where units are defined; names are the JSON
-keys of DESIGN.md):
+keys of docs/design.md §4):
 
 ====  =========  ==========================================
 name  unit       meaning

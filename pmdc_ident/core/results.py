@@ -1,6 +1,6 @@
 """Identification results: parameter estimates, method comparison, JSON and motor YAML.
 
-JSON (DESIGN.md §4): ``parameters.{R,L,Ke,Kt,J,B}`` each ``{value, ci95: [lo, hi] |
+JSON (docs/design.md §4): ``parameters.{R,L,Ke,Kt,J,B}`` each ``{value, ci95: [lo, hi] |
 null, unit, identifiable}`` (plus ``stderr``, ``reason``), effect parameters as
 ``parameters["<effect>.<name>"]``; then ``assumptions``, ``warnings``,
 ``methods`` (each method's estimates, for comparison), ``validation``

@@ -17,7 +17,8 @@ keeps both thin and lets them be tested without ROS.
   command came within ``watchdog_s``; the next valid command clears it.
 
 A trip latches until :meth:`SafetyMonitor.reset`; :meth:`SafetyMonitor.check` returns
-the first trip a sample newly latched.
+the first trip a sample newly latched, :meth:`SafetyMonitor.report` latches a trip a
+backend reports in its fault bits.
 """
 
 from __future__ import annotations
@@ -128,6 +129,22 @@ class SafetyMonitor:
         for reason, message in self._violations(t_s, current_a, speed_rad_s):
             if reason in self.latched:
                 continue
+            self.latched[reason] = message
+            if new is None:
+                new = reason
+            if self.reason is None:
+                self.reason, self.detail = reason, message
+        return new
+
+    def report(self, faults: Fault, t_s: float) -> AbortReason | None:
+        """Trips a backend reports in its own fault bits (it trips at the sample itself,
+        like board firmware): latched like the monitor's own; the first new one."""
+        new: AbortReason | None = None
+        for reason, bit in _FAULT_OF.items():
+            if not faults & bit or reason in self.latched:
+                continue
+            words = reason.value.replace("_", "-")
+            message = f"{words}: tripped by the backend at t={t_s:.3f} s"
             self.latched[reason] = message
             if new is None:
                 new = reason

@@ -1,4 +1,4 @@
-"""CSV runs: the offline exchange format of DESIGN.md §4.
+"""CSV runs: the offline exchange format of docs/design.md §4.
 
 One header row, then one row per sample. Columns (names case-insensitive, any
 order; unknown columns are ignored):

@@ -1,5 +1,8 @@
 """The one identification call shared by the online node and ``pmdc-ident identify`` (ROS-free).
 
+:func:`run_identification_job` is what the node runs once a session is over (in a
+worker process, so the node keeps serving its topics meanwhile).
+
 The node identifies its session with :func:`identify_session_run`, which runs the
 pipeline of ``pmdc-ident identify`` (:func:`pmdc_ident.core.estimators.identify.identify`
 on the run's segments) with that command's default options; ``fixed`` is its
@@ -11,14 +14,28 @@ document ``pmdc-ident identify --json`` writes.
 from __future__ import annotations
 
 import json
+import multiprocessing
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from pmdc_ident.core.data import Run
-from pmdc_ident.core.motors import motor_to_yaml
+import numpy as np
 
-__all__ = ["IdentifyOutput", "identify_session_run"]
+from pmdc_ident.core.data import Run
+from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.motors import motor_to_yaml
+from pmdc_ident.core.session.controller import IdentificationJob, IdentificationOutcome
+from pmdc_ident.core.session.recording import SessionSamples
+from pmdc_ident.dataio.bagio import DriverArrays, assemble_run
+from pmdc_ident.dataio.completeness import Completeness, completeness
+
+__all__ = [
+    "IdentificationWorker",
+    "IdentifyOutput",
+    "identify_session_run",
+    "run_identification_job",
+]
 
 
 @dataclass(frozen=True)
@@ -60,3 +77,121 @@ def identify_session_run(
         table=result.text_report(),
         values={k: p.value for k, p in result.parameters.items()},
     )
+
+
+def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
+    """Identify a finished session's samples and write ``parameters.json`` / ``.yaml``
+    beside its bag: what the identification node runs once a session is over.
+
+    Runs in a worker process (plain data in and out); never raises: a refusal of the
+    data is the outcome's ``error`` with exit code 2, a bug of ours exit code 1.
+    """
+    notes: list[tuple[str, str]] = []
+    try:
+        arrays = _driver_arrays(job.samples)
+        run = assemble_run(arrays, source=job.source, session=job.session)
+        n = sum(seg.n for seg in run.segments)
+        found = _completeness(job.samples)
+        notes.append(
+            ("warning" if found.missing else "info", f"session {job.session}: {found.line()}")
+        )
+        result = identify_session_run(
+            run, job.fixed, name=job.session, extra={"driver_samples": found.to_dict()}
+        )
+        job.output_dir.mkdir(parents=True, exist_ok=True)
+        (job.output_dir / "parameters.json").write_text(result.json_text)
+        (job.output_dir / "parameters.yaml").write_text(result.yaml_text)
+    except PmdcError as exc:
+        return IdentificationOutcome(error=str(exc), exit_code=2, notes=tuple(notes))
+    except Exception as exc:  # noqa: BLE001 - report in one line, keep the node alive
+        return IdentificationOutcome(error=repr(exc), exit_code=1, notes=tuple(notes))
+    return IdentificationOutcome(
+        json_text=result.json_text,
+        table=result.table,
+        n_samples=n,
+        output_dir=str(job.output_dir),
+        notes=tuple(notes),
+    )
+
+
+def _driver_arrays(s: SessionSamples) -> DriverArrays:
+    return DriverArrays(
+        current_ns=s.current_ns,
+        current_a=s.current_a,
+        encoder_ns=s.encoder_ns,
+        position_rad=s.position_rad,
+        speed_rad_s=s.speed_rad_s,
+        voltage_ns=s.voltage_ns,
+        voltage_v=s.voltage_v,
+        terminal_v=s.terminal_v,
+        markers=list(s.markers),
+    )
+
+
+def _completeness(s: SessionSamples) -> Completeness:
+    """The session's driver samples the node received vs the stamp grid."""
+    enc = np.unique(s.encoder_ns)
+    dt_ns = int(np.median(np.diff(enc))) if enc.size > 2 else 1_000_000
+    stamps = {"current": s.current_ns, "encoder": s.encoder_ns, "voltage_applied": s.voltage_ns}
+    return completeness(
+        stamps, round(s.markers[0].t_s * 1e9), round(s.markers[-1].t_s * 1e9), dt_ns
+    )
+
+
+class IdentificationWorker:
+    """:func:`run_identification_job` in a child process, polled by the node's timer.
+
+    A process, not a thread: the identification's Python-level work then never holds
+    the node's interpreter lock while driver samples and signals must be served, and
+    a stop terminates it at once. The child is spawned (never forked: the parent runs
+    DDS threads) and gets plain data.
+    """
+
+    def __init__(self, job: IdentificationJob) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child = ctx.Pipe(duplex=False)
+        self._process = ctx.Process(
+            target=_work, args=(job, child), name="pmdc_ident identification", daemon=True
+        )
+        self._process.start()
+        child.close()
+
+    def poll(self) -> IdentificationOutcome | None:
+        """The outcome once the child has finished (``None`` while it works)."""
+        if self._conn.poll():
+            try:
+                outcome = self._conn.recv()
+            except EOFError:
+                outcome = None
+            self._process.join(timeout=5.0)
+            if isinstance(outcome, IdentificationOutcome):
+                return outcome
+        if self._process.is_alive():
+            return None
+        code = self._process.exitcode
+        return IdentificationOutcome(
+            error=f"the identification process ended without a result (exit code {code})",
+            exit_code=1,
+        )
+
+    def terminate(self) -> None:
+        if self._process.is_alive():
+            self._process.terminate()
+            self._process.join(timeout=5.0)
+        self._conn.close()
+
+
+def _work(job: IdentificationJob, conn: Any) -> None:
+    _normal_priority()  # the fit is batch work: never at the loop's real-time priority
+    conn.send(run_identification_job(job))
+    conn.close()
+
+
+def _normal_priority() -> None:
+    """This process back to the normal scheduler: a child inherits the node's SCHED_RR
+    (bring-up runs the session's nodes real-time where permitted)."""
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass

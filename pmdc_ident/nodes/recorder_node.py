@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import math
-import signal
 import sys
 import time
 from collections import deque
@@ -26,11 +25,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
@@ -38,8 +34,10 @@ from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.session import Marker, MarkerEvent
 from pmdc_ident.dataio.bagio import TOPIC_TYPES, BagWriter, header_stamp_ns
 from pmdc_ident.dataio.completeness import Completeness, completeness
-from pmdc_ident.nodes.identification_node import make_executor
+from pmdc_ident.nodes.parameter_tables import RECORDER
+from pmdc_ident.nodes.parameters import declare
 from pmdc_ident.nodes.qos import COMMAND_QOS, LATCHED_QOS, SEGMENT_QOS, sample_qos
+from pmdc_ident.nodes.runtime import run_node
 
 __all__ = ["RecorderNode", "main"]
 
@@ -57,35 +55,14 @@ OTHER_TOPICS: dict[str, tuple[str, Any, QoSProfile]] = {
 class RecorderNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        self.declare_parameter(
-            "output_dir",
-            "pmdc_sessions",
-            ParameterDescriptor(description="folder the session bags go into", read_only=True),
-        )
-        for name, default, desc in (
-            ("rate_hz", 1000.0, "driver sample rate, Hz (sizes the queues and the ring)"),
-            ("margin_s", 0.0, "also keep driver samples this long before/after a session, s"),
-            ("ring_s", 3.0, "driver samples kept while no bag is open, s"),
-            ("hold_s", 2.0, "samples wait this long before being written (late end marker), s"),
-        ):
-            self.declare_parameter(
-                name,
-                default,
-                ParameterDescriptor(
-                    description=desc,
-                    read_only=True,
-                    floating_point_range=[
-                        FloatingPointRange(from_value=0.0, to_value=20000.0, step=0.0)
-                    ],
-                ),
-            )
-        self.output_dir = Path(self.get_parameter("output_dir").value).expanduser()
-        rate = float(self.get_parameter("rate_hz").value) or 1000.0
-        self.margin_ns = int(float(self.get_parameter("margin_s").value) * 1e9)
+        values = declare(self, RECORDER)
+        self.output_dir = Path(values["output_dir"]).expanduser()
+        rate = float(values["rate_hz"]) or 1000.0
+        self.margin_ns = int(float(values["margin_s"]) * 1e9)
         self.half_dt_ns = int(0.5e9 / rate)
-        self.hold_ns = int(float(self.get_parameter("hold_s").value) * 1e9)
-        hold_s = float(self.get_parameter("hold_s").value)
-        ring_n = int(3 * rate * max(float(self.get_parameter("ring_s").value), 2 * hold_s, 0.5))
+        self.hold_ns = int(float(values["hold_s"]) * 1e9)
+        hold_s = float(values["hold_s"])
+        ring_n = int(3 * rate * max(float(values["ring_s"]), 2 * hold_s, 0.5))
         self.ring: deque[tuple[str, int, bytes, int]] = deque(maxlen=ring_n)
         self.writer: BagWriter | None = None
         self.session = ""
@@ -98,8 +75,8 @@ class RecorderNode(Node):
         self._written: dict[str, list[int]] = {t: [] for t in DRIVER_TOPICS}  # stamps, ns
         self.samples = 0
         self.bags: list[str] = []
-        self.finished = False
-        self.stop_requested = False
+        self.finished = False  # a signal arrived: drain, close, exit
+        self.exit_code = 0
         self.last_missing = 0  # driver samples missing from the last bag closed
         from rosbags.typesys import Stores, get_typestore
 
@@ -291,44 +268,25 @@ class RecorderNode(Node):
             return True
         return max(self._lag_ns.values()) < 100_000_000
 
-    def shutdown(self) -> None:
+    # -- ManagedNode (pmdc_ident.nodes.runtime) ---------------------------------------------
+    def request_stop(self) -> None:
+        self.finished = True
+
+    def wind_down(self, spin_once: Any) -> None:
+        """Stopped (Ctrl-C, SIGTERM): first take the samples still queued for us, so a
+        recorder that fell behind on a loaded machine writes them before closing."""
+        deadline = time.monotonic() + 8.0  # bringup waits 10 s before SIGTERM
+        while not self.caught_up() and time.monotonic() < deadline:
+            spin_once(0.05)
+
+    def close(self) -> list[str]:
         if self.writer is not None:
             self._drain_rest_and_close("shutdown")
+        return [f"bag {b}" for b in self.bags]
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node: RecorderNode | None = None
-    flag: list[int] = []
-
-    def on_signal(signum: int, _frame: Any) -> None:
-        flag.append(signum)
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    status = 0
-    try:
-        node = RecorderNode()
-        executor = make_executor()
-        executor.add_node(node)
-        while rclpy.ok() and not flag:
-            executor.spin_once(timeout_sec=0.1)
-        # Stopped (Ctrl-C, SIGTERM): first take the samples still queued for us, so a
-        # recorder that fell behind on a loaded machine writes them before closing.
-        deadline = time.monotonic() + 8.0  # bringup waits 10 s before SIGTERM
-        while rclpy.ok() and not node.caught_up() and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-    except PmdcError as exc:
-        print(f"{NODE_NAME}: {exc}", file=sys.stderr, flush=True)
-        status = 2
-    finally:
-        if node is not None:
-            node.shutdown()
-            for b in node.bags:
-                print(f"{NODE_NAME}: bag {b}", file=sys.stderr, flush=True)
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return status if not flag or status else 0
+    return run_node(NODE_NAME, RecorderNode, args)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@
 Given recorded runs, :func:`diagnose` fits the seeds' linear model on part of
 the segments (the *fit* set), measures its free-run simulation error on the
 rest (the *held-out* set), localizes that gap by signal and regime, fits every
-effect of the DESIGN.md vocabulary (and combinations) on the fit set, scores
+effect of the vocabulary (docs/design.md §4) (and combinations) on the fit set, scores
 them on the held-out set with a penalty per added parameter, and returns a
 verdict: ``no_gap``, ``explained`` by named effects, or ``unexplained``.
 """

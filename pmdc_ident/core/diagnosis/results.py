@@ -1,4 +1,4 @@
-"""Result objects of the diagnosis and their JSON form (keys of DESIGN.md §4)."""
+"""Result objects of the diagnosis and their JSON form (keys of docs/design.md §4)."""
 
 from __future__ import annotations
 
@@ -105,7 +105,7 @@ class RegimeShrink:
 
 @dataclass(frozen=True)
 class DiagnosisResult:
-    """Everything the diagnosis found; ``to_json`` gives the DESIGN.md keys."""
+    """Everything the diagnosis found; ``to_json`` gives the keys of docs/design.md §4."""
 
     verdict: Verdict
     split: HoldoutSplit

@@ -24,7 +24,7 @@ Two simulators share one Levenberg-Marquardt solver:
 * the **general path** (any other effect): :func:`pmdc_ident.core.model.simulate`
   with sub-steps and a forward-difference Jacobian.
 
-Scale ambiguity (DESIGN.md §2): from voltage, current and speed only, ``(Kt, J,
+Scale ambiguity (docs/design.md §2): from voltage, current and speed only, ``(Kt, J,
 B)`` are known up to a common factor. ``closure="Kt=Ke"`` (the default) ties
 ``Kt`` to ``Ke``; fixing ``Kt`` or ``J`` replaces the closure. Without voltage
 (a current-controlled drive) only the mechanical side is fitted, given ``Kt``.

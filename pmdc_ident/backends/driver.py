@@ -1,0 +1,273 @@
+"""The motor driver's decisions, ROS-free: what the driver node does with a command,
+a sample, a service call or a parameter change.
+
+:class:`Driver` owns the backend and the one :class:`SafetyMonitor`: a non-finite
+command makes the motor safe; a latched trip refuses commands until
+:meth:`Driver.reset_faults`; commands above the voltage limit are clamped; every
+sample is checked (and a trip the backend itself reports latches too, so a trip in
+samples a host stall skipped is not missed); the watchdog opens a driven armature
+that gets no command. The node turns its callbacks into these calls and publishes
+what :meth:`Driver.poll` returns. Logs go through ``log(level, text)``; a repeated
+warning about commands (refused, clamped, not finite) is written at most once a
+second per kind.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from pmdc_ident.backends.base import Backend, BackendError, Telemetry
+from pmdc_ident.backends.factory import BackendConfigError, make_backend
+from pmdc_ident.backends.status import DriverStatus, armature_text, fault_names
+from pmdc_ident.core.enums import Fault, SafeMode
+from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.motors import Limits, MotorSpec, load_motor
+from pmdc_ident.core.safety import SafetyConfig, SafetyMonitor
+
+__all__ = ["Driver", "Log"]
+
+Log = Callable[[str, str], None]  # (level 'info'/'warning'/'error', text)
+THROTTLE_S = 1.0
+_TRIP_BITS = Fault.OVER_CURRENT | Fault.OVER_SPEED
+
+
+class Driver:
+    """One motor driver: backend, limits, trips and watchdog (see the module docs)."""
+
+    def __init__(self, cfg: Mapping[str, Any], log: Log, clock_s: Callable[[], float]) -> None:
+        self.log = log
+        self.clock_s = clock_s
+        try:
+            self.spec: MotorSpec = load_motor(cfg["motor"])
+        except PmdcError as exc:
+            raise BackendConfigError(f"parameter motor: {exc}") from None
+        reason = self.check_value("voltage_limit_v", cfg["voltage_limit_v"])
+        if reason:
+            raise BackendConfigError(reason)
+        self.name = str(cfg["backend"])
+        self.rate_hz = float(cfg["rate_hz"])
+        self.safe_mode = SafeMode(cfg["safe_mode"])
+        self.voltage_limit_v = self._voltage_limit(cfg["voltage_limit_v"])
+        limits = self.spec.limits
+        self.safety = SafetyMonitor(
+            SafetyConfig(
+                current_max_a=cfg["current_limit_a"] or limits.current_max_a,
+                speed_max_rad_s=cfg["speed_limit_rad_s"] or limits.speed_max_rad_s,
+                data_timeout_s=0.0,  # the driver publishes; the session watches the data
+                watchdog_s=cfg["watchdog_s"],
+                non_finite_trips=False,  # a sensor may report 'not measured'
+            )
+        )
+        self.driving = False  # a user command is being applied (the watchdog guards it)
+        self.clamped = False
+        self.link_error = ""
+        self.last_sample_v = math.nan  # command of the last sample polled
+        self._stalls_seen = 0
+        self._reported = Fault.NONE  # trip bits in the backend's previous sample
+        self._said: dict[str, float] = {}  # throttled message kind -> when last written
+        # The backend trips at the monitor's limits itself (per sample, like board
+        # firmware); the monitor latches the trip and applies runtime changes.
+        backend_limits = Limits(
+            voltage_max_v=limits.voltage_max_v,
+            current_max_a=self.safety.config.current_max_a,
+            speed_max_rad_s=self.safety.config.speed_max_rad_s,
+        )
+        self.backend: Backend = make_backend(
+            cfg, self.spec, backend_limits, lambda text: log("warning", text)
+        )
+        try:
+            self.backend.start()
+        except BaseException as exc:
+            try:
+                self.backend.close()  # leave a half-opened port released, the motor safe
+            except Exception:  # noqa: BLE001 - the start error is the one to report
+                pass
+            if isinstance(exc, PmdcError | OSError):
+                msg = f"cannot start the {self.name} backend: {exc}"
+                raise BackendConfigError(msg) from None
+            raise
+
+    def started_line(self) -> str:
+        return (
+            f"driver started: backend {self.name}, motor {self.spec.name}, "
+            f"{self.rate_hz:g} Hz, voltage limit {self.voltage_limit_v:g} V, "
+            f"safe mode {self.safe_mode.value}, armature open"
+        )
+
+    # -- parameters ----------------------------------------------------------------------
+    def check_value(self, name: str, value: Any) -> str:
+        """Why a value is refused beyond the table's range ('' if it is fine): the voltage
+        limit is never above the motor's."""
+        if name == "voltage_limit_v" and value > self.spec.limits.voltage_max_v:
+            return (
+                f"parameter voltage_limit_v {value:g} V is above the limit of motor "
+                f"{self.spec.name} ({self.spec.limits.voltage_max_v:g} V)"
+            )
+        return ""
+
+    def _voltage_limit(self, value: float) -> float:
+        return float(value) if value > 0.0 else self.spec.limits.voltage_max_v
+
+    def apply_parameter(self, name: str, value: Any) -> None:
+        """A runtime change the node accepted (0 = the motor's limit)."""
+        limits = self.spec.limits
+        if name == "voltage_limit_v":
+            self.voltage_limit_v = self._voltage_limit(value)
+        elif name == "current_limit_a":
+            self.safety.update(current_max_a=value or limits.current_max_a)
+        elif name == "speed_limit_rad_s":
+            self.safety.update(speed_max_rad_s=value or limits.speed_max_rad_s)
+        elif name == "watchdog_s":
+            self.safety.update(watchdog_s=value)
+        self.log("info", f"parameter {name} set to {value!r}")
+
+    def _say(self, kind: str, level: str, text: str) -> None:
+        """``text`` at most once every THROTTLE_S per ``kind`` (commands come at 1 kHz)."""
+        now = self.clock_s()
+        if now - self._said.get(kind, -math.inf) >= THROTTLE_S:
+            self._said[kind] = now
+            self.log(level, text)
+
+    # -- commands ------------------------------------------------------------------------
+    def command(self, voltage_v: float) -> None:
+        v = float(voltage_v)
+        if not math.isfinite(v):
+            self.make_safe()
+            self._say(
+                "nonfinite", "warning", f"voltage_cmd {v} refused (not finite): motor made safe"
+            )
+            return
+        if self.safety.tripped:
+            text = f"voltage_cmd refused: {self.safety.message()}; call reset_faults"
+            self._say("refused", "warning", text)
+            return
+        limit = self.voltage_limit_v
+        self.clamped = abs(v) > limit
+        if self.clamped:
+            self._say("clamped", "warning", f"voltage_cmd {v:g} V clamped to +-{limit:g} V")
+            v = math.copysign(limit, v)
+        try:
+            self.backend.command_voltage(v)
+        except BackendError as exc:
+            self.make_safe()
+            self._say("command", "error", f"{exc}; motor made safe")
+            return
+        self.driving = True
+        self.safety.command_received(self.clock_s())
+
+    def open_armature(self) -> tuple[bool, str]:
+        try:
+            self.backend.open_armature()
+        except BackendError as exc:
+            self.make_safe()
+            self.log("error", f"{exc}; motor made safe")
+            return False, f"{exc}; motor made safe"
+        self.driving = False
+        text = "armature open (coasting); the next voltage_cmd closes it"
+        self.log("info", text)
+        return True, text
+
+    def reset_faults(self) -> tuple[bool, str]:
+        was = self.safety.message() or "no latched fault"
+        self.safety.reset()
+        self.log("info", f"cleared: {was}")
+        return True, f"cleared: {was}"
+
+    def make_safe(self) -> None:
+        self.driving = False
+        self.backend.make_safe()
+
+    # -- samples -------------------------------------------------------------------------
+    def poll(self) -> list[Telemetry] | None:
+        """The backend's new samples, each checked; the watchdog after them. ``None``
+        when the backend's link failed (the motor is then made safe)."""
+        try:
+            samples = self.backend.poll()
+        except BackendError as exc:  # link lost (serial): safe, report, keep running
+            self.make_safe()
+            self.link_error = str(exc)
+            self.log("error", f"backend: {exc}")
+            return None
+        stalls = getattr(self.backend, "stalls", 0)  # sim backend: host stalls so far
+        if stalls != self._stalls_seen:
+            self._stalls_seen = stalls
+            skipped = getattr(self.backend, "skipped_samples", 0)
+            self.log(
+                "warning",
+                f"host stall: samples skipped (not published), {skipped} so far; "
+                "the simulated motor kept running and stamps stay on the grid",
+            )
+        for s in samples:
+            self._check(s)
+        if samples:
+            self.last_sample_v = samples[-1].voltage_cmd_v
+        if self.safety.watchdog_expired(self.clock_s(), self.driving):
+            self.backend.open_armature()
+            self.driving = False
+            timeout = self.safety.config.watchdog_s
+            self.log("warning", f"watchdog: no voltage_cmd for {timeout:g} s, armature opened")
+        return samples
+
+    def _check(self, s: Telemetry) -> None:
+        trip = self.safety.check(s.time_s, s.current_a, s.speed_rad_s)
+        reported = s.faults & _TRIP_BITS
+        new = reported & ~self._reported
+        self._reported = reported
+        if trip is None and new:
+            trip = self.safety.report(new, s.time_s)
+        if trip is not None:
+            self.make_safe()
+            self.log("error", f"{self.safety.latched[trip]}: motor made safe")
+
+    # -- state ---------------------------------------------------------------------------
+    def faults(self) -> Fault:
+        f = self.safety.faults
+        return f | Fault.CLAMPED if self.clamped else f
+
+    def state_text(self) -> str:
+        """The armature state: the backend's current command where it exposes one
+        (sim), else the command of the last sample (serial)."""
+        return armature_text(getattr(self.backend, "command_v", self.last_sample_v))
+
+    def status(self, delivered_hz: float, published: int) -> DriverStatus:
+        faults = self.faults()
+        link = getattr(self.backend, "link_stats", None)  # serial backend only
+        values = {
+            "backend": self.name,
+            "motor": self.spec.name,
+            "sample rate set (Hz)": f"{self.rate_hz:g}",
+            "sample rate delivered (Hz)": f"{delivered_hz:.1f}",
+            "samples published": str(published),
+            "faults": fault_names(faults),
+            "armature": self.state_text(),
+            "voltage limit (V)": f"{self.voltage_limit_v:g}",
+            "watchdog": "tripped" if self.safety.watchdog_tripped else "ok",
+            "watchdog timeout (s)": f"{self.safety.config.watchdog_s:g}",
+            "skipped samples (host stalls)": str(getattr(self.backend, "skipped_samples", 0)),
+        }
+        if link is not None:
+            values.update({f"link {k}": v for k, v in link.as_strings().items()})
+        return DriverStatus.of(
+            faults=faults,
+            trip_message=self.safety.message(),
+            rate_set_hz=self.rate_hz,
+            rate_delivered_hz=delivered_hz,
+            link_error=self.link_error or (link.last_error if link is not None else ""),
+            link_state=link.state.value if link is not None else None,
+            values=values,
+        )
+
+    def shutdown_safe(self) -> str:
+        """Make the motor safe and release the backend; returns the final state line."""
+        try:
+            self.backend.make_safe()
+            if hasattr(self.backend, "command_v"):
+                state = self.state_text()
+            else:  # what make_safe commanded (no sample of it may arrive any more)
+                state = armature_text(math.nan if self.safe_mode is SafeMode.OPEN else 0.0)
+            self.backend.close()
+        except Exception as exc:  # noqa: BLE001 - report, never raise on the way out
+            return f"driver stopped: backend error while making safe ({exc})"
+        return f"driver stopped: motor safe ({state}, safe mode {self.safe_mode.value})"

@@ -1,0 +1,546 @@
+"""The identification node's decisions, ROS-free.
+
+:class:`SessionController` owns everything the identification node decides: when a
+session may start (:mod:`.startup`), the session itself (:class:`Session`), which
+commands go out and when (:class:`CommandPolicy`), the latency of the driver's
+samples (:class:`Latency`), the link and recorder checks, the flush of the last
+samples, the hand-over to the identification, and the confirmation that the motor is
+safe (:class:`SafeConfirmation`). The node turns ROS callbacks into the ``on_*``
+inputs and :meth:`SessionController.tick`, and the controller's outputs into
+publications through :class:`ControllerPorts`. Times are the host's monotonic
+clock in seconds (``now_s``) unless the name says otherwise.
+
+Phases: ``idle`` -> ``preparing`` (waiting for the driver, its limits and the
+recorder) -> ``running`` -> ``flushing`` (the last samples) -> ``identifying`` ->
+``finished`` (then ``idle`` again, or the node exits with ``exit_when_done``).
+"""
+
+from __future__ import annotations
+
+import enum
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, Protocol
+
+from pmdc_ident.core.enums import AbortReason, SafeMode
+from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.session.link import CommandPolicy, Latency, SafeConfirmation
+from pmdc_ident.core.session.machine import Session, SessionState, SessionStep
+from pmdc_ident.core.session.recording import Recording, SessionSamples
+from pmdc_ident.core.session.startup import (
+    DRIVER_PARAMETERS,
+    SAMPLES_STALE_S,
+    SessionSettings,
+    StartCheck,
+    build_session,
+)
+
+__all__ = [
+    "EXIT_ABORTED",
+    "ControllerConfig",
+    "ControllerPorts",
+    "IdentificationJob",
+    "Phase",
+    "SessionController",
+]
+
+EXIT_ABORTED = 3
+EXIT_REFUSED = 2
+EXIT_INTERRUPTED = 130
+PROGRESS_EVERY_S = 0.2
+DRIVER_GONE_S = 2.0  # flushing: no driver sample for this long, the rest will not come
+LATE_TICK_S = 0.1  # a timer this late means the node itself was held up
+LATE_TICK_GRACE_S = 0.05
+
+
+class Phase(enum.Enum):
+    IDLE = "idle"
+    PREPARING = "preparing"  # waiting for the driver, its limits and the recorder
+    RUNNING = "running"
+    FLUSHING = "flushing"  # session over: waiting for the last samples
+    IDENTIFYING = "identifying"
+    FINISHED = "finished"
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """The node's settings the controller acts on (the node's parameter table)."""
+
+    session: SessionSettings
+    driver_node: str
+    driver_wait_s: float
+    max_start_latency_s: float
+    settle_s: float
+    confirm_timeout_s: float
+    require_recorder: bool
+    peer_timeout_s: float
+    exit_when_done: bool
+    output_dir: str
+    flush_timeout_s: float  # longest wait for a session's last samples (the QoS buffer)
+    fixed: Mapping[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class IdentificationJob:
+    """A finished session's samples, to be identified off the node's I/O callbacks."""
+
+    samples: SessionSamples
+    session: str
+    source: str  # the bag's path, or 'session <name>' without a recorder
+    output_dir: Path
+    fixed: Mapping[str, float]
+
+
+@dataclass(frozen=True)
+class IdentificationOutcome:
+    """What the identification job returns: the result documents, or why it failed."""
+
+    json_text: str = ""
+    table: str = ""
+    n_samples: int = 0
+    output_dir: str = ""
+    error: str = ""
+    exit_code: int = 0  # 2: the data were refused (one line), 1: a bug of ours
+    notes: tuple[tuple[str, str], ...] = ()  # (level, text) lines for the node's log
+
+
+class ControllerPorts(Protocol):
+    """The node's side: publications, service calls and logs."""
+
+    def send_voltage(self, voltage_v: float) -> None: ...
+
+    def open_armature(self) -> bool:
+        """Call the driver's open_armature service; False when it is not available."""
+
+    def publish_marker(self, text: str) -> None: ...
+
+    def publish_progress(self, text: str) -> None: ...
+
+    def publish_status(self, text: str) -> None: ...
+
+    def publish_result(self, text: str) -> None: ...
+
+    def request_driver_parameters(self, names: tuple[str, ...]) -> bool:
+        """Ask the driver node for ``names``; False when it is not reachable yet. The
+        answer comes back through :meth:`SessionController.on_driver_parameters`."""
+
+    def start_identification(self, job: IdentificationJob) -> None:
+        """Run the job off the I/O callbacks; its outcome comes back through
+        :meth:`SessionController.on_identified`."""
+
+    def log(self, level: str, text: str) -> None:
+        """``level``: 'info', 'warning' or 'error'."""
+
+
+class SessionController:
+    """The identification node's state machine; see the module docs."""
+
+    def __init__(self, config: ControllerConfig, ports: ControllerPorts) -> None:
+        self.config = config
+        self.ports = ports
+        self.phase = Phase.IDLE
+        self.session: Session | None = None
+        self.finished = False
+        self.exit_code = 0
+        self.result_json: str | None = None
+        self.recording = Recording()
+        self.latency = Latency()
+        self.commands = CommandPolicy()
+        self.confirmation = SafeConfirmation(config.confirm_timeout_s)
+        self._stop_requested: AbortReason | None = None
+        self._driver: dict[str, Any] | None = None
+        self._driver_asked = False
+        self._prep_deadline_s = 0.0
+        self._settled_since_s = math.inf
+        self._last_sample_s = -math.inf
+        self._last_stamp_ns = 0
+        self._last_current_a = 0.0
+        self._recorder_seen_s = -math.inf
+        self._recorder_receiving = False  # the recorder has driver samples on every topic
+        self._recorder_paths: dict[str, str] = {}
+        self._last_tick_s: float | None = None
+        self._suspect_until_s = 0.0
+        self._last_progress_s = 0.0
+        self._flush_deadline_s = 0.0
+        self._session_count = 0
+
+    # -- state ---------------------------------------------------------------------------
+    @property
+    def safe_mode(self) -> SafeMode:
+        return self.config.session.safe_mode
+
+    @property
+    def confirming(self) -> bool:
+        return self.confirmation.pending
+
+    @property
+    def safe_confirmed(self) -> bool:
+        return self.confirmation.confirmed
+
+    @property
+    def recording_samples(self) -> bool:
+        return self.phase in (Phase.RUNNING, Phase.FLUSHING)
+
+    # -- inputs: requests ----------------------------------------------------------------
+    def start(self, autostart: bool, now_s: float) -> None:
+        """The node is up: say so, and request a session when ``autostart``."""
+        self._last_tick_s = now_s
+        self._publish_status("idle")
+        fixed = dict(self.config.fixed) or "none"
+        self.ports.log(
+            "info",
+            f"identification ready: nominal motor {self.config.session.nominal.name}, "
+            f"safe mode {self.safe_mode.value}, fixed {fixed}",
+        )
+        if autostart:
+            self.request_session(now_s)
+
+    def request_session(self, now_s: float) -> tuple[bool, str]:
+        busy = (Phase.PREPARING, Phase.RUNNING, Phase.FLUSHING, Phase.IDENTIFYING)
+        if self.phase in busy:
+            return False, f"a session is {self.phase.value}"
+        self.phase = Phase.PREPARING
+        self._prep_deadline_s = now_s + self.config.driver_wait_s
+        self._driver = None
+        self._driver_asked = False
+        self._settled_since_s = math.inf
+        self._publish_status("preparing")
+        return True, "session requested"
+
+    def abort_session(self, now_s: float) -> tuple[bool, str]:
+        if self.phase is Phase.RUNNING and self.session is not None:
+            step = self.session.abort(AbortReason.INTERRUPTED, None, "abort_session called")
+            self._apply(step, now_s)
+            return True, "session aborted, motor safe"
+        return False, f"no session running ({self.phase.value})"
+
+    def request_stop(self, reason: AbortReason = AbortReason.INTERRUPTED) -> None:
+        """Ctrl-C / SIGTERM (from a signal handler): acted on at the next tick."""
+        self._stop_requested = reason
+
+    # -- inputs: data --------------------------------------------------------------------
+    def on_current(self, stamp_ns: int, current_a: float) -> None:
+        self._last_current_a = current_a
+        if self.recording_samples:
+            self.recording.current.append(stamp_ns, current_a)
+
+    def on_voltage(self, stamp_ns: int, voltage_v: float, terminal_v: float) -> None:
+        if self.recording_samples:
+            self.recording.voltage.append(stamp_ns, voltage_v, terminal_v)
+        elif self.confirmation.pending:
+            state = self.confirmation.on_voltage(stamp_ns, voltage_v)
+            if state:
+                self.ports.log("info", f"motor confirmed safe by the driver: {state}")
+
+    def on_encoder(
+        self, stamp_ns: int, position_rad: float, speed_rad_s: float, now_s: float, now_ns: int
+    ) -> None:
+        """A driver sample; ``now_ns`` is the host's wall clock (the latency's)."""
+        self._last_sample_s = now_s
+        self._last_stamp_ns = stamp_ns
+        lag_ns = self.latency.update(stamp_ns, now_ns)
+        if not self.recording_samples:
+            return
+        self.recording.encoder.append(stamp_ns, position_rad, speed_rad_s)
+        self.recording.latency.append(lag_ns)
+        if self.phase is not Phase.RUNNING or self.session is None:
+            return
+        s = self.session
+        if lag_ns > self.config.session.data_timeout_s * 1e9:
+            detail = f"driver samples arrive {lag_ns * 1e-9:.2f} s late: commands would be too"
+            self._apply(s.abort(AbortReason.LOST_DRIVER_DATA, stamp_ns * 1e-9, detail), now_s)
+            return
+        step = s.on_sample(stamp_ns * 1e-9, self._last_current_a, speed_rad_s, now_s)
+        self._apply(step, now_s)
+
+    def on_recorder_status(self, text: str, now_s: float) -> None:
+        self._recorder_seen_s = now_s
+        try:
+            d = json.loads(text)
+        except ValueError:
+            return
+        if not isinstance(d, dict):
+            return
+        if d.get("session") and d.get("path"):
+            self._recorder_paths[str(d["session"])] = str(d["path"])
+        got = d.get("receiving") or {}
+        self._recorder_receiving = len(got) == 3 and min(got.values()) >= 0
+
+    def on_driver_parameters(self, values: Mapping[str, Any] | None) -> None:
+        """The driver's answer (``None``: no usable answer, ask again)."""
+        self._driver_asked = False
+        if values is not None:
+            self._driver = dict(values)
+
+    def on_identified(self, outcome: IdentificationOutcome) -> None:
+        s = self.session
+        name = s.name if s is not None else ""
+        for level, text in outcome.notes:
+            self.ports.log(level, text)
+        if outcome.error:
+            self.ports.log("error", f"session {name}: identification failed: {outcome.error}")
+            self._publish_status("failed", detail=outcome.error)
+            self.exit_code = outcome.exit_code or 1
+        else:
+            self.result_json = outcome.json_text
+            self.ports.publish_result(outcome.json_text)
+            self.ports.log(
+                "info",
+                f"session {name}: identified from {outcome.n_samples} samples\n{outcome.table}",
+            )
+            self._publish_status(
+                "done", detail=f"{outcome.n_samples} samples", results=outcome.output_dir
+            )
+        self.phase = Phase.FINISHED
+
+    # -- the timer -----------------------------------------------------------------------
+    def tick(self, now_s: float) -> None:
+        """The node's periodic timer: start-up, link checks, progress, end of session."""
+        if self._last_tick_s is not None and now_s - self._last_tick_s > LATE_TICK_S:
+            # This node itself was held up (the timer is late): samples may be waiting
+            # in its queue, so judge the driver's link only after they are processed.
+            self._suspect_until_s = now_s + LATE_TICK_GRACE_S
+        self._last_tick_s = now_s
+        if self._stop_requested is not None:
+            reason, self._stop_requested = self._stop_requested, None
+            self._stop(reason, now_s)
+            return
+        if self.phase is Phase.PREPARING:
+            self._prepare(now_s)
+        elif self.phase is Phase.RUNNING and self.session is not None:
+            self._watch_running(self.session, now_s)
+        elif self.phase is Phase.FLUSHING:
+            self._maybe_identify(now_s)
+        elif self.phase is Phase.FINISHED:
+            if self.confirmation.pending:
+                self.confirm_tick(now_s)
+            elif self.config.exit_when_done:
+                self.finished = True
+            else:
+                self.phase = Phase.IDLE
+
+    def confirm_tick(self, now_s: float) -> None:
+        """Repeat the safe command until the driver confirms it, up to the timeout."""
+        what = self.confirmation.tick(now_s)
+        if what == "timeout":
+            self.ports.log(
+                "error",
+                "could NOT confirm the safe state: the driver did not report 0 V or an open "
+                f"armature within {self.config.confirm_timeout_s:g} s (its watchdog opens it)",
+            )
+        elif what == "repeat":
+            self._make_safe(now_s)  # the first command may have been lost
+
+    # -- start-up ------------------------------------------------------------------------
+    def start_check(self, now_s: float) -> StartCheck:
+        """The first start-up check not met yet (see :mod:`.startup`)."""
+        if self._driver is None:
+            return StartCheck.DRIVER
+        if now_s - self._last_sample_s > SAMPLES_STALE_S:
+            return StartCheck.SAMPLES
+        if self.latency.last_ns > self.config.max_start_latency_s * 1e9:
+            self._settled_since_s = math.inf  # still working through a backlog
+            return StartCheck.LATENCY
+        self._settled_since_s = min(self._settled_since_s, now_s)
+        if now_s - self._settled_since_s < self.config.settle_s:
+            return StartCheck.SETTLE
+        recorder_stale = now_s - self._recorder_seen_s > self.config.peer_timeout_s
+        # the recorder's subscriptions must match first: the driver's samples are
+        # volatile, so any it missed before would be lost
+        if self.config.require_recorder and (recorder_stale or not self._recorder_receiving):
+            return StartCheck.RECORDER
+        return StartCheck.READY
+
+    def _refusal(self, now_s: float) -> str:
+        waited = f"{self.config.driver_wait_s:g} s"
+        if self._driver is None:
+            return (
+                f"no driver node {self.config.driver_node!r} answered within {waited} "
+                "(is it running, on this ROS_DOMAIN_ID?)"
+            )
+        if now_s - self._last_sample_s > SAMPLES_STALE_S:
+            return f"the driver sent no samples within {waited}"
+        if self.latency.last_ns > self.config.max_start_latency_s * 1e9:
+            return f"driver samples still arrive late after {waited}"
+        if now_s - self._recorder_seen_s <= self.config.peer_timeout_s:
+            return f"the recorder received no driver samples within {waited}"
+        return (
+            f"no recorder within {waited} (start recorder_node, or run without "
+            "a bag: -p require_recorder:=false)"
+        )
+
+    def _prepare(self, now_s: float) -> None:
+        if now_s > self._prep_deadline_s:
+            self._fail(f"session not started, motor untouched: {self._refusal(now_s)}")
+            return
+        if self._driver is None:
+            if not self._driver_asked:
+                self._driver_asked = self.ports.request_driver_parameters(DRIVER_PARAMETERS)
+            return
+        if self.start_check(now_s) is not StartCheck.READY:
+            return
+        try:
+            session = build_session(self.config.session, self._driver, self._next_name())
+        except PmdcError as exc:
+            self._fail(str(exc))
+            return
+        self.recording.clear()
+        self.session = session
+        self.commands.armature_open = False
+        session.start()
+        self.phase = Phase.RUNNING
+        self.ports.log(
+            "info",
+            f"session {session.name}: {len(session.plan.segments)} segments, nominal "
+            f"{session.plan.duration_s:.1f} s ({', '.join(session.plan_labels)})",
+        )
+        self._publish_status("running")
+
+    def _next_name(self) -> str:
+        self._session_count += 1
+        name = self.config.session.session_name or (
+            "session_" + datetime.now(UTC).strftime("%Y%m%d_%H%M%S")
+        )
+        return f"{name}_{self._session_count}" if self._session_count > 1 else name
+
+    def _fail(self, text: str) -> None:
+        self.ports.log("error", text)
+        self.exit_code = EXIT_REFUSED
+        self._publish_status("refused", detail=text)
+        if self.config.exit_when_done:
+            self.phase = Phase.FINISHED
+            self.finished = True
+        else:
+            self.phase = Phase.IDLE
+
+    # -- running -------------------------------------------------------------------------
+    def _watch_running(self, s: Session, now_s: float) -> None:
+        if self._suspect_until_s > now_s:
+            return
+        step = s.check_link(now_s)
+        recorder_lost = now_s - self._recorder_seen_s > self.config.peer_timeout_s
+        if step is None and self.config.require_recorder and recorder_lost:
+            step = s.abort(
+                AbortReason.PEER_CRASHED, None, "recorder heartbeat lost: recorder gone"
+            )
+        if step is not None:
+            self._apply(step, now_s)
+        elif now_s - self._last_progress_s > PROGRESS_EVERY_S:
+            self._last_progress_s = now_s
+            self.ports.publish_progress(s.progress().to_json())
+
+    def _apply(self, step: SessionStep, now_s: float) -> None:
+        for m in step.markers:
+            self.ports.publish_marker(m.to_json())
+        cmd = step.command
+        if cmd is not None:
+            if cmd.open_armature:
+                if not self.commands.armature_open:
+                    self._open_armature(now_s)
+            elif self.commands.should_send(cmd.voltage_v, now_s):
+                self.commands.armature_open = False
+                self._send(cmd.voltage_v, now_s)
+        if step.abort_reason is not None:
+            self._on_aborted(now_s)
+        elif self.session is not None and self.session.state is SessionState.DONE:
+            self._begin_flush(now_s)
+
+    def _send(self, voltage_v: float, now_s: float) -> None:
+        self.ports.send_voltage(float(voltage_v))
+        self.commands.sent(voltage_v, now_s)
+
+    def _open_armature(self, now_s: float) -> None:
+        self.commands.armature_open = True
+        if not self.ports.open_armature():
+            # No service: 0 V is the other safe state (the driver's watchdog opens later).
+            self._send(0.0, now_s)
+            self.ports.log("warning", "open_armature service not available: sent 0 V")
+
+    def _make_safe(self, now_s: float) -> None:
+        if self.safe_mode is SafeMode.OPEN:
+            self.commands.armature_open = False
+            self._open_armature(now_s)
+        else:
+            self._send(0.0, now_s)
+
+    # -- ways out ------------------------------------------------------------------------
+    def _stop(self, reason: AbortReason, now_s: float) -> None:
+        """Ctrl-C / SIGTERM: abort a running session, make the motor safe, finish."""
+        if self.phase is Phase.RUNNING and self.session is not None:
+            self._apply(self.session.abort(reason, None, f"{reason.value} by signal"), now_s)
+        else:
+            self._make_safe(now_s)
+            self.ports.log(
+                "warning",
+                f"stopped by signal while {self.phase.value}: no session running, 0 V / open sent",
+            )
+            self._publish_status("stopped", reason=reason.value)
+            self.confirmation.start(self._last_stamp_ns, now_s)
+        self.finished = True
+        self.exit_code = EXIT_INTERRUPTED
+
+    def _on_aborted(self, now_s: float) -> None:
+        s = self.session
+        assert s is not None
+        self._make_safe(now_s)
+        reason = s.abort_reason.value if s.abort_reason else "?"
+        self.ports.log(
+            "error", f"session {s.name} ABORTED ({reason}): {s.abort_detail}; safe command sent"
+        )
+        self.ports.publish_progress(s.progress().to_json())
+        self._publish_status("aborted", reason=reason, detail=s.abort_detail)
+        self.exit_code = EXIT_ABORTED
+        self.phase = Phase.FINISHED
+        self.confirmation.start(round(s.markers[-1].t_s * 1e9), now_s)
+
+    # -- after the session ---------------------------------------------------------------
+    def _begin_flush(self, now_s: float) -> None:
+        s = self.session
+        assert s is not None
+        self._make_safe(now_s)
+        self.ports.publish_progress(s.progress().to_json())
+        self.phase = Phase.FLUSHING
+        # every sample up to the end is on its way (reliable, buffered): wait for it
+        self._flush_deadline_s = now_s + self.config.flush_timeout_s
+        self.ports.log(
+            "info",
+            f"session {s.name} complete: {s.progress().samples} samples; driver-to-node "
+            f"latency {self.recording.latency_summary()}",
+        )
+
+    def _maybe_identify(self, now_s: float) -> None:
+        s = self.session
+        assert s is not None
+        end_ns = round(s.markers[-1].t_s * 1e9)
+        arriving = now_s - self._last_sample_s < DRIVER_GONE_S  # else the driver is gone
+        if not self.recording.complete_until(end_ns) and now_s < self._flush_deadline_s:
+            if arriving:
+                return  # still arriving (a backlog on a loaded machine)
+        self.phase = Phase.IDENTIFYING
+        self._publish_status("identifying")
+        self.ports.start_identification(
+            IdentificationJob(
+                samples=self.recording.samples(s.markers),
+                session=s.name,
+                source=self._recorder_paths.get(s.name) or f"session {s.name}",
+                output_dir=self._output_dir(s.name),
+                fixed=dict(self.config.fixed),
+            )
+        )
+
+    def _output_dir(self, session: str) -> Path:
+        path = self._recorder_paths.get(session)
+        if path:
+            return Path(path)
+        return Path(self.config.output_dir).expanduser() / session
+
+    def _publish_status(self, state: str, **extra: str) -> None:
+        d: dict[str, Any] = {"state": state, "session": self.session.name if self.session else ""}
+        d.update(extra)
+        if self.session is not None:
+            d["bag"] = self._recorder_paths.get(self.session.name, "")
+        self.ports.publish_status(json.dumps(d))

@@ -1,0 +1,152 @@
+"""Starting a session, ROS-free: when the node may start, and the session it starts.
+
+A session starts only when every check passes, in this order (the first unmet one
+names what the node waits for, and becomes the refusal when ``driver_wait_s`` runs
+out):
+
+1. the driver answered: its limits (voltage, current, speed), motor and rate are read;
+2. its samples arrive (one within 0.5 s);
+3. they arrive on time (latency below ``max_start_latency_s``) and have done so for
+   ``settle_s`` (the other processes are done starting up, so the first commands are
+   not late);
+4. the recorder's heartbeat is fresh (when ``require_recorder``).
+
+The session's abort thresholds default to 90 % of the driver's trip limits, the
+stall rule and the lost-data timeout to :meth:`SafetyConfig.for_limits`; the plan is
+sized for the nominal motor and checked (:func:`check_plan`) before anything moves.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+from pmdc_ident.core.enums import SafeMode
+from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.excitation import SequenceConfig, TestPlan, default_plan, plan_for_motor
+from pmdc_ident.core.motors import Limits, MotorSpec, load_motor
+from pmdc_ident.core.safety import SafetyConfig
+from pmdc_ident.core.session.machine import Session
+from pmdc_ident.core.session.plan_check import check_plan
+from pmdc_ident.core.session.steady_state import SteadyStateConfig
+
+__all__ = [
+    "ABORT_FRACTION",
+    "DRIVER_PARAMETERS",
+    "SessionSettings",
+    "StartCheck",
+    "build_session",
+    "driver_limits",
+]
+
+ABORT_FRACTION = 0.9  # default session aborts: this fraction of the driver's trip limits
+SAMPLES_STALE_S = 0.5  # no driver sample for this long: the driver is not streaming
+# read from the driver node before anything moves
+DRIVER_PARAMETERS = ("voltage_limit_v", "current_limit_a", "speed_limit_rad_s", "motor", "rate_hz")
+
+
+class StartCheck(enum.Enum):
+    """What a session start waits for (the first unmet check)."""
+
+    DRIVER = "driver"  # no driver parameters yet
+    SAMPLES = "samples"  # no recent driver sample
+    LATENCY = "latency"  # samples still arrive late
+    SETTLE = "settle"  # on time, but not yet for settle_s
+    RECORDER = "recorder"  # no fresh recorder heartbeat
+    READY = "ready"
+
+
+@dataclass(frozen=True)
+class SessionSettings:
+    """The identification node's settings for one session (units in the names; a 0
+    means 'derive it', as the node's parameter table says)."""
+
+    nominal: MotorSpec
+    sequence: SequenceConfig
+    steady: SteadyStateConfig
+    safe_mode: SafeMode
+    tau_m_s: float
+    rate_hz: float
+    voltage_max_v: float
+    current_max_a: float
+    speed_max_rad_s: float
+    stall_current_a: float
+    stall_speed_rad_s: float
+    stall_time_s: float
+    data_timeout_s: float
+    session_name: str
+
+    def tau_s(self) -> float:
+        return self.tau_m_s or self.nominal.model.params.mechanical_time_constant_s
+
+
+def driver_limits(
+    settings: SessionSettings, driver: Mapping[str, Any] | None
+) -> tuple[Limits, float]:
+    """The driver's trip limits (its parameters; 0 = its motor's limits) and its rate."""
+    d = dict(driver or {})
+    try:
+        base = load_motor(d.get("motor") or settings.nominal.name).limits
+    except PmdcError:
+        base = settings.nominal.limits
+    limits = Limits(
+        voltage_max_v=d.get("voltage_limit_v") or base.voltage_max_v,
+        current_max_a=d.get("current_limit_a") or base.current_max_a,
+        speed_max_rad_s=d.get("speed_limit_rad_s") or base.speed_max_rad_s,
+    )
+    rate = float(settings.rate_hz or d.get("rate_hz") or 1000.0)
+    return limits, rate
+
+
+def safety_for(settings: SessionSettings, driver: Limits) -> SafetyConfig:
+    """Abort thresholds: the settings where given, else derived from the driver's limits."""
+    abort = Limits(
+        voltage_max_v=driver.voltage_max_v,
+        current_max_a=settings.current_max_a or ABORT_FRACTION * driver.current_max_a,
+        speed_max_rad_s=settings.speed_max_rad_s or ABORT_FRACTION * driver.speed_max_rad_s,
+    )
+    safety = SafetyConfig.for_limits(
+        abort,
+        settings.tau_s(),
+        stall_speed_rad_s=settings.stall_speed_rad_s,
+        data_timeout_s=settings.data_timeout_s,
+    )
+    if settings.stall_current_a:
+        safety = replace(safety, stall_current_a=settings.stall_current_a)
+    if settings.stall_time_s:
+        safety = replace(safety, stall_time_s=settings.stall_time_s)
+    return safety
+
+
+def plan_for(
+    settings: SessionSettings, dt_s: float, safety: SafetyConfig, vmax: float
+) -> TestPlan:
+    limits = Limits(vmax, safety.current_max_a, safety.speed_max_rad_s)
+    if settings.tau_m_s:
+        return default_plan(dt_s, limits, settings.tau_m_s, settings.sequence)
+    return plan_for_motor(replace(settings.nominal, limits=limits), dt_s, settings.sequence)
+
+
+def build_session(
+    settings: SessionSettings, driver: Mapping[str, Any] | None, name: str
+) -> Session:
+    """The session to run against this driver; :class:`PmdcError` when the plan would
+    exceed a limit (nothing has moved then)."""
+    limits, rate_hz = driver_limits(settings, driver)
+    dt = 1.0 / rate_hz
+    safety = safety_for(settings, limits)
+    plan = plan_for(settings, dt, safety, settings.voltage_max_v or limits.voltage_max_v)
+    nominal = settings.nominal if not settings.tau_m_s else None
+    problems = check_plan(plan, limits, safety, nominal)
+    if problems:
+        raise PmdcError("plan refused before anything moved: " + "; ".join(problems))
+    return Session(
+        plan,
+        safety,
+        tau_m_s=settings.tau_s(),
+        steady=settings.steady,
+        safe_mode=settings.safe_mode,
+        name=name,
+    )

@@ -1,0 +1,85 @@
+"""The identification node's parameter values as the core's configuration (ROS-free).
+
+The values are those of :data:`pmdc_ident.nodes.parameter_tables.IDENTIFICATION`,
+by name; :func:`controller_config` builds the
+:class:`~pmdc_ident.core.session.controller.ControllerConfig` the node's
+:class:`~pmdc_ident.core.session.controller.SessionController` runs on, so the
+controller is tested from the same table without ROS.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import fields
+from typing import Any
+
+from pmdc_ident.core.enums import SafeMode
+from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.excitation import SequenceConfig
+from pmdc_ident.core.fixed import parse_fix
+from pmdc_ident.core.motors import load_motor
+from pmdc_ident.core.session.controller import ControllerConfig
+from pmdc_ident.core.session.startup import SessionSettings
+from pmdc_ident.core.session.steady_state import SteadyStateConfig
+
+__all__ = ["FLUSH_TIMEOUT_S", "controller_config"]
+
+# longest wait for a session's last samples: the sample QoS buffer (10 s,
+# pmdc_ident.nodes.qos.SAMPLE_BUFFER_S) and 5 s more
+FLUSH_TIMEOUT_S = 15.0
+
+
+def _dataclass(cls: Any, prefix: str, values: Mapping[str, Any]) -> Any:
+    kwargs = {}
+    for f in fields(cls):
+        v = values[prefix + f.name]
+        kwargs[f.name] = tuple(int(x) for x in v) if isinstance(v, list) else v
+    try:
+        return cls(**kwargs)
+    except (PmdcError, TypeError) as exc:
+        raise PmdcError(f"parameters {prefix}*: {exc}") from None
+
+
+def controller_config(
+    values: Mapping[str, Any], flush_timeout_s: float = FLUSH_TIMEOUT_S
+) -> ControllerConfig:
+    """The controller's configuration from the node's parameter values (by table name)."""
+    try:
+        nominal = load_motor(values["motor"])
+    except PmdcError as exc:
+        raise PmdcError(f"parameter motor: {exc}") from None
+    try:
+        fixed = parse_fix([s for s in values["fix"] if s])
+    except PmdcError as exc:
+        raise PmdcError(f"parameter fix: {exc}") from None
+    v = values
+    settings = SessionSettings(
+        nominal=nominal,
+        sequence=_dataclass(SequenceConfig, "sequence.", v),
+        steady=_dataclass(SteadyStateConfig, "steady_state.", v),
+        safe_mode=SafeMode(v["safe_mode"]),
+        tau_m_s=float(v["tau_m_s"]),
+        rate_hz=float(v["rate_hz"]),
+        voltage_max_v=float(v["voltage_max_v"]),
+        current_max_a=float(v["safety.current_max_a"]),
+        speed_max_rad_s=float(v["safety.speed_max_rad_s"]),
+        stall_current_a=float(v["safety.stall_current_a"]),
+        stall_speed_rad_s=float(v["safety.stall_speed_rad_s"]),
+        stall_time_s=float(v["safety.stall_time_s"]),
+        data_timeout_s=float(v["safety.data_timeout_s"]),
+        session_name=str(v["session_name"]),
+    )
+    return ControllerConfig(
+        session=settings,
+        driver_node=str(v["driver_node"]),
+        driver_wait_s=float(v["driver_wait_s"]),
+        max_start_latency_s=float(v["max_start_latency_s"]),
+        settle_s=float(v["settle_s"]),
+        confirm_timeout_s=float(v["confirm_timeout_s"]),
+        require_recorder=bool(v["require_recorder"]),
+        peer_timeout_s=float(v["peer_timeout_s"]),
+        exit_when_done=bool(v["exit_when_done"]),
+        output_dir=str(v["output_dir"]),
+        flush_timeout_s=flush_timeout_s,
+        fixed=fixed,
+    )

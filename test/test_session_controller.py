@@ -1,0 +1,317 @@
+"""The identification node's decisions without DDS: the SessionController driven by
+hand (the node's callbacks) with a fake of the node's publications.
+
+The closed-loop case runs the simulated plant sample by sample with the driver's
+stamps, as the node sees them over DDS.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from typing import Any
+
+import pytest
+
+from pmdc_ident.core.enums import AbortReason, SafeMode
+from pmdc_ident.core.excitation import SequenceConfig
+from pmdc_ident.core.model import Plant
+from pmdc_ident.core.motors import load_motor
+from pmdc_ident.core.safety import SafetyConfig
+from pmdc_ident.core.session.controller import (
+    ControllerConfig,
+    IdentificationJob,
+    IdentificationOutcome,
+    Phase,
+    SessionController,
+)
+from pmdc_ident.core.session.startup import (
+    ABORT_FRACTION,
+    DRIVER_PARAMETERS,
+    SessionSettings,
+    StartCheck,
+    build_session,
+)
+from pmdc_ident.core.session.steady_state import SteadyStateConfig
+from pmdc_ident.nodes.parameter_tables import IDENTIFICATION
+from pmdc_ident.nodes.settings import controller_config
+
+DT = 1e-3
+MOTOR = load_motor("seed001_110v")
+DRIVER = {"voltage_limit_v": 110.0, "current_limit_a": 0.0, "speed_limit_rad_s": 0.0,
+          "motor": "seed001_110v", "rate_hz": 1000.0}  # fmt: skip
+SHORT = {
+    "sequence.staircase_levels": 3,
+    "sequence.staircase_hold_tau": 5.0,
+    "sequence.step_hold_tau": 5.0,
+    "sequence.sweep_duration_tau": 20.0,
+    "sequence.coast_spinup_tau": 4.0,
+}
+
+
+class Ports:
+    """Records what the controller publishes; the open_armature service is ready."""
+
+    def __init__(self, service_ready: bool = True) -> None:
+        self.service_ready = service_ready
+        self.sent: list[float] = []
+        self.opened = 0
+        self.markers: list[dict] = []
+        self.progress: list[dict] = []
+        self.status: list[dict] = []
+        self.results: list[str] = []
+        self.logs: list[tuple[str, str]] = []
+        self.asked: list[tuple[str, ...]] = []
+        self.jobs: list[IdentificationJob] = []
+
+    def send_voltage(self, voltage_v: float) -> None:
+        self.sent.append(voltage_v)
+
+    def open_armature(self) -> bool:
+        self.opened += self.service_ready
+        return self.service_ready
+
+    def publish_marker(self, text: str) -> None:
+        self.markers.append(json.loads(text))
+
+    def publish_progress(self, text: str) -> None:
+        self.progress.append(json.loads(text))
+
+    def publish_status(self, text: str) -> None:
+        self.status.append(json.loads(text))
+
+    def publish_result(self, text: str) -> None:
+        self.results.append(text)
+
+    def request_driver_parameters(self, names: tuple[str, ...]) -> bool:
+        self.asked.append(names)
+        return True
+
+    def start_identification(self, job: IdentificationJob) -> None:
+        self.jobs.append(job)
+
+    def log(self, level: str, text: str) -> None:
+        self.logs.append((level, text))
+
+
+def _config(**overrides: Any) -> ControllerConfig:
+    values = {**IDENTIFICATION.defaults(), "motor": "seed001_110v", **SHORT, **overrides}
+    return controller_config(values)
+
+
+def _ready(c: SessionController, now: float, clock_offset_ns: int = 0) -> None:
+    """The driver answered, samples arrive on time, the recorder receives them."""
+    c.on_driver_parameters(DRIVER)
+    c.on_recorder_status(json.dumps({"receiving": {"a": 1, "b": 1, "c": 1}}), now)
+    c.on_encoder(0, 0.0, 0.0, now, clock_offset_ns)
+
+
+def test_start_up_waits_for_each_check_in_order_then_starts():
+    ports = Ports()
+    c = SessionController(_config(settle_s=0.5), ports)
+    c.start(autostart=True, now_s=0.0)
+    assert c.phase is Phase.PREPARING and [s["state"] for s in ports.status] == [
+        "idle",
+        "preparing",
+    ]
+    c.tick(0.02)
+    assert ports.asked == [DRIVER_PARAMETERS]  # the driver's limits before anything moves
+    assert c.start_check(0.02) is StartCheck.DRIVER
+    c.on_driver_parameters(DRIVER)
+    assert c.start_check(0.04) is StartCheck.SAMPLES
+    c.on_encoder(0, 0.0, 0.0, 0.05, 0)
+    c.on_encoder(1_000_000, 0.0, 0.0, 0.06, 200_000_000)  # 0.2 s late: a backlog
+    assert c.start_check(0.06) is StartCheck.LATENCY
+    c.on_encoder(2_000_000, 0.0, 0.0, 0.07, 2_000_000)
+    assert c.start_check(0.07) is StartCheck.SETTLE  # on time, not yet for settle_s
+    c.on_encoder(3_000_000, 0.0, 0.0, 0.58, 3_000_000)
+    assert c.start_check(0.58) is StartCheck.RECORDER
+    c.on_recorder_status(json.dumps({"receiving": {"a": 5, "b": 5}}), 0.58)
+    assert c.start_check(0.58) is StartCheck.RECORDER  # not yet on all three topics
+    c.on_recorder_status(json.dumps({"receiving": {"a": 5, "b": 5, "c": 5}}), 0.58)
+    c.tick(0.58)
+    assert c.phase is Phase.RUNNING and ports.status[-1]["state"] == "running"
+    assert ports.sent == []  # the first command answers the first sample of the session
+
+
+@pytest.mark.parametrize(
+    ("feed", "why"),
+    [
+        (lambda c: None, "no driver node 'driver_node' answered within 20 s"),
+        (lambda c: c.on_driver_parameters(DRIVER), "the driver sent no samples within 20 s"),
+        (
+            lambda c: (
+                c.on_driver_parameters(DRIVER),
+                c.on_encoder(0, 0.0, 0.0, 19.9, 0),
+                c.on_recorder_status("{}", 19.9),
+            ),
+            "the recorder received no driver samples within 20 s",
+        ),
+        (
+            lambda c: (c.on_driver_parameters(DRIVER), c.on_encoder(0, 0.0, 0.0, 19.9, 0)),
+            "no recorder within 20 s",
+        ),
+    ],
+)
+def test_a_session_that_cannot_start_is_refused_with_the_reason(feed, why):
+    ports = Ports()
+    c = SessionController(_config(exit_when_done=True), ports)
+    c.start(autostart=True, now_s=0.0)
+    feed(c)
+    c.tick(20.1)
+    assert c.finished and c.exit_code == 2 and ports.sent == [] and ports.opened == 0
+    assert ports.status[-1]["state"] == "refused" and why in ports.status[-1]["detail"]
+
+
+def test_safety_defaults_are_safety_config_for_limits_at_90_percent_of_the_driver():
+    settings = _config().session
+    session = build_session(settings, {**DRIVER, "current_limit_a": 10.0}, "s")
+    lim = replace(MOTOR.limits, current_max_a=ABORT_FRACTION * 10.0,
+                  speed_max_rad_s=ABORT_FRACTION * MOTOR.limits.speed_max_rad_s)  # fmt: skip
+    tau = MOTOR.model.params.mechanical_time_constant_s
+    assert session.monitor.config == SafetyConfig.for_limits(lim, tau)
+    given = replace(settings, stall_current_a=2.0, stall_time_s=0.3, current_max_a=8.0)
+    cfg = build_session(given, DRIVER, "s").monitor.config
+    assert (cfg.current_max_a, cfg.stall_current_a, cfg.stall_time_s) == (8.0, 2.0, 0.3)
+
+
+def test_latency_is_measured_against_the_lowest_offset_seen_and_a_late_sample_aborts():
+    ports = Ports()
+    c = SessionController(_config(settle_s=0.0), ports)
+    c.start(autostart=True, now_s=0.0)
+    offset = 5_000_000_000  # a board clock 5 s behind this host's
+    _ready(c, 0.0, offset)
+    c.tick(0.02)
+    assert c.phase is Phase.RUNNING and c.latency.last_ns == 0
+    c.on_encoder(1_000_000, 0.0, 0.0, 0.03, offset + 1_000_000 + 200_000_000)
+    assert c.latency.last_ns == 200_000_000
+    c.on_encoder(2_000_000, 0.0, 0.0, 0.04, offset + 2_000_000 + 600_000_000)  # > 0.5 s
+    assert c.session.abort_reason is AbortReason.LOST_DRIVER_DATA
+    assert "arrive 0.60 s late" in ports.status[-1]["detail"] and ports.sent[-1] == 0.0
+
+
+def test_commands_go_out_on_change_and_every_0_1_s_for_the_watchdog():
+    ports = Ports()
+    c = SessionController(_config(settle_s=0.0), ports)
+    c.start(autostart=True, now_s=0.0)
+    _ready(c, 0.0)
+    c.tick(0.0)
+    policy = c.commands
+    assert policy.should_send(1.0, 0.0) and not (policy.sent(1.0, 0.0) or False)
+    assert not policy.should_send(1.0, 0.05)  # unchanged, fed 0.05 s ago
+    assert policy.should_send(1.0, 0.11)  # refresh for the driver's watchdog
+    assert policy.should_send(2.0, 0.06)  # a change goes at once
+    policy.armature_open = True
+    assert policy.should_send(1.0, 0.06)  # closing the armature again
+
+
+def test_confirm_safe_repeats_the_safe_command_until_the_driver_shows_it():
+    ports = Ports()
+    c = SessionController(_config(settle_s=0.0, safe_mode="zero", confirm_timeout_s=1.0), ports)
+    c.start(autostart=True, now_s=0.0)
+    _ready(c, 0.0)
+    c.tick(0.0)
+    c.on_encoder(1_000_000, 0.0, 0.0, 0.001, 1_000_000)
+    assert c.abort_session(0.01) == (True, "session aborted, motor safe")
+    assert c.confirming and ports.sent[-1] == 0.0
+    n = len(ports.sent)
+    c.tick(0.05)
+    assert len(ports.sent) == n  # repeated only after 0.1 s
+    c.tick(0.15)
+    assert len(ports.sent) == n + 1 and ports.sent[-1] == 0.0
+    end_ns = round(c.session.markers[-1].t_s * 1e9)
+    c.on_voltage(end_ns - 1_000_000, 12.0, math.nan)  # before the abort: not the answer
+    assert c.confirming
+    c.on_voltage(end_ns, 0.0, math.nan)
+    assert not c.confirming and c.safe_confirmed
+    assert ("info", "motor confirmed safe by the driver: 0 V applied") in ports.logs
+
+
+def test_an_unconfirmed_safe_state_is_an_error_after_the_timeout():
+    ports = Ports(service_ready=False)
+    c = SessionController(_config(settle_s=0.0, safe_mode="open", confirm_timeout_s=0.5), ports)
+    c.start(autostart=False, now_s=0.0)
+    c.request_stop()
+    c.tick(0.1)
+    assert c.finished and c.exit_code == 130 and ports.status[-1]["state"] == "stopped"
+    # no open_armature service: 0 V is the other safe state
+    assert (
+        ports.sent == [0.0]
+        and ("warning", "open_armature service not available: sent 0 V") in ports.logs
+    )
+    c.confirm_tick(0.7)
+    assert not c.confirming and "could NOT confirm the safe state" in ports.logs[-1][1]
+
+
+def test_a_lost_recorder_aborts_the_running_session():
+    ports = Ports()
+    c = SessionController(_config(settle_s=0.0, peer_timeout_s=0.5), ports)
+    c.start(autostart=True, now_s=0.0)
+    _ready(c, 0.0)
+    c.tick(0.0)
+    for k in range(1, 31):  # samples keep coming; the recorder's heartbeat stops
+        c.on_encoder(k * 20_000_000, 0.0, 0.0, k * 0.02, k * 20_000_000)
+        c.tick(k * 0.02)
+    assert c.session.abort_reason is AbortReason.PEER_CRASHED
+    assert ports.status[-1] == {
+        "state": "aborted",
+        "session": c.session.name,
+        "reason": "peer_crashed",
+        "detail": "recorder heartbeat lost: recorder gone",
+        "bag": "",
+    }
+
+
+def test_a_whole_session_closed_around_the_plant_hands_every_sample_to_the_identification():
+    ports = Ports()
+    cfg = _config(settle_s=0.0, safe_mode="zero", exit_when_done=True)
+    c = SessionController(cfg, ports)
+    c.start(autostart=True, now_s=0.0)
+    _ready(c, 0.0)
+    c.tick(0.0)
+    plant = Plant(MOTOR.model, DT, substeps=4)
+    applied = 0.0
+    for k in range(200_000):
+        now = k * DT
+        ns = k * 1_000_000
+        v = math.nan if c.commands.armature_open else applied
+        c.on_current(ns, plant.current_a)
+        c.on_voltage(ns, v, math.nan)
+        c.on_encoder(ns, plant.position_rad, plant.speed_rad_s, now, ns)
+        if k % 20 == 0:
+            c.tick(now)
+        if k % 200 == 0:  # the recorder's heartbeat
+            c.on_recorder_status(json.dumps({"receiving": {"a": ns, "b": ns, "c": ns}}), now)
+        if ports.sent:
+            applied = ports.sent[-1]
+        plant.step(None if c.commands.armature_open else applied)
+        if c.phase is Phase.IDENTIFYING:
+            break
+    assert ports.jobs, [s["state"] for s in ports.status]
+    job = ports.jobs[0]
+    events = [m["event"] for m in ports.markers]
+    assert events[0] == "session_start" and events[-1] == "session_end"
+    assert (
+        job.samples.encoder_ns.size == job.samples.current_ns.size == job.samples.voltage_ns.size
+    )
+    start_ns, end_ns = (
+        round(m.t_s * 1e9) for m in (job.samples.markers[0], job.samples.markers[-1])
+    )
+    inside = (job.samples.encoder_ns >= start_ns) & (job.samples.encoder_ns < end_ns)
+    assert inside.sum() == (end_ns - start_ns) // 1_000_000  # every sample of the session
+    c.on_identified(IdentificationOutcome(json_text="{}", table="t", n_samples=5, output_dir="o"))
+    assert ports.results == ["{}"] and ports.status[-1]["state"] == "done"
+    c.tick(1e6)
+    assert c.finished and c.exit_code == 0
+
+
+def test_unknown_parameters_of_the_node_are_refused_in_one_line():
+    with pytest.raises(Exception, match="parameter fix"):
+        _config(fix=["R=-1"])
+    with pytest.raises(Exception, match="parameters sequence"):
+        _config(**{"sequence.staircase_levels": 1})
+    assert _config().session.safe_mode is SafeMode.ZERO
+    assert isinstance(_config().session.steady, SteadyStateConfig)
+    assert isinstance(_config().session.sequence, SequenceConfig)
+    assert isinstance(_config().session, SessionSettings)
