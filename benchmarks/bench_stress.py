@@ -38,6 +38,7 @@ import numpy as np
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))  # the test helpers
 
 from pmdc_ident.dataio.bagio import header_stamp_ns, read_driver_arrays  # noqa: E402
 from pmdc_ident.nodes.bringup import node_env, priority_setter, run_session  # noqa: E402
@@ -222,7 +223,7 @@ def session(domain: int) -> int:
 
 def driver_5k(domain: int, seconds: float) -> None:
     """The driver alone at 5 kHz and one subscriber: what is delivered."""
-    from pmdc_ident.nodes.driver_harness import DriverProcess
+    from helpers.driver_harness import DriverProcess
 
     rate, dt = 5000.0, 200_000
     sub = subprocess.Popen(  # as run_session starts the recorder

@@ -7,9 +7,6 @@ identification node as separate processes over DDS on loopback
 armature open), then prints the identified parameters with their intervals, the
 bag's path, and the sim-to-real gap diagnosis of that bag.
 
-``python -m pmdc_ident.demo --step`` runs the first-stage demo instead (one voltage
-step through the driver node, :func:`run_step_demo`).
-
 ROS is imported only in the child processes and the node layer; this module
 stays importable without ROS.
 """
@@ -25,17 +22,7 @@ from typing import Any
 
 from pmdc_ident.core.errors import PmdcError
 
-__all__ = ["main", "run_session_demo", "run_step_demo"]
-
-
-def run_step_demo(**kwargs: Any) -> Any:
-    """See :func:`pmdc_ident.nodes.driver_harness.run_step_demo` (same keywords)."""
-    from pmdc_ident.nodes.driver_harness import apply_ros_env
-
-    apply_ros_env(kwargs.get("domain_id"))  # before any DDS participant exists
-    from pmdc_ident.nodes.driver_harness import run_step_demo as _run
-
-    return _run(**kwargs)
+__all__ = ["main", "run_session_demo"]
 
 
 def _follow(log: Path) -> Any:
@@ -119,11 +106,7 @@ def _session_demo(out: Path, logs: Path, motor: str, domain: int) -> int:
 
 
 def _diagnose(bag: Path) -> None:
-    try:
-        from pmdc_ident.core.diagnosis import diagnose
-    except ImportError:
-        print("== gap diagnosis: not part of this build")
-        return
+    from pmdc_ident.core.diagnosis import diagnose
     from pmdc_ident.dataio.bagio import read_bag
 
     print("== sim-to-real gap diagnosis of the bag (held-out segments)")
@@ -136,14 +119,10 @@ def _diagnose(bag: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m pmdc_ident.demo", description=__doc__)
-    ap.add_argument("--step", action="store_true", help="only the first-stage step demo")
     ap.add_argument("--output-dir", default="pmdc_sessions/demo", help="where the bag goes")
     ap.add_argument("--motor", default="seed000_ebike", help="built-in motor or YAML path")
     args = ap.parse_args(argv)
     try:
-        if args.step:
-            res = run_step_demo()
-            return 0 if res.driver_exit == 0 else 1
         return run_session_demo(output_dir=args.output_dir, motor=args.motor)
     except PmdcError as exc:
         print(f"demo: {exc}", file=sys.stderr)

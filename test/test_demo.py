@@ -1,4 +1,6 @@
-"""`make demo`: the step through the driver node over DDS reaches the model's steady state."""
+"""The one-step demo (test/helpers/driver_harness.py): a voltage step through the driver node
+over DDS reaches the model's steady state. (`make demo`, the whole session, is
+test_session_bringup's and test_identification_node's.)"""
 
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ pytest.importorskip("rclpy")
 
 
 def test_step_demo_reaches_the_model_steady_state_and_stops_the_driver_cleanly(ros_domain):
-    from pmdc_ident.demo import run_step_demo
+    from helpers.driver_harness import run_step_demo
 
     lines: list[str] = []
     res = run_step_demo(volts=10.0, step_s=1.5, domain_id=ros_domain, out=lines.append)
@@ -25,8 +27,9 @@ def test_step_demo_reaches_the_model_steady_state_and_stops_the_driver_cleanly(r
 
 
 def test_demo_reports_a_driver_that_cannot_start_in_one_line(ros_domain):
+    from helpers.driver_harness import run_step_demo
+
     from pmdc_ident.core.errors import PmdcError
-    from pmdc_ident.demo import run_step_demo
 
     with pytest.raises(PmdcError, match=r"exited at start \(status 2\): .*rate_hz.*out of range"):
         run_step_demo(rate_hz=50000.0, domain_id=ros_domain, out=lambda _line: None)

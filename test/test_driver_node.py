@@ -1,7 +1,7 @@
 """The driver node over real DDS, with the driver in its own process (private DDS domains).
 
 One driver (seed-000 motor, sim backend, 1 kHz) serves most tests in turn; the
-signal tests start their own. Loopback-only DDS: see pmdc_ident.nodes.driver_harness.
+signal tests start their own. Loopback-only DDS: see test/helpers/driver_harness.py.
 """
 
 from __future__ import annotations
@@ -21,15 +21,16 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 rclpy = pytest.importorskip("rclpy")
 
-from pmdc_ident.core.model import simulate  # noqa: E402
-from pmdc_ident.core.motors import load_motor  # noqa: E402
-from pmdc_ident.nodes.bringup import realtime_thread  # noqa: E402
-from pmdc_ident.nodes.driver_harness import (  # noqa: E402
+from helpers.driver_harness import (  # noqa: E402
     DriverClient,
     DriverProcess,
     apply_ros_env,
     ros_env,
 )
+
+from pmdc_ident.core.model import simulate  # noqa: E402
+from pmdc_ident.core.motors import load_motor  # noqa: E402
+from pmdc_ident.nodes.bringup import realtime_thread  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 RATE_HZ = 1000.0

@@ -24,15 +24,15 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 rclpy = pytest.importorskip("rclpy")
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
-
-from pmdc_ident.core.stream_join import StampJoiner  # noqa: E402
-from pmdc_ident.nodes.driver_harness import (  # noqa: E402
+from helpers.driver_harness import (  # noqa: E402
     DriverClient,
     DriverProcess,
     apply_ros_env,
 )
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+
+from pmdc_ident.core.stream_join import StampJoiner  # noqa: E402
 from pmdc_ident.nodes.monitor_node import PARAMETERS  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]

@@ -19,13 +19,8 @@ from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.model import Plant
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.safety import SafetyConfig
-from pmdc_ident.core.session.controller import (
-    ControllerConfig,
-    IdentificationJob,
-    IdentificationOutcome,
-    Phase,
-    SessionController,
-)
+from pmdc_ident.core.session.controller import ControllerConfig, Phase, SessionController
+from pmdc_ident.core.session.ports import IdentificationJob, IdentificationOutcome
 from pmdc_ident.core.session.startup import (
     ABORT_FRACTION,
     DRIVER_PARAMETERS,

@@ -46,7 +46,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
-from pmdc_ident.core.session.controller import IdentificationJob, SessionController
+from pmdc_ident.core.session.controller import SessionController
+from pmdc_ident.core.session.ports import IdentificationJob
 from pmdc_ident.dataio.bagio import parse_joint_state
 from pmdc_ident.nodes.identify_call import IdentificationWorker
 from pmdc_ident.nodes.parameter_tables import IDENTIFICATION

@@ -25,7 +25,7 @@ import numpy as np
 from pmdc_ident.core.data import Run
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.motors import motor_to_yaml
-from pmdc_ident.core.session.controller import IdentificationJob, IdentificationOutcome
+from pmdc_ident.core.session.ports import IdentificationJob, IdentificationOutcome
 from pmdc_ident.core.session.recording import SessionSamples
 from pmdc_ident.dataio.bagio import DriverArrays, assemble_run
 from pmdc_ident.dataio.completeness import Completeness, completeness

@@ -19,7 +19,7 @@ from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.fixed import parse_fix
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.session.controller import ControllerConfig
-from pmdc_ident.core.session.startup import SessionSettings
+from pmdc_ident.core.session.startup import SessionSettings, StartRules
 from pmdc_ident.core.session.steady_state import SteadyStateConfig
 
 __all__ = ["FLUSH_TIMEOUT_S", "controller_config"]
@@ -71,13 +71,15 @@ def controller_config(
     )
     return ControllerConfig(
         session=settings,
-        driver_node=str(v["driver_node"]),
-        driver_wait_s=float(v["driver_wait_s"]),
-        max_start_latency_s=float(v["max_start_latency_s"]),
-        settle_s=float(v["settle_s"]),
+        start=StartRules(
+            driver_node=str(v["driver_node"]),
+            driver_wait_s=float(v["driver_wait_s"]),
+            max_start_latency_s=float(v["max_start_latency_s"]),
+            settle_s=float(v["settle_s"]),
+            require_recorder=bool(v["require_recorder"]),
+            peer_timeout_s=float(v["peer_timeout_s"]),
+        ),
         confirm_timeout_s=float(v["confirm_timeout_s"]),
-        require_recorder=bool(v["require_recorder"]),
-        peer_timeout_s=float(v["peer_timeout_s"]),
         exit_when_done=bool(v["exit_when_done"]),
         output_dir=str(v["output_dir"]),
         flush_timeout_s=flush_timeout_s,

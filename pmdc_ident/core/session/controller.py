@@ -19,23 +19,28 @@ from __future__ import annotations
 
 import enum
 import json
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 from pmdc_ident.core.enums import AbortReason, SafeMode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.session.link import CommandPolicy, Latency, SafeConfirmation
 from pmdc_ident.core.session.machine import Session, SessionState, SessionStep
-from pmdc_ident.core.session.recording import Recording, SessionSamples
+from pmdc_ident.core.session.ports import (
+    ControllerPorts,
+    IdentificationJob,
+    IdentificationOutcome,
+)
+from pmdc_ident.core.session.recording import Recording
 from pmdc_ident.core.session.startup import (
     DRIVER_PARAMETERS,
-    SAMPLES_STALE_S,
+    Peers,
     SessionSettings,
     StartCheck,
+    StartRules,
     build_session,
 )
 
@@ -71,69 +76,12 @@ class ControllerConfig:
     """The node's settings the controller acts on (the node's parameter table)."""
 
     session: SessionSettings
-    driver_node: str
-    driver_wait_s: float
-    max_start_latency_s: float
-    settle_s: float
+    start: StartRules
     confirm_timeout_s: float
-    require_recorder: bool
-    peer_timeout_s: float
     exit_when_done: bool
     output_dir: str
     flush_timeout_s: float  # longest wait for a session's last samples (the QoS buffer)
     fixed: Mapping[str, float] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class IdentificationJob:
-    """A finished session's samples, to be identified off the node's I/O callbacks."""
-
-    samples: SessionSamples
-    session: str
-    source: str  # the bag's path, or 'session <name>' without a recorder
-    output_dir: Path
-    fixed: Mapping[str, float]
-
-
-@dataclass(frozen=True)
-class IdentificationOutcome:
-    """What the identification job returns: the result documents, or why it failed."""
-
-    json_text: str = ""
-    table: str = ""
-    n_samples: int = 0
-    output_dir: str = ""
-    error: str = ""
-    exit_code: int = 0  # 2: the data were refused (one line), 1: a bug of ours
-    notes: tuple[tuple[str, str], ...] = ()  # (level, text) lines for the node's log
-
-
-class ControllerPorts(Protocol):
-    """The node's side: publications, service calls and logs."""
-
-    def send_voltage(self, voltage_v: float) -> None: ...
-
-    def open_armature(self) -> bool:
-        """Call the driver's open_armature service; False when it is not available."""
-
-    def publish_marker(self, text: str) -> None: ...
-
-    def publish_progress(self, text: str) -> None: ...
-
-    def publish_status(self, text: str) -> None: ...
-
-    def publish_result(self, text: str) -> None: ...
-
-    def request_driver_parameters(self, names: tuple[str, ...]) -> bool:
-        """Ask the driver node for ``names``; False when it is not reachable yet. The
-        answer comes back through :meth:`SessionController.on_driver_parameters`."""
-
-    def start_identification(self, job: IdentificationJob) -> None:
-        """Run the job off the I/O callbacks; its outcome comes back through
-        :meth:`SessionController.on_identified`."""
-
-    def log(self, level: str, text: str) -> None:
-        """``level``: 'info', 'warning' or 'error'."""
 
 
 class SessionController:
@@ -152,16 +100,10 @@ class SessionController:
         self.commands = CommandPolicy()
         self.confirmation = SafeConfirmation(config.confirm_timeout_s)
         self._stop_requested: AbortReason | None = None
-        self._driver: dict[str, Any] | None = None
-        self._driver_asked = False
+        self.peers = Peers()  # what is known of the driver and the recorder
         self._prep_deadline_s = 0.0
-        self._settled_since_s = math.inf
-        self._last_sample_s = -math.inf
         self._last_stamp_ns = 0
         self._last_current_a = 0.0
-        self._recorder_seen_s = -math.inf
-        self._recorder_receiving = False  # the recorder has driver samples on every topic
-        self._recorder_paths: dict[str, str] = {}
         self._last_tick_s: float | None = None
         self._suspect_until_s = 0.0
         self._last_progress_s = 0.0
@@ -204,10 +146,8 @@ class SessionController:
         if self.phase in busy:
             return False, f"a session is {self.phase.value}"
         self.phase = Phase.PREPARING
-        self._prep_deadline_s = now_s + self.config.driver_wait_s
-        self._driver = None
-        self._driver_asked = False
-        self._settled_since_s = math.inf
+        self._prep_deadline_s = now_s + self.config.start.driver_wait_s
+        self.peers.reset()
         self._publish_status("preparing")
         return True, "session requested"
 
@@ -240,7 +180,7 @@ class SessionController:
         self, stamp_ns: int, position_rad: float, speed_rad_s: float, now_s: float, now_ns: int
     ) -> None:
         """A driver sample; ``now_ns`` is the host's wall clock (the latency's)."""
-        self._last_sample_s = now_s
+        self.peers.last_sample_s = now_s
         self._last_stamp_ns = stamp_ns
         lag_ns = self.latency.update(stamp_ns, now_ns)
         if not self.recording_samples:
@@ -258,23 +198,13 @@ class SessionController:
         self._apply(step, now_s)
 
     def on_recorder_status(self, text: str, now_s: float) -> None:
-        self._recorder_seen_s = now_s
-        try:
-            d = json.loads(text)
-        except ValueError:
-            return
-        if not isinstance(d, dict):
-            return
-        if d.get("session") and d.get("path"):
-            self._recorder_paths[str(d["session"])] = str(d["path"])
-        got = d.get("receiving") or {}
-        self._recorder_receiving = len(got) == 3 and min(got.values()) >= 0
+        self.peers.on_recorder_status(text, now_s)
 
     def on_driver_parameters(self, values: Mapping[str, Any] | None) -> None:
         """The driver's answer (``None``: no usable answer, ask again)."""
-        self._driver_asked = False
+        self.peers.driver_asked = False
         if values is not None:
-            self._driver = dict(values)
+            self.peers.driver = dict(values)
 
     def on_identified(self, outcome: IdentificationOutcome) -> None:
         s = self.session
@@ -338,53 +268,21 @@ class SessionController:
     # -- start-up ------------------------------------------------------------------------
     def start_check(self, now_s: float) -> StartCheck:
         """The first start-up check not met yet (see :mod:`.startup`)."""
-        if self._driver is None:
-            return StartCheck.DRIVER
-        if now_s - self._last_sample_s > SAMPLES_STALE_S:
-            return StartCheck.SAMPLES
-        if self.latency.last_ns > self.config.max_start_latency_s * 1e9:
-            self._settled_since_s = math.inf  # still working through a backlog
-            return StartCheck.LATENCY
-        self._settled_since_s = min(self._settled_since_s, now_s)
-        if now_s - self._settled_since_s < self.config.settle_s:
-            return StartCheck.SETTLE
-        recorder_stale = now_s - self._recorder_seen_s > self.config.peer_timeout_s
-        # the recorder's subscriptions must match first: the driver's samples are
-        # volatile, so any it missed before would be lost
-        if self.config.require_recorder and (recorder_stale or not self._recorder_receiving):
-            return StartCheck.RECORDER
-        return StartCheck.READY
-
-    def _refusal(self, now_s: float) -> str:
-        waited = f"{self.config.driver_wait_s:g} s"
-        if self._driver is None:
-            return (
-                f"no driver node {self.config.driver_node!r} answered within {waited} "
-                "(is it running, on this ROS_DOMAIN_ID?)"
-            )
-        if now_s - self._last_sample_s > SAMPLES_STALE_S:
-            return f"the driver sent no samples within {waited}"
-        if self.latency.last_ns > self.config.max_start_latency_s * 1e9:
-            return f"driver samples still arrive late after {waited}"
-        if now_s - self._recorder_seen_s <= self.config.peer_timeout_s:
-            return f"the recorder received no driver samples within {waited}"
-        return (
-            f"no recorder within {waited} (start recorder_node, or run without "
-            "a bag: -p require_recorder:=false)"
-        )
+        return self.peers.start_check(now_s, self.latency.last_ns, self.config.start)
 
     def _prepare(self, now_s: float) -> None:
         if now_s > self._prep_deadline_s:
-            self._fail(f"session not started, motor untouched: {self._refusal(now_s)}")
+            why = self.peers.refusal(now_s, self.latency.last_ns, self.config.start)
+            self._fail(f"session not started, motor untouched: {why}")
             return
-        if self._driver is None:
-            if not self._driver_asked:
-                self._driver_asked = self.ports.request_driver_parameters(DRIVER_PARAMETERS)
+        if self.peers.driver is None:
+            if not self.peers.driver_asked:
+                self.peers.driver_asked = self.ports.request_driver_parameters(DRIVER_PARAMETERS)
             return
         if self.start_check(now_s) is not StartCheck.READY:
             return
         try:
-            session = build_session(self.config.session, self._driver, self._next_name())
+            session = build_session(self.config.session, self.peers.driver, self._next_name())
         except PmdcError as exc:
             self._fail(str(exc))
             return
@@ -422,8 +320,8 @@ class SessionController:
         if self._suspect_until_s > now_s:
             return
         step = s.check_link(now_s)
-        recorder_lost = now_s - self._recorder_seen_s > self.config.peer_timeout_s
-        if step is None and self.config.require_recorder and recorder_lost:
+        recorder_lost = now_s - self.peers.recorder_seen_s > self.config.start.peer_timeout_s
+        if step is None and self.config.start.require_recorder and recorder_lost:
             step = s.abort(
                 AbortReason.PEER_CRASHED, None, "recorder heartbeat lost: recorder gone"
             )
@@ -516,7 +414,7 @@ class SessionController:
         s = self.session
         assert s is not None
         end_ns = round(s.markers[-1].t_s * 1e9)
-        arriving = now_s - self._last_sample_s < DRIVER_GONE_S  # else the driver is gone
+        arriving = now_s - self.peers.last_sample_s < DRIVER_GONE_S  # else the driver is gone
         if not self.recording.complete_until(end_ns) and now_s < self._flush_deadline_s:
             if arriving:
                 return  # still arriving (a backlog on a loaded machine)
@@ -526,14 +424,14 @@ class SessionController:
             IdentificationJob(
                 samples=self.recording.samples(s.markers),
                 session=s.name,
-                source=self._recorder_paths.get(s.name) or f"session {s.name}",
+                source=self.peers.recorder_paths.get(s.name) or f"session {s.name}",
                 output_dir=self._output_dir(s.name),
                 fixed=dict(self.config.fixed),
             )
         )
 
     def _output_dir(self, session: str) -> Path:
-        path = self._recorder_paths.get(session)
+        path = self.peers.recorder_paths.get(session)
         if path:
             return Path(path)
         return Path(self.config.output_dir).expanduser() / session
@@ -542,5 +440,5 @@ class SessionController:
         d: dict[str, Any] = {"state": state, "session": self.session.name if self.session else ""}
         d.update(extra)
         if self.session is not None:
-            d["bag"] = self._recorder_paths.get(self.session.name, "")
+            d["bag"] = self.peers.recorder_paths.get(self.session.name, "")
         self.ports.publish_status(json.dumps(d))

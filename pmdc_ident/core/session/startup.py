@@ -19,8 +19,10 @@ sized for the nominal motor and checked (:func:`check_plan`) before anything mov
 from __future__ import annotations
 
 import enum
+import json
+import math
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from pmdc_ident.core.enums import SafeMode
@@ -35,8 +37,10 @@ from pmdc_ident.core.session.steady_state import SteadyStateConfig
 __all__ = [
     "ABORT_FRACTION",
     "DRIVER_PARAMETERS",
+    "Peers",
     "SessionSettings",
     "StartCheck",
+    "StartRules",
     "build_session",
     "driver_limits",
 ]
@@ -56,6 +60,89 @@ class StartCheck(enum.Enum):
     SETTLE = "settle"  # on time, but not yet for settle_s
     RECORDER = "recorder"  # no fresh recorder heartbeat
     READY = "ready"
+
+
+@dataclass(frozen=True)
+class StartRules:
+    """When a session may start (the identification node's parameters)."""
+
+    driver_node: str
+    driver_wait_s: float
+    max_start_latency_s: float
+    settle_s: float
+    require_recorder: bool
+    peer_timeout_s: float
+
+
+@dataclass
+class Peers:
+    """What the identification node knows of the driver and the recorder (times on the
+    host's monotonic clock, s)."""
+
+    driver: dict[str, Any] | None = None  # the driver's parameters, once read
+    driver_asked: bool = False  # a request for them is on its way
+    last_sample_s: float = -math.inf  # the last driver sample arrived
+    settled_since_s: float = math.inf  # samples on time since
+    recorder_seen_s: float = -math.inf  # the recorder's last heartbeat
+    recorder_receiving: bool = False  # it has driver samples on every topic
+    recorder_paths: dict[str, str] = field(default_factory=dict)  # session -> its bag
+
+    def reset(self) -> None:
+        """A new session is requested: read the driver's limits again."""
+        self.driver = None
+        self.driver_asked = False
+        self.settled_since_s = math.inf
+
+    def on_recorder_status(self, text: str, now_s: float) -> None:
+        self.recorder_seen_s = now_s
+        try:
+            d = json.loads(text)
+        except ValueError:
+            return
+        if not isinstance(d, dict):
+            return
+        if d.get("session") and d.get("path"):
+            self.recorder_paths[str(d["session"])] = str(d["path"])
+        got = d.get("receiving") or {}
+        self.recorder_receiving = len(got) == 3 and min(got.values()) >= 0
+
+    def start_check(self, now_s: float, latency_ns: int, rules: StartRules) -> StartCheck:
+        """The first start-up check not met yet (see the module docs)."""
+        if self.driver is None:
+            return StartCheck.DRIVER
+        if now_s - self.last_sample_s > SAMPLES_STALE_S:
+            return StartCheck.SAMPLES
+        if latency_ns > rules.max_start_latency_s * 1e9:
+            self.settled_since_s = math.inf  # still working through a backlog
+            return StartCheck.LATENCY
+        self.settled_since_s = min(self.settled_since_s, now_s)
+        if now_s - self.settled_since_s < rules.settle_s:
+            return StartCheck.SETTLE
+        recorder_stale = now_s - self.recorder_seen_s > rules.peer_timeout_s
+        # the recorder's subscriptions must match first: the driver's samples are
+        # volatile, so any it missed before would be lost
+        if rules.require_recorder and (recorder_stale or not self.recorder_receiving):
+            return StartCheck.RECORDER
+        return StartCheck.READY
+
+    def refusal(self, now_s: float, latency_ns: int, rules: StartRules) -> str:
+        """Why no session started within ``driver_wait_s``."""
+        waited = f"{rules.driver_wait_s:g} s"
+        if self.driver is None:
+            return (
+                f"no driver node {rules.driver_node!r} answered within {waited} "
+                "(is it running, on this ROS_DOMAIN_ID?)"
+            )
+        if now_s - self.last_sample_s > SAMPLES_STALE_S:
+            return f"the driver sent no samples within {waited}"
+        if latency_ns > rules.max_start_latency_s * 1e9:
+            return f"driver samples still arrive late after {waited}"
+        if now_s - self.recorder_seen_s <= rules.peer_timeout_s:
+            return f"the recorder received no driver samples within {waited}"
+        return (
+            f"no recorder within {waited} (start recorder_node, or run without "
+            "a bag: -p require_recorder:=false)"
+        )
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,8 @@
-"""Run the driver node in a child process and talk to it over DDS (demo, tests, benchmark).
+"""Test helpers: run the driver node in a child process and talk to it over DDS.
+
+Used by the DDS tests and ``benchmarks/bench_driver_rate.py``; not part of the
+installed package. ``python test/helpers/driver_harness.py`` runs the one-step demo
+(:func:`run_step_demo`); ``make demo`` runs the whole session.
 
 * :func:`ros_env` - :func:`pmdc_ident.nodes.bringup.node_env`, the environment that keeps DDS
   on this machine (loopback Fast DDS profile, localhost discovery, a chosen domain id);
@@ -6,8 +10,7 @@
   stopped with SIGINT, its exit status and stderr kept;
 * :class:`DriverClient` - a small node that publishes ``voltage_cmd``, calls
   ``open_armature`` and records ``current``/``encoder``/``voltage_applied`` by stamp;
-* :func:`run_step_demo` - the one-step demo (``python -m pmdc_ident.demo --step``;
-  ``make demo`` runs the whole session, :mod:`pmdc_ident.demo`).
+* :func:`run_step_demo` - the one-step demo.
 """
 
 from __future__ import annotations
@@ -391,3 +394,8 @@ def _print_demo(res: StepDemoResult, motor: str, volts: float, out: Callable[[st
         f"(model {res.predicted_speed_rad_s:.2f} rad/s, {100 * rel_w:+.2f} %)"
     )
     out(f"armature opened; driver stopped with status {res.driver_exit}: {res.driver_final_line}")
+
+
+if __name__ == "__main__":
+    apply_ros_env(None)
+    sys.exit(0 if run_step_demo().driver_exit == 0 else 1)

@@ -1,0 +1,65 @@
+"""What the session controller exchanges with its node: the node's side
+(:class:`ControllerPorts`), the identification job it hands over and its outcome."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+from pmdc_ident.core.session.recording import SessionSamples
+
+__all__ = ["ControllerPorts", "IdentificationJob", "IdentificationOutcome"]
+
+
+@dataclass(frozen=True)
+class IdentificationJob:
+    """A finished session's samples, to be identified off the node's I/O callbacks."""
+
+    samples: SessionSamples
+    session: str
+    source: str  # the bag's path, or 'session <name>' without a recorder
+    output_dir: Path
+    fixed: Mapping[str, float]
+
+
+@dataclass(frozen=True)
+class IdentificationOutcome:
+    """What the identification job returns: the result documents, or why it failed."""
+
+    json_text: str = ""
+    table: str = ""
+    n_samples: int = 0
+    output_dir: str = ""
+    error: str = ""
+    exit_code: int = 0  # 2: the data were refused (one line), 1: a bug of ours
+    notes: tuple[tuple[str, str], ...] = ()  # (level, text) lines for the node's log
+
+
+class ControllerPorts(Protocol):
+    """The node's side: publications, service calls and logs."""
+
+    def send_voltage(self, voltage_v: float) -> None: ...
+
+    def open_armature(self) -> bool:
+        """Call the driver's open_armature service; False when it is not available."""
+
+    def publish_marker(self, text: str) -> None: ...
+
+    def publish_progress(self, text: str) -> None: ...
+
+    def publish_status(self, text: str) -> None: ...
+
+    def publish_result(self, text: str) -> None: ...
+
+    def request_driver_parameters(self, names: tuple[str, ...]) -> bool:
+        """Ask the driver node for ``names``; False when it is not reachable yet. The
+        answer comes back through :meth:`SessionController.on_driver_parameters`."""
+
+    def start_identification(self, job: IdentificationJob) -> None:
+        """Run the job off the I/O callbacks; its outcome comes back through
+        :meth:`SessionController.on_identified`."""
+
+    def log(self, level: str, text: str) -> None:
+        """``level``: 'info', 'warning' or 'error'."""
