@@ -30,6 +30,7 @@ import yaml
 
 from pmdc_ident.core.motors import share_file
 from pmdc_ident.nodes.dds_domain import HELD_ENV, DomainBusyError, child_env, lock_domain
+from pmdc_ident.nodes.parameter_tables import DRIVER, IDENTIFICATION, RECORDER
 
 __all__ = [
     "BringupResult",
@@ -198,8 +199,8 @@ class _Proc:
 
 def run_session(
     *,
-    output_dir: str | Path = "pmdc_sessions",
-    motor: str = "seed000_ebike",
+    output_dir: str | Path = RECORDER["output_dir"].default,
+    motor: str = DRIVER["motor"].default,
     domain_id: int | None = None,
     driver_params: Mapping[str, Any] | None = None,
     identification_params: Mapping[str, Any] | None = None,
@@ -228,7 +229,53 @@ def run_session(
     t0 = time.monotonic()
     out = Path(output_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    env = node_env(domain_id)
+    logs, files = _log_files(log_dir, quiet)
+    args = {
+        "driver": {"motor": motor, **(driver_params or {})},
+        "recorder": {"output_dir": str(out), **(recorder_params or {})},
+        "identification": {
+            "motor": motor,
+            "exit_when_done": True,
+            "output_dir": str(out),
+            "require_recorder": with_recorder,
+            **(identification_params or {}),
+        },
+    }
+    # No other session, test or demo on this machine may use our domain while we run.
+    try:
+        domain = int(node_env(domain_id)["ROS_DOMAIN_ID"])
+        lock = lock_domain(domain, purpose=f"bringup session in {out}")
+    except DomainBusyError:
+        _close(files.values())
+        raise
+    env = node_env(lock.domain_id)  # now with the lock handed to the children
+    procs: dict[str, _Proc] = {}
+    rc: dict[str, int | None] = {}
+    try:
+        with _forward_signals(procs):
+            for name in ("driver", "recorder"):
+                if name == "driver" or with_recorder:
+                    procs[name] = _start(name, args[name], env, files[name], nice, realtime)
+            if before_identification is not None:
+                before_identification()
+            ident_log = files["identification"]
+            procs["identification"] = _start(
+                "identification", args["identification"], env, ident_log, nice, realtime
+            )
+            _watch(procs, t0, timeout_s, during)
+            rc["identification"] = procs["identification"].stop(timeout_s=10.0)
+    finally:
+        for name in ("identification", "recorder", "driver"):
+            if name in procs:
+                rc[name] = procs[name].stop(timeout_s=10.0)
+        lock.release()
+        _close(files.values())
+    return _result(out, rc, procs, logs, t0)
+
+
+def _log_files(
+    log_dir: str | Path | None, quiet: bool
+) -> tuple[dict[str, Path], dict[str, IO[str] | None]]:
     logs: dict[str, Path] = {}
     files: dict[str, IO[str] | None] = {}
     for name in ("driver", "recorder", "identification"):
@@ -238,86 +285,74 @@ def run_session(
             files[name] = logs[name].open("w")
         else:
             files[name] = subprocess.DEVNULL if quiet else None  # type: ignore[assignment]
-    dparams = {"motor": motor, **(driver_params or {})}
-    rparams = {"output_dir": str(out), **(recorder_params or {})}
-    iparams = {
-        "motor": motor,
-        "exit_when_done": True,
-        "output_dir": str(out),
-        "require_recorder": with_recorder,
-        **(identification_params or {}),
-    }
-    procs: dict[str, _Proc] = {}
-    interrupted: list[int] = []
+    return logs, files
 
-    def forward(signum: int, _frame: Any) -> None:
-        interrupted.append(signum)
+
+_TABLES = {"driver": DRIVER, "recorder": RECORDER, "identification": IDENTIFICATION}
+
+
+def _start(
+    name: str,
+    params: Mapping[str, Any],
+    env: dict[str, str],
+    log: Any,
+    nice: int,
+    realtime: Sequence[str],
+) -> _Proc:
+    """``name``'s node as a child, with its parameters file and ``params`` on top."""
+    table = _TABLES[name]
+    module = f"pmdc_ident.nodes.{table.node}"
+    args = _ros_args(share_file("config", table.config), params)
+    return _Proc(name, module, args, env, log, nice, realtime=name in realtime)
+
+
+@contextmanager
+def _forward_signals(procs: Mapping[str, _Proc]) -> Iterator[None]:
+    """Ctrl-C / SIGTERM go to the identification node first (it aborts the session and
+    makes the motor safe); the others are stopped after it, in the safe order."""
+
+    def forward(_signum: int, _frame: Any) -> None:
         ident = procs.get("identification")
         if ident is not None and ident.popen.returncode is None:
             ident.popen.send_signal(signal.SIGINT)
 
-    # No other session, test or demo on this machine may use our domain while we run.
-    try:
-        lock = lock_domain(int(env["ROS_DOMAIN_ID"]), purpose=f"bringup session in {out}")
-    except DomainBusyError:
-        _close(files.values())
-        raise
-    env = node_env(lock.domain_id)  # now with the lock handed to the children
+    if not _in_main_thread():
+        yield
+        return
     old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    in_main = _in_main_thread()
-    if in_main:
-        signal.signal(signal.SIGINT, forward)
-        signal.signal(signal.SIGTERM, forward)
-    rc: dict[str, int | None] = {}
+    signal.signal(signal.SIGINT, forward)
+    signal.signal(signal.SIGTERM, forward)
     try:
-        procs["driver"] = _Proc(
-            "driver",
-            "pmdc_ident.nodes.driver_node",
-            _ros_args(share_file("config", "driver.yaml"), dparams),
-            env,
-            files["driver"],
-            nice,
-            realtime="driver" in realtime,
-        )
-        if with_recorder:
-            procs["recorder"] = _Proc(
-                "recorder",
-                "pmdc_ident.nodes.recorder_node",
-                _ros_args(share_file("config", "recorder.yaml"), rparams),
-                env,
-                files["recorder"],
-                nice,
-                realtime="recorder" in realtime,
-            )
-        if before_identification is not None:
-            before_identification()
-        procs["identification"] = _Proc(
-            "identification",
-            "pmdc_ident.nodes.identification_node",
-            _ros_args(share_file("config", "identification.yaml"), iparams),
-            env,
-            files["identification"],
-            nice,
-            realtime="identification" in realtime,
-        )
-        ident = procs["identification"]
-        deadline = time.monotonic() + timeout_s
-        while ident.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)  # a crashed peer is noticed by identification itself
-            if during is not None:
-                during({k: v.popen for k, v in procs.items()}, time.monotonic() - t0)
-        rc["identification"] = procs["identification"].stop(timeout_s=10.0)
+        yield
     finally:
-        for name in ("identification", "recorder", "driver"):
-            if name in procs:
-                rc[name] = procs[name].stop(timeout_s=10.0)
-        lock.release()
-        if in_main:
-            for s, h in old.items():
-                signal.signal(s, h)
-        _close(files.values())
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def _watch(
+    procs: Mapping[str, _Proc],
+    t0: float,
+    timeout_s: float,
+    during: Callable[[dict[str, subprocess.Popen[bytes]], float], None] | None,
+) -> None:
+    """Until the identification node exits (a crashed peer is noticed by it)."""
+    ident = procs["identification"]
+    deadline = time.monotonic() + timeout_s
+    while ident.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+        if during is not None:
+            during({k: v.popen for k, v in procs.items()}, time.monotonic() - t0)
+
+
+def _result(
+    out: Path,
+    rc: Mapping[str, int | None],
+    procs: Mapping[str, _Proc],
+    logs: dict[str, Path],
+    t0: float,
+) -> BringupResult:
     bag = _newest_bag(out)
-    result = status = None
+    result = None
     if bag is not None and (bag / "parameters.json").is_file():
         result = json.loads((bag / "parameters.json").read_text())
     elif (out / "parameters.json").is_file():
@@ -328,7 +363,7 @@ def run_session(
         driver_rc=rc.get("driver"),
         bag=bag,
         result=result,
-        status=status,
+        status=None,
         wall_s=time.monotonic() - t0,
         logs=logs,
         cpu_s={name: p.cpu_s for name, p in procs.items()},
@@ -369,10 +404,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         prog="bringup",
         description="Run one identification session: driver, recorder and identification nodes.",
     )
-    parser.add_argument("--motor", default="seed000_ebike", help="built-in motor or YAML path")
-    parser.add_argument("--output-dir", default="pmdc_sessions", help="where bags go")
+    parser.add_argument(
+        "--motor", default=DRIVER["motor"].default, help="built-in motor or YAML path"
+    )
+    parser.add_argument("--output-dir", default=RECORDER["output_dir"].default, help="bags")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: env)")
-    parser.add_argument("--backend", default="sim", choices=("sim", "serial"))
+    parser.add_argument(
+        "--backend", default=DRIVER["backend"].default, choices=DRIVER["backend"].choices
+    )
     parser.add_argument("--port", default=None, help="serial port (backend serial)")
     parser.add_argument(
         "-p",

@@ -203,7 +203,8 @@ IDENTIFICATION = ParameterTable(
         "the nominal motor's mechanical time constant tau_m (or of tau_m_s when set)."
     ),
     entries=(
-        P("motor", "seed000_ebike", "nominal motor sizing the plan (built-in name or YAML path)"),
+        P("motor", DRIVER["motor"].default,
+          "nominal motor sizing the plan (built-in name or YAML path)"),
         P("tau_m_s", 0.0, "rough mechanical time constant, s (0 = the nominal motor's)",
           0.0, 1000.0),
         P("rate_hz", 0.0, "driver sample rate, Hz (0 = read from the driver)", 0.0, 20000.0),
