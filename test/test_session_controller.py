@@ -226,7 +226,7 @@ def test_confirm_safe_repeats_the_safe_command_until_the_driver_shows_it():
 def test_an_unconfirmed_safe_state_is_an_error_after_the_timeout():
     ports = Ports(service_ready=False)
     c = SessionController(_config(settle_s=0.0, safe_mode="open", confirm_timeout_s=0.5), ports)
-    c.start(autostart=False, now_s=0.0)
+    c.start(autostart=True, now_s=0.0)  # preparing: a stop cuts that short
     c.request_stop()
     c.tick(0.1)
     assert c.finished and c.exit_code == 130 and ports.status[-1]["state"] == "stopped"
@@ -237,6 +237,15 @@ def test_an_unconfirmed_safe_state_is_an_error_after_the_timeout():
     )
     c.confirm_tick(0.7)
     assert not c.confirming and "could NOT confirm the safe state" in ports.logs[-1][1]
+
+
+def test_a_stop_while_idle_is_a_clean_exit():
+    ports = Ports()
+    c = SessionController(_config(), ports)
+    c.start(autostart=False, now_s=0.0)
+    c.request_stop()
+    c.tick(0.1)
+    assert c.finished and c.exit_code == 0 and ports.sent == [0.0]  # safe all the same
 
 
 def test_a_lost_recorder_aborts_the_running_session():

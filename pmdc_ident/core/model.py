@@ -575,6 +575,19 @@ class Plant:
         self._state = np.zeros(5)
         self._state[4] = 1.0 if self._coef[_TC] + self._coef[_TS] > 0.0 else 0.0
         self.samples = 0
+        # Load (or compile) the kernel now, not inside the first step a real-time caller
+        # waits for: a driver's clock is running by then (a late first poll was a
+        # 'host stall' of ~1.4 s at start-up under ros2 launch).
+        effects_kernel(
+            np.zeros(0),
+            self._coef,
+            self._phi,
+            self._gam,
+            self.dt_s / self.substeps,
+            self.substeps,
+            self._varying,
+            self._state.copy(),
+        )
 
     @property
     def time_s(self) -> float:

@@ -367,7 +367,14 @@ class SessionController:
 
     # -- ways out ------------------------------------------------------------------------
     def _stop(self, reason: AbortReason, now_s: float) -> None:
-        """Ctrl-C / SIGTERM: abort a running session, make the motor safe, finish."""
+        """Ctrl-C / SIGTERM: abort a running session, make the motor safe, finish.
+
+        The exit status is 130 when the stop cut something short (a session being
+        prepared, run, flushed or identified); a node stopped while idle or after its
+        work exits as it stands (0 unless something failed), as ``ros2 launch``
+        expects of a node it stops."""
+        if self.phase not in (Phase.IDLE, Phase.FINISHED):
+            self.exit_code = EXIT_INTERRUPTED
         if self.phase is Phase.RUNNING and self.session is not None:
             self._apply(self.session.abort(reason, None, f"{reason.value} by signal"), now_s)
         else:
@@ -379,7 +386,6 @@ class SessionController:
             self._publish_status("stopped", reason=reason.value)
             self.confirmation.start(self._last_stamp_ns, now_s)
         self.finished = True
-        self.exit_code = EXIT_INTERRUPTED
 
     def _on_aborted(self, now_s: float) -> None:
         s = self.session
