@@ -33,7 +33,6 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from std_msgs.msg import String  # noqa: E402
 
 from pmdc_ident.core.stream_join import StampJoiner  # noqa: E402
-from pmdc_ident.nodes.monitor_node import PARAMETERS  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 K_HEAT = 0.002  # 1/(A^2 s): R rises fast enough to cross +20 % within seconds
@@ -158,12 +157,6 @@ def test_the_suggestion_is_latched_and_reset_by_service(session):  # noqa: D103
     while time.monotonic() < end and got["suggest"][-1]["suggest_reidentify"]:
         client.spin_once(0.05)
     assert got["suggest"][-1]["suggest_reidentify"] is False
-
-
-def test_config_defaults_match_the_declared_parameters():
-    data = yaml.safe_load((REPO / "config" / "monitor.yaml").read_text())
-    declared = {k: v[0] for k, v in PARAMETERS.items()}
-    assert data["/**"]["ros__parameters"] == declared
 
 
 def test_a_missing_motor_file_is_one_line_and_exit_2(tmp_path, ros_domain):

@@ -18,18 +18,12 @@ publishes:
 from __future__ import annotations
 
 import json
-import signal
 import sys
 from dataclasses import fields
 from typing import Any
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -39,57 +33,14 @@ from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.stream_join import StampJoiner
 from pmdc_ident.dataio.bagio import parse_joint_state
+from pmdc_ident.nodes.parameter_tables import MONITOR
+from pmdc_ident.nodes.parameters import declare
+from pmdc_ident.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, LATCHED_QOS, sample_qos
+from pmdc_ident.nodes.runtime import run_node
 
-__all__ = ["PARAMETERS", "MonitorNode", "main"]
+__all__ = ["MonitorNode", "main"]
 
 NODE_NAME = "monitor_node"
-
-# name -> (default, description, lower, upper): the one declaration table of this node.
-PARAMETERS: dict[str, tuple[Any, str, float | None, float | None]] = {
-    "params": (
-        "seed000_ebike",
-        "identified motor YAML (`identify --yaml`) or built-in",
-        None,
-        None,
-    ),
-    "rate_hz": (1000.0, "driver sample rate, Hz (sizes the subscription queues)", 1.0, 1e5),
-    "process_period_s": (0.02, "samples are fed to the monitor this often, s", 0.001, 1.0),
-    "report_period_s": (0.1, "model_drift publishing period, s", 0.01, 10.0),
-    "diagnostics_period_s": (1.0, "/diagnostics publishing period, s", 0.05, 60.0),
-    "r_warn_rel": (0.10, "R rise for WARN, relative to the identified R", 0.0, 10.0),
-    "r_error_rel": (0.20, "R rise for ERROR, relative", 0.0, 10.0),
-    "ke_warn_rel": (0.05, "Ke change for WARN, relative", 0.0, 1.0),
-    "ke_error_rel": (0.10, "Ke change for ERROR, relative", 0.0, 1.0),
-    "friction_warn_nm": (0.0, "friction rise for WARN, N*m (0: identified friction)", 0.0, 1e4),
-    "friction_error_nm": (0.0, "friction rise for ERROR, N*m (0: 3x the WARN step)", 0.0, 1e4),
-    "delay_warn_s": (0.002, "delay change for WARN, s", 0.0, 1.0),
-    "delay_error_s": (0.010, "delay change for ERROR, s", 0.0, 1.0),
-    "hold_s": (1.0, "a higher level must be proven again this much later, s", 0.01, 600.0),
-    "suggest_after_s": (30.0, "WARN this long latches the re-identify suggestion, s", 0.1, 1e5),
-}
-LATCHED_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
-
-
-def _descriptor(desc: str, default: Any, lo: float | None, hi: float | None) -> Any:
-    d = ParameterDescriptor(description=desc, read_only=True)
-    if lo is not None and hi is not None and isinstance(default, float):
-        d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
-    return d
-
-
-def _sample_qos(rate_hz: float) -> QoSProfile:
-    """Reliable, two seconds of samples deep (a held-up node loses nothing)."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=max(10, int(2.0 * rate_hz)),
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.VOLATILE,
-    )
 
 
 class MonitorNode(Node):
@@ -97,26 +48,30 @@ class MonitorNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        for name, (default, desc, lo, hi) in PARAMETERS.items():
-            self.declare_parameter(name, default, _descriptor(desc, default, lo, hi))
-        p = self._p
+        values = declare(self, MONITOR)
+        self.finished = False  # a signal arrived
+        self.exit_code = 0
+
+        def p(name: str) -> Any:
+            return values[name]
+
         try:
             spec = load_motor(p("params"))
         except PmdcError as exc:
             raise PmdcError(f"parameter params: {exc}") from None
         names = {f.name for f in fields(MonitorConfig)}
         try:
-            config = MonitorConfig(**{k: float(p(k)) for k in PARAMETERS if k in names})
+            config = MonitorConfig(**{k: float(p(k)) for k in MONITOR.names if k in names})
         except PmdcError as exc:
             raise PmdcError(f"parameters: {exc}") from None
         self.monitor = DriftMonitor(spec, config)
         self.joiner = StampJoiner(max_pending=int(2.0 * p("rate_hz")))
         self.latest: DriftReport | None = None
         self._suggested = False
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.pub_drift = self.create_publisher(String, "model_drift", 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
+        self.pub_drift = self.create_publisher(String, "model_drift", COMMAND_QOS)
         self.pub_suggest = self.create_publisher(String, "reidentify_suggested", LATCHED_QOS)
-        qos = _sample_qos(float(p("rate_hz")))
+        qos = sample_qos(float(p("rate_hz")), seconds=2.0)
         self.create_subscription(JointState, "voltage_applied", self._on_voltage, qos, raw=True)
         self.create_subscription(JointState, "current", self._on_current, qos, raw=True)
         self.create_subscription(JointState, "encoder", self._on_encoder, qos, raw=True)
@@ -126,8 +81,15 @@ class MonitorNode(Node):
         self._publish_suggestion()
         self.get_logger().info(f"monitoring motor '{spec.name}' against {p('params')}")
 
-    def _p(self, name: str) -> Any:
-        return self.get_parameter(name).value
+    # -- ManagedNode (pmdc_ident.nodes.runtime) ---------------------------------------------
+    def request_stop(self) -> None:
+        self.finished = True
+
+    def wind_down(self, spin_once: Any) -> None:
+        """Nothing to finish."""
+
+    def close(self) -> list[str]:
+        return []
 
     # Raw subscriptions: CDR decoded by parse_joint_state, no message objects.
     def _on_voltage(self, raw: bytes) -> None:
@@ -217,44 +179,8 @@ def diagnostic_status(name: str, r: DriftReport | None, node: MonitorNode) -> Di
     return st
 
 
-def _executor() -> Any:
-    """rclpy's EventsExecutor where it exists (several times less overhead per message
-    at 3 kHz of driver samples), else the SingleThreadedExecutor."""
-    try:
-        from rclpy.experimental import EventsExecutor
-
-        return EventsExecutor()
-    except ImportError:
-        from rclpy.executors import SingleThreadedExecutor
-
-        return SingleThreadedExecutor()
-
-
 def main(args: list[str] | None = None) -> int:
-    # Own signal handling: SIGINT/SIGTERM end the spin loop below (the EventsExecutor's
-    # spin() does not return on rclpy's default handlers).
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop: list[int] = []
-    signal.signal(signal.SIGINT, lambda signum, _frame: stop.append(signum))
-    signal.signal(signal.SIGTERM, lambda signum, _frame: stop.append(signum))
-    node: MonitorNode | None = None
-    status = 0
-    try:
-        node = MonitorNode()
-        executor = _executor()
-        executor.add_node(node)
-        while rclpy.ok() and not stop:
-            executor.spin_once(timeout_sec=0.05)
-    except PmdcError as exc:
-        print(f"{NODE_NAME}: {exc}", file=sys.stderr, flush=True)
-        status = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return status
+    return run_node(NODE_NAME, MonitorNode, args)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,7 @@
 """Every node parameter, declared once: name, type, default, range, description.
 
-One table per node (:data:`DRIVER`, :data:`IDENTIFICATION`, :data:`RECORDER`) is the
+One table per node (:data:`DRIVER`, :data:`IDENTIFICATION`, :data:`RECORDER`,
+:data:`MONITOR`) is the
 only source of the parameters' defaults. The nodes declare them from it
 (:func:`pmdc_ident.nodes.parameters.declare`), and the parameters files in
 ``config/`` and the README's parameter tables are generated from it::
@@ -37,6 +38,7 @@ from pmdc_ident.core.session.steady_state import SteadyStateConfig
 __all__ = [
     "DRIVER",
     "IDENTIFICATION",
+    "MONITOR",
     "RECORDER",
     "TABLES",
     "NodeParameter",
@@ -264,7 +266,36 @@ RECORDER = ParameterTable(
 )
 # fmt: on
 
-TABLES: tuple[ParameterTable, ...] = (DRIVER, IDENTIFICATION, RECORDER)
+# fmt: off
+MONITOR = ParameterTable(
+    node="monitor_node",
+    config="monitor.yaml",
+    header="Drift monitor node (pmdc_ident/nodes/monitor_node.py).",
+    entries=(
+        P("params", DRIVER["motor"].default,
+          "identified motor YAML (`identify --yaml`) or built-in name"),
+        P("rate_hz", 1000.0, "driver sample rate, Hz (sizes the subscription queues)", 1.0, 1e5),
+        P("process_period_s", 0.02, "samples are fed to the monitor this often, s", 0.001, 1.0),
+        P("report_period_s", 0.1, "model_drift publishing period, s", 0.01, 10.0),
+        P("diagnostics_period_s", 1.0, "/diagnostics publishing period, s", 0.05, 60.0),
+        P("r_warn_rel", 0.10, "R rise for WARN, relative to the identified R", 0.0, 10.0),
+        P("r_error_rel", 0.20, "R rise for ERROR, relative", 0.0, 10.0),
+        P("ke_warn_rel", 0.05, "Ke change for WARN, relative", 0.0, 1.0),
+        P("ke_error_rel", 0.10, "Ke change for ERROR, relative", 0.0, 1.0),
+        P("friction_warn_nm", 0.0, "friction rise for WARN, N*m (0: identified friction)",
+          0.0, 1e4),
+        P("friction_error_nm", 0.0, "friction rise for ERROR, N*m (0: 3x the WARN step)",
+          0.0, 1e4),
+        P("delay_warn_s", 0.002, "delay change for WARN, s", 0.0, 1.0),
+        P("delay_error_s", 0.010, "delay change for ERROR, s", 0.0, 1.0),
+        P("hold_s", 1.0, "a higher level must be proven again this much later, s", 0.01, 600.0),
+        P("suggest_after_s", 30.0, "WARN this long latches the re-identify suggestion, s",
+          0.1, 1e5),
+    ),
+)
+# fmt: on
+
+TABLES: tuple[ParameterTable, ...] = (DRIVER, IDENTIFICATION, RECORDER, MONITOR)
 
 
 # ---------------------------------------------------------------------------
