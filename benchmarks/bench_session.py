@@ -34,14 +34,10 @@ from pmdc_ident.dataio.bagio import (  # noqa: E402
 from pmdc_ident.nodes.bringup import run_session  # noqa: E402
 from pmdc_ident.nodes.dds_domain import allocate_domain, lock_domain  # noqa: E402
 
-SHORT = {
-    "sequence.staircase_levels": 3,
-    "sequence.staircase_hold_tau": 5.0,
-    "sequence.step_hold_tau": 5.0,
-    "sequence.sweep_duration_tau": 20.0,
-    "sequence.coast_spinup_tau": 4.0,
-    "sequence.coast_open_s": 1.0,
-}
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))  # test helpers
+from helpers.plans import SHORT_SEQUENCE  # noqa: E402
+
+SHORT = SHORT_SEQUENCE
 
 
 def _cpu_s(pid: int) -> float:

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from helpers.plans import SHORT_SEQUENCE  # noqa: E402
 
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor
 from pmdc_ident.core.motors import load_motor
@@ -34,12 +35,7 @@ REPO = Path(__file__).resolve().parents[1]
 DT = 1e-3
 # A short sequence on the seed-001 motor (tau_m = 50 ms): about 5 s of driver time.
 SHORT = {
-    "sequence.staircase_levels": 3,
-    "sequence.staircase_hold_tau": 5.0,
-    "sequence.step_hold_tau": 5.0,
-    "sequence.sweep_duration_tau": 20.0,
-    "sequence.coast_spinup_tau": 4.0,
-    "sequence.coast_open_s": 1.0,
+    **SHORT_SEQUENCE,
     # This machine is shared (2 cores, other test suites running): tolerate 1.5 s of
     # scheduling stalls instead of the 0.5 s default, except where a test says otherwise.
     "safety.data_timeout_s": 1.5,

@@ -13,6 +13,7 @@ from dataclasses import replace
 from typing import Any
 
 import pytest
+from helpers.plans import SHORT_SEQUENCE
 
 from pmdc_ident.core.enums import AbortReason, SafeMode
 from pmdc_ident.core.excitation import SequenceConfig
@@ -36,13 +37,7 @@ DT = 1e-3
 MOTOR = load_motor("seed001_110v")
 DRIVER = {"voltage_limit_v": 110.0, "current_limit_a": 0.0, "speed_limit_rad_s": 0.0,
           "motor": "seed001_110v", "rate_hz": 1000.0}  # fmt: skip
-SHORT = {
-    "sequence.staircase_levels": 3,
-    "sequence.staircase_hold_tau": 5.0,
-    "sequence.step_hold_tau": 5.0,
-    "sequence.sweep_duration_tau": 20.0,
-    "sequence.coast_spinup_tau": 4.0,
-}
+SHORT = SHORT_SEQUENCE
 
 
 class Ports:

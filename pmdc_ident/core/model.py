@@ -578,16 +578,7 @@ class Plant:
         # Load (or compile) the kernel now, not inside the first step a real-time caller
         # waits for: a driver's clock is running by then (a late first poll was a
         # 'host stall' of ~1.4 s at start-up under ros2 launch).
-        effects_kernel(
-            np.zeros(0),
-            self._coef,
-            self._phi,
-            self._gam,
-            self.dt_s / self.substeps,
-            self.substeps,
-            self._varying,
-            self._state.copy(),
-        )
+        self._run(np.zeros(0), self._state.copy())
 
     @property
     def time_s(self) -> float:
@@ -619,17 +610,12 @@ class Plant:
             self._history[-1] = v_arr[0]
             delayed = apply_delay(self._history, self._delay_s, self.dt_s)
             v_arr = delayed[-1:]
-        effects_kernel(
-            v_arr,
-            self._coef,
-            self._phi,
-            self._gam,
-            self.dt_s / self.substeps,
-            self.substeps,
-            self._varying,
-            self._state,
-        )
+        self._run(v_arr, self._state)
         self.samples += 1
+
+    def _run(self, v: FloatArray, state: FloatArray) -> None:
+        h = self.dt_s / self.substeps
+        effects_kernel(v, self._coef, self._phi, self._gam, h, self.substeps, self._varying, state)
 
 
 # ---------------------------------------------------------------------------

@@ -125,26 +125,24 @@ class SafetyMonitor:
     # -- checks -----------------------------------------------------------------------
     def check(self, t_s: float, current_a: float, speed_rad_s: float) -> AbortReason | None:
         """The first limit this sample newly trips (``None`` if none)."""
-        new: AbortReason | None = None
-        for reason, message in self._violations(t_s, current_a, speed_rad_s):
-            if reason in self.latched:
-                continue
-            self.latched[reason] = message
-            if new is None:
-                new = reason
-            if self.reason is None:
-                self.reason, self.detail = reason, message
-        return new
+        return self._latch(self._violations(t_s, current_a, speed_rad_s))
 
     def report(self, faults: Fault, t_s: float) -> AbortReason | None:
         """Trips a backend reports in its own fault bits (it trips at the sample itself,
         like board firmware): latched like the monitor's own; the first new one."""
-        new: AbortReason | None = None
+        trips = []
         for reason, bit in _FAULT_OF.items():
-            if not faults & bit or reason in self.latched:
+            if faults & bit:
+                words = reason.value.replace("_", "-")
+                trips.append((reason, f"{words}: tripped by the backend at t={t_s:.3f} s"))
+        return self._latch(trips)
+
+    def _latch(self, trips: list[tuple[AbortReason, str]]) -> AbortReason | None:
+        """Latch the trips not latched yet; the first of them (``None`` if none)."""
+        new: AbortReason | None = None
+        for reason, message in trips:
+            if reason in self.latched:
                 continue
-            words = reason.value.replace("_", "-")
-            message = f"{words}: tripped by the backend at t={t_s:.3f} s"
             self.latched[reason] = message
             if new is None:
                 new = reason

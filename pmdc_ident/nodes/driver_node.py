@@ -57,6 +57,7 @@ from pmdc_ident.backends.status import Level
 from pmdc_ident.nodes.parameter_tables import DRIVER
 from pmdc_ident.nodes.parameters import declare
 from pmdc_ident.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, sample_qos
+from pmdc_ident.nodes.runtime import log as node_log
 from pmdc_ident.nodes.runtime import run_node
 
 __all__ = ["DriverNode", "main"]
@@ -111,14 +112,7 @@ class DriverNode(Node):
         return self._driver
 
     def _log(self, level: str, text: str) -> None:
-        # one call site per severity: rclpy refuses two severities from one line
-        logger = self.get_logger()
-        if level == "error":
-            logger.error(text)
-        elif level == "warning":
-            logger.warning(text)
-        else:
-            logger.info(text)
+        node_log(self, level, text)
 
     # -- ManagedNode (pmdc_ident.nodes.runtime) ---------------------------------------------
     def request_stop(self) -> None:

@@ -58,6 +58,7 @@ from pmdc_ident.nodes.qos import (
     SEGMENT_QOS,
     sample_qos,
 )
+from pmdc_ident.nodes.runtime import log as node_log
 from pmdc_ident.nodes.runtime import run_node
 from pmdc_ident.nodes.settings import controller_config
 
@@ -212,14 +213,7 @@ class IdentificationNode(Node):
         self._worker = IdentificationWorker(job)
 
     def log(self, level: str, text: str) -> None:
-        # one call site per severity: rclpy refuses two severities from one line
-        logger = self.get_logger()
-        if level == "error":
-            logger.error(text)
-        elif level == "warning":
-            logger.warning(text)
-        else:
-            logger.info(text)
+        node_log(self, level, text)
 
 
 def main(args: list[str] | None = None) -> int:

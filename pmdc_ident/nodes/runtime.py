@@ -24,7 +24,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from pmdc_ident.core.errors import PmdcError
 
-__all__ = ["ManagedNode", "events_executor", "run_node"]
+__all__ = ["ManagedNode", "events_executor", "log", "run_node"]
 
 
 class ManagedNode(Protocol):
@@ -41,6 +41,18 @@ class ManagedNode(Protocol):
 
     def close(self) -> list[str]:
         """Release everything (the motor safe first); lines to print on stderr."""
+
+
+def log(node: Node, level: str, text: str) -> None:
+    """``text`` on the node's logger at ``level`` ('info', 'warning' or 'error'): one
+    call site per severity, as rclpy refuses two severities from one line."""
+    logger = node.get_logger()
+    if level == "error":
+        logger.error(text)
+    elif level == "warning":
+        logger.warning(text)
+    else:
+        logger.info(text)
 
 
 def events_executor() -> Executor:
