@@ -234,6 +234,19 @@ def test_an_unconfirmed_safe_state_is_an_error_after_the_timeout():
     assert not c.confirming and "could NOT confirm the safe state" in ports.logs[-1][1]
 
 
+def test_a_stop_mid_session_aborts_it_and_exits_130():
+    ports = Ports()
+    c = SessionController(_config(settle_s=0.0), ports)
+    c.start(autostart=True, now_s=0.0)
+    _ready(c, 0.0)
+    c.tick(0.0)
+    c.on_encoder(1_000_000, 0.0, 0.0, 0.001, 1_000_000)
+    c.request_stop()
+    c.tick(0.02)
+    assert c.session.abort_reason is AbortReason.INTERRUPTED
+    assert c.finished and c.exit_code == 130 and ports.status[-1]["reason"] == "interrupted"
+
+
 def test_a_stop_while_idle_is_a_clean_exit():
     ports = Ports()
     c = SessionController(_config(), ports)

@@ -373,8 +373,7 @@ class SessionController:
         prepared, run, flushed or identified); a node stopped while idle or after its
         work exits as it stands (0 unless something failed), as ``ros2 launch``
         expects of a node it stops."""
-        if self.phase not in (Phase.IDLE, Phase.FINISHED):
-            self.exit_code = EXIT_INTERRUPTED
+        cut_short = self.phase not in (Phase.IDLE, Phase.FINISHED)
         if self.phase is Phase.RUNNING and self.session is not None:
             self._apply(self.session.abort(reason, None, f"{reason.value} by signal"), now_s)
         else:
@@ -386,6 +385,8 @@ class SessionController:
             self._publish_status("stopped", reason=reason.value)
             self.confirmation.start(self._last_stamp_ns, now_s)
         self.finished = True
+        if cut_short:
+            self.exit_code = EXIT_INTERRUPTED
 
     def _on_aborted(self, now_s: float) -> None:
         s = self.session
