@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import signal
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -182,6 +183,9 @@ class IdentificationWorker:
 
 
 def _work(job: IdentificationJob, conn: Any) -> None:
+    # Ctrl-C reaches the whole process group: the node decides (it terminates this
+    # process with SIGTERM when it stops), so no KeyboardInterrupt traceback here.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _normal_priority()  # the fit is batch work: never at the loop's real-time priority
     conn.send(run_identification_job(job))
     conn.close()

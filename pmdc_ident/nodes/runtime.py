@@ -106,19 +106,33 @@ def run_node(
         node.wind_down(lambda timeout_s: ex.spin_once(timeout_sec=timeout_s))
         status = node.exit_code
     except PmdcError as exc:
-        print(f"{name}: {exc}", file=sys.stderr, flush=True)
+        _say(f"{name}: {exc}")
         status = 2
     except ExternalShutdownException:
         pass
     except Exception as exc:  # noqa: BLE001 - one line; the motor is made safe below
-        print(f"{name}: internal error: {exc!r}", file=sys.stderr, flush=True)
+        _say(f"{name}: internal error: {exc!r}")
         status = 1
     finally:
         if node is not None:
-            for line in node.close():
-                print(f"{name}: {line}", file=sys.stderr, flush=True)
-            Node.destroy_node(node)
+            lines = node.close()  # the motor safe first, whatever happens to the output
+            for line in lines:
+                _say(f"{name}: {line}")
+            node.destroy_node()
         elif signals and status == 0:
-            print(f"{name}: stopped during start-up", file=sys.stderr, flush=True)
+            _say(f"{name}: stopped during start-up")
         rclpy.try_shutdown()
+        # Done and safe: a late duplicate signal (ros2 launch may send SIGINT and then
+        # SIGTERM, Ctrl-C reaches the whole group) must not kill the interpreter while
+        # it finalises, which restores the default handlers.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
     return status
+
+
+def _say(text: str) -> None:
+    """One line on stderr; nothing when stderr is gone (ros2 launch killed before us)."""
+    try:
+        print(text, file=sys.stderr, flush=True)
+    except (BrokenPipeError, OSError, ValueError):
+        pass
