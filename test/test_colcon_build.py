@@ -14,10 +14,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers.paths import REPO
 
 pytestmark = pytest.mark.slow
 
-REPO = Path(__file__).resolve().parents[1]
 PACKAGE_CONTENT = ("package.xml", "setup.py", "setup.cfg", "resource", "pmdc_ident", "config")
 OPTIONAL_CONTENT = ("launch",)
 CONSOLE_SCRIPTS = (

@@ -21,10 +21,10 @@ from typing import Any
 
 import pytest
 import yaml
+from helpers.paths import REPO
 
 from pmdc_ident.nodes.parameter_tables import DRIVER, IDENTIFICATION, RECORDER
 
-REPO = Path(__file__).resolve().parents[1]
 # launch arguments whose default is the launch's own choice (said in its docstring)
 LAUNCH_DEFAULTS = {"exit_when_done": "true"}
 TABLES = {t.node: t for t in (DRIVER, IDENTIFICATION, RECORDER)}

@@ -14,8 +14,8 @@ import ast
 from pathlib import Path
 
 import pytest
+from helpers.paths import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 PACKAGE_DIR = REPO / "pmdc_ident"
 
 LAYERS: dict[str, int] = {

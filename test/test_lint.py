@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
+from helpers.paths import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 # Same set as `make lint`; only the ones that exist yet.
 CANDIDATES = ("pmdc_ident", "test", "benchmarks", "launch", "setup.py")
 PATHS = [name for name in CANDIDATES if (REPO / name).exists()]

@@ -16,8 +16,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers.paths import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 PACKAGE_DIR = REPO / "pmdc_ident"
 NODES_DIR = PACKAGE_DIR / "nodes"
 FORBIDDEN = (

@@ -9,7 +9,7 @@ only source of the parameters' defaults. The nodes declare them from it
     python -m pmdc_ident.nodes.parameter_tables --write   # rewrite them
     python -m pmdc_ident.nodes.parameter_tables --check   # exit 1 when they drifted
 
-(``test/test_parameter_tables.py`` runs the check.) The identification node's
+(``test/nodes/test_parameter_tables.py`` runs the check.) The identification node's
 ``sequence.*`` and ``steady_state.*`` entries take their defaults from the core
 dataclasses :class:`~pmdc_ident.core.excitation.SequenceConfig` and
 :class:`~pmdc_ident.core.session.steady_state.SteadyStateConfig`.

@@ -3,10 +3,9 @@ README's tables, and this test fails when they drift."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 import yaml
+from helpers.paths import REPO
 
 from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.session.steady_state import SteadyStateConfig
@@ -18,8 +17,6 @@ from pmdc_ident.nodes.parameter_tables import (
     generated_files,
     main,
 )
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 def _flat(d: dict, prefix: str = "") -> dict:

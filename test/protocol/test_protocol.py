@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from helpers.paths import REPO
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -208,13 +209,12 @@ def test_one_fault_enum_whose_bits_are_the_firmwares():
     """The protocol, every backend and the driver carry pmdc_ident.core.enums.Fault; its
     bits must be the firmware's PMDC_FAULT_* values (the wire format)."""
     import re
-    from pathlib import Path
 
     from pmdc_ident.backends import base, serial_board, sim
     from pmdc_ident.core.enums import Fault
     from pmdc_ident.protocol import board
 
-    header = Path(__file__).parents[1] / "firmware" / "protocol" / "pmdc_protocol.h"
+    header = REPO / "firmware" / "protocol" / "pmdc_protocol.h"
     firmware = {
         name: int(value)
         for name, value in re.findall(r"PMDC_FAULT_(\w+)\s*=\s*(\d+)", header.read_text())

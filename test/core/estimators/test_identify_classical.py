@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from helpers.paths import FIXTURES
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.errors import DataError
@@ -18,7 +17,7 @@ from pmdc_ident.core.estimators.classical import (
 )
 from pmdc_ident.dataio import load_data
 
-FIX = Path(__file__).parent / "fixtures"
+FIX = FIXTURES
 PAPER_KE = 0.0662  # V*s/rad, seed 000 Table 6
 PAPER_J = 0.00099  # kg*m^2, seed 000 Table 6 (one average slope)
 

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from helpers.paths import REPO
 from helpers.plans import SHORT_SEQUENCE  # noqa: E402
 
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor
@@ -31,7 +32,6 @@ from pmdc_ident.nodes.bringup import BringupResult, node_env, priority_setter, r
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
-REPO = Path(__file__).resolve().parents[1]
 DT = 1e-3
 # A short sequence on the seed-001 motor (tau_m = 50 ms): about 5 s of driver time.
 SHORT = {

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import ast
-from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.paths import REPO
 
 from pmdc_ident.benchmark import plant as pl
 from pmdc_ident.benchmark.cases import (
@@ -35,7 +35,7 @@ ALLOWED = {
 
 
 def test_generator_imports_nothing_of_the_candidate_library():
-    root = Path(__file__).resolve().parents[1] / "pmdc_ident" / "benchmark"
+    root = REPO / "pmdc_ident" / "benchmark"
     for mod in GENERATOR:
         tree = ast.parse((root / f"{mod}.py").read_text())
         for node in ast.walk(tree):

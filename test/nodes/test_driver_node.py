@@ -12,10 +12,10 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.paths import REPO
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -32,7 +32,6 @@ from pmdc_ident.core.model import simulate  # noqa: E402
 from pmdc_ident.core.motors import load_motor  # noqa: E402
 from pmdc_ident.nodes.bringup import realtime_thread  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
 RATE_HZ = 1000.0
 DT_NS = 1_000_000
 SPEC = load_motor("seed000_ebike")

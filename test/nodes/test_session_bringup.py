@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import yaml
+from helpers.paths import REPO
 
 from pmdc_ident.nodes.bringup import _ros_args, main, node_env, parameter_table
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 def test_every_child_gets_loopback_dds_and_its_own_domain():

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.paths import FIXTURES
 
 from pmdc_ident.cli import EXIT_USER_ERROR, main
 from pmdc_ident.core.data import Segment
@@ -15,7 +16,7 @@ from pmdc_ident.core.model import Model, simulate
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.dataio.csvio import write_csv
 
-FIX = Path(__file__).parent / "fixtures"
+FIX = FIXTURES
 
 
 @pytest.fixture(scope="module")

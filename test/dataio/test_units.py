@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from motor_records import Motor, simulate, steps, write_csv
+from helpers.motor_records import Motor, simulate, steps, write_csv
 
 from pmdc_ident.cli import EXIT_USER_ERROR, main
 from pmdc_ident.core.errors import DataError

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from helpers.paths import FIXTURES
 
 from pmdc_ident.cli import EXIT_USER_ERROR, main
 from pmdc_ident.core.data import Run
@@ -15,7 +14,6 @@ from pmdc_ident.dataio.bagio import read_bag, write_bag
 from pmdc_ident.dataio.csvio import read_csv, write_csv
 
 DT = 1e-3
-FIXTURES = Path(__file__).resolve().parent / "fixtures"
 CFG = SequenceConfig(
     staircase_levels=2,
     staircase_hold_tau=3.0,

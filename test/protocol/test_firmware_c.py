@@ -19,11 +19,11 @@ from pathlib import Path
 from types import ModuleType
 
 import pytest
+from helpers.paths import REPO
 
 from pmdc_ident.protocol import parse_frame
 from pmdc_ident.protocol.messages import MESSAGE_TYPES, Message
 
-REPO = Path(__file__).resolve().parents[1]
 FW = REPO / "firmware"
 CORE = FW / "protocol" / "pmdc_protocol.c"
 HARNESS = FW / "test" / "pmdc_host_test.c"

@@ -7,12 +7,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.paths import FIXTURES
 
 from pmdc_ident.cli import EXIT_USER_ERROR, main
 from pmdc_ident.dataio.bagio import TOPIC_TYPES, BagWriter, _joint_state, write_bag
 from pmdc_ident.dataio.csvio import read_csv
 
-TABLE = Path(__file__).resolve().parent / "fixtures" / "seed000_table4.csv"
+TABLE = FIXTURES / "seed000_table4.csv"
 DRIVER = {"/encoder": TOPIC_TYPES["encoder"], "/voltage_applied": TOPIC_TYPES["voltage_applied"]}
 
 

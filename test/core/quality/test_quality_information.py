@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 import pytest
-from motor_records import Motor, prbs, simulate, steps, write_csv
+from helpers.motor_records import Motor, prbs, simulate, steps, write_csv
 
 from pmdc_ident.cli import main
 from pmdc_ident.core.quality.information import expected_information, rate_for_inductance_hz

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from motor_records import Motor, simulate, steps, write_csv
+from helpers.motor_records import Motor, simulate, steps, write_csv
 
 from pmdc_ident.cli import main
 

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
+from helpers.paths import FIXTURES
 
 from pmdc_ident.cli import main
 from pmdc_ident.core.params import MotorParams
 
-FIXTURES = Path(__file__).resolve().parent / "fixtures"
 TABLE4 = FIXTURES / "seed000_table4.csv"
 RETARDATION = FIXTURES / "seed000_retardation.csv"
 MEASURED_10V_A = 0.56  # Table 4, I_a at V_a = 10 V

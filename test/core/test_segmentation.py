@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from motor_records import Motor, prbs, simulate, steps, write_csv
+from helpers.motor_records import Motor, prbs, simulate, steps, write_csv
 
 from pmdc_ident.cli import main
 from pmdc_ident.core.data import TestKind

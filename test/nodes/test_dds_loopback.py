@@ -26,10 +26,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+from helpers.paths import REPO
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
-REPO = Path(__file__).resolve().parents[1]
 PROFILE = REPO / "config" / "fastdds_localhost.xml"
 PUBLISH_S = 5.0
 RATE_HZ = 20.0

@@ -12,13 +12,14 @@ import shutil
 from pathlib import Path
 
 import pytest
+from helpers.paths import FIXTURES
 
 from pmdc_ident.cli import EXIT_INTERNAL_ERROR, EXIT_INTERRUPTED, EXIT_USER_ERROR, main
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.dataio.bagio import write_bag
 from pmdc_ident.dataio.csvio import read_csv
 
-FIX = Path(__file__).resolve().parent / "fixtures"
+FIX = FIXTURES
 TABLE = FIX / "seed000_table4.csv"
 MOTOR = "parameters: {R: 1.0, L: 1.0e-3, Ke: 0.1, Kt: 0.1, J: 1.0e-3, B: 1.0e-4}\n"
 

@@ -15,13 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from motor_records import Motor, Record, simulate, steps, write_csv
+from helpers.motor_records import Motor, Record, simulate, steps, write_csv
+from helpers.paths import FIXTURES
 
 from pmdc_ident.cli import EXIT_USER_ERROR, main
 from pmdc_ident.core.quality import GateInput, Severity, check_inputs
 from pmdc_ident.dataio.units import load_input
 
-FIX = Path(__file__).parent / "fixtures"
+FIX = FIXTURES
 CPR = 2048
 
 
@@ -249,7 +250,7 @@ def test_voltage_and_speed_without_current_says_what_it_can_tell(base, tmp_path,
 
 def test_an_analog_filter_on_the_current_sensor_is_a_warning(tmp_path):
     """2 ms RC before the ADC (L/R = 1 ms, 1 kHz): the current rises S-shaped."""
-    from motor_records import Record
+    from helpers.motor_records import Record
 
     up = 20
     v = steps([6, 12, None, -6, 0], 0.4, 1000)

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from helpers.paths import REPO
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -34,7 +35,6 @@ from std_msgs.msg import String  # noqa: E402
 
 from pmdc_ident.core.stream_join import StampJoiner  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
 K_HEAT = 0.002  # 1/(A^2 s): R rises fast enough to cross +20 % within seconds
 
 
