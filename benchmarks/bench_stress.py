@@ -13,6 +13,9 @@ then
 2. runs the driver alone at 5 kHz with one raw subscriber (the recorder's QoS)
    and prints what was delivered.
 
+The nodes run as ``bringup`` starts them (SCHED_RR where the system permits it, else
+nice -5); the 5 kHz driver and its subscriber the same way.
+
 "Published" is the session's sample grid less the samples the driver itself
 skipped after host stalls (it logs each stall with the running count). "Received"
 comes from the node's result (``driver_samples``), "written" from the bag's

@@ -121,7 +121,7 @@ def test_identify_and_export_read_a_cut_bag_and_say_what_was_lost(session_bag, t
         assert seg.n == whole.segments[whole.labels.index(seg.label)].n
     for cmd in (
         ["export", str(bag), "--csv", str(tmp_path / "k.csv")],
-        ["identify", str(bag), "--quiet"],
+        ["identify", str(bag), "--quiet", "--no-holdout", "--model", "linear"],  # the short fit
     ):
         out = subprocess.run(
             [sys.executable, "-m", "pmdc_ident.cli", *cmd],
