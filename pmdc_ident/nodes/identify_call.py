@@ -18,15 +18,16 @@ import multiprocessing
 import os
 import signal
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pmdc_ident.core.data import Run
 from pmdc_ident.core.errors import PmdcError
-from pmdc_ident.core.motors import motor_to_yaml
-from pmdc_ident.core.session.ports import IdentificationJob, IdentificationOutcome
+from pmdc_ident.core.motors import MotorSpec, motor_to_yaml
+from pmdc_ident.core.session.ports import ExportRequest, IdentificationJob, IdentificationOutcome
 from pmdc_ident.core.session.recording import SessionSamples
 from pmdc_ident.dataio.bagio import DriverArrays, assemble_run
 from pmdc_ident.dataio.completeness import Completeness, completeness
@@ -36,7 +37,10 @@ __all__ = [
     "IdentifyOutput",
     "identify_session_run",
     "run_identification_job",
+    "write_session_exports",
 ]
+
+EXPORT_STEM = "identified"  # the exports beside the bag: identified.mjcf.xml, ...
 
 
 @dataclass(frozen=True)
@@ -45,6 +49,12 @@ class IdentifyOutput:
     yaml_text: str  # the motor file of ``pmdc-ident identify --yaml``
     table: str  # the text report the command prints
     values: dict[str, float]
+    spec: MotorSpec  # the identified motor (what the YAML holds)
+
+    def with_entry(self, key: str, value: Any) -> IdentifyOutput:
+        """The same output with ``key`` added to the JSON document."""
+        doc = {**json.loads(self.json_text), key: value}
+        return replace(self, json_text=json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
 
 def identify_session_run(
@@ -71,18 +81,52 @@ def identify_session_run(
         bootstrap=0,
     )
     header = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
+    spec = result.motor_spec(name)
     return IdentifyOutput(
         json_text=json.dumps({**result.to_json_dict(), **(extra or {})}, indent=2, allow_nan=False)
         + "\n",
-        yaml_text=header + motor_to_yaml(result.motor_spec(name)),
+        yaml_text=header + motor_to_yaml(spec),
         table=result.text_report(),
         values={k: p.value for k, p in result.parameters.items()},
+        spec=spec,
     )
+
+
+def write_session_exports(
+    spec: MotorSpec, folder: Path, request: ExportRequest, notes: list[tuple[str, str]]
+) -> dict[str, Any]:
+    """The identified motor's MJCF, URDF, ros2_control and gains files in ``folder``
+    (:func:`pmdc_ident.exports.write_exports`, stem ``identified``).
+
+    Returns the result document's ``exports`` entry (``files`` written, ``error``);
+    never raises: a failure (gains not designable at these settings, a folder not
+    writable) is one warning line in ``notes`` and the entry's ``error``.
+    """
+    from pmdc_ident.exports import write_exports
+
+    try:
+        paths = write_exports(
+            spec,
+            folder,
+            stem=EXPORT_STEM,
+            reduction=request.reduction,
+            sample_rate_hz=request.sample_rate_hz,
+            speed_bandwidth_hz=request.speed_bandwidth_hz or None,
+            phase_margin_deg=request.phase_margin_deg,
+        )
+    except Exception as exc:  # noqa: BLE001 - the identification stands without them
+        why = str(exc) if isinstance(exc, PmdcError | OSError) else repr(exc)
+        notes.append(("warning", f"exports not written: {why}"))
+        return {"files": [], "error": why}
+    names = [p.name for p in paths]
+    notes.append(("info", f"exports written to {folder}: {', '.join(names)}"))
+    return {"files": names, "error": None}
 
 
 def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
     """Identify a finished session's samples and write ``parameters.json`` / ``.yaml``
-    beside its bag: what the identification node runs once a session is over.
+    (and the exports when the job asks for them) beside its bag: what the
+    identification node runs once a session is over.
 
     Runs in a worker process (plain data in and out); never raises: a refusal of the
     data is the outcome's ``error`` with exit code 2, a bug of ours exit code 1.
@@ -100,6 +144,9 @@ def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
             run, job.fixed, name=job.session, extra={"driver_samples": found.to_dict()}
         )
         job.output_dir.mkdir(parents=True, exist_ok=True)
+        if job.exports is not None:
+            made = write_session_exports(result.spec, job.output_dir, job.exports, notes)
+            result = result.with_entry("exports", made)
         (job.output_dir / "parameters.json").write_text(result.json_text)
         (job.output_dir / "parameters.yaml").write_text(result.yaml_text)
     except PmdcError as exc:

@@ -241,6 +241,14 @@ IDENTIFICATION = ParameterTable(
         P("output_dir", "pmdc_sessions", "where results go when no recorder names a bag"),
         P("fix", [""], "identification: fixed values NAME=VALUE (as pmdc-ident identify --fix)"),
         P("session_name", "", "name of the next session (default: session_<UTC time>)"),
+        P("export_models", False, "also write the identified motor for MuJoCo (MJCF), URDF, "
+          "ros2_control and its controller gains beside the bag (identified.*)"),
+        P("export_reduction", 1.0, "exports: gear ratio, motor turns per joint turn",
+          1e-6, 1e6),
+        P("export_speed_bandwidth_hz", 0.0, "exports: speed-loop crossover of the gains, Hz "
+          "(0 = a tenth of the current loop's)", 0.0, 1e5),
+        P("export_phase_margin_deg", 60.0, "exports: phase margin of both loops, deg",
+          20.0, 85.0),
         *_from_dataclass("sequence.", SequenceConfig, _SEQUENCE_TEXT),
         *_from_dataclass("steady_state.", SteadyStateConfig, _STEADY_TEXT),
     ),

@@ -19,6 +19,7 @@ from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.fixed import parse_fix
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.session.controller import ControllerConfig
+from pmdc_ident.core.session.ports import ExportRequest
 from pmdc_ident.core.session.startup import SessionSettings, StartRules
 from pmdc_ident.core.session.steady_state import SteadyStateConfig
 
@@ -84,4 +85,15 @@ def controller_config(
         output_dir=str(v["output_dir"]),
         flush_timeout_s=flush_timeout_s,
         fixed=fixed,
+        exports=_exports(v),
+    )
+
+
+def _exports(v: Mapping[str, Any]) -> ExportRequest | None:
+    if not v["export_models"]:
+        return None
+    return ExportRequest(
+        reduction=float(v["export_reduction"]),
+        speed_bandwidth_hz=float(v["export_speed_bandwidth_hz"]),
+        phase_margin_deg=float(v["export_phase_margin_deg"]),
     )

@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import json
 import math
+import xml.etree.ElementTree as ET
 from dataclasses import replace
 from typing import Any
 
 import pytest
+import yaml
 from helpers.plans import SHORT_SEQUENCE
 
 from pmdc_ident.core.enums import AbortReason, SafeMode
@@ -21,7 +23,11 @@ from pmdc_ident.core.model import Plant
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.safety import SafetyConfig
 from pmdc_ident.core.session.controller import ControllerConfig, Phase, SessionController
-from pmdc_ident.core.session.ports import IdentificationJob, IdentificationOutcome
+from pmdc_ident.core.session.ports import (
+    ExportRequest,
+    IdentificationJob,
+    IdentificationOutcome,
+)
 from pmdc_ident.core.session.startup import (
     ABORT_FRACTION,
     DRIVER_PARAMETERS,
@@ -30,6 +36,7 @@ from pmdc_ident.core.session.startup import (
     build_session,
 )
 from pmdc_ident.core.session.steady_state import SteadyStateConfig
+from pmdc_ident.exports import EXPORT_FILES
 from pmdc_ident.nodes.parameter_tables import IDENTIFICATION
 from pmdc_ident.nodes.settings import controller_config
 
@@ -275,9 +282,9 @@ def test_a_lost_recorder_aborts_the_running_session():
     }
 
 
-def test_a_whole_session_closed_around_the_plant_hands_every_sample_to_the_identification():
+def _closed_loop(cfg: ControllerConfig) -> tuple[SessionController, Ports]:
+    """A whole session closed around the simulated plant, up to the identification."""
     ports = Ports()
-    cfg = _config(settle_s=0.0, safe_mode="zero", exit_when_done=True)
     c = SessionController(cfg, ports)
     c.start(autostart=True, now_s=0.0)
     _ready(c, 0.0)
@@ -301,7 +308,13 @@ def test_a_whole_session_closed_around_the_plant_hands_every_sample_to_the_ident
         if c.phase is Phase.IDENTIFYING:
             break
     assert ports.jobs, [s["state"] for s in ports.status]
+    return c, ports
+
+
+def test_a_whole_session_closed_around_the_plant_hands_every_sample_to_the_identification():
+    c, ports = _closed_loop(_config(settle_s=0.0, safe_mode="zero", exit_when_done=True))
     job = ports.jobs[0]
+    assert job.exports is None  # export_models is off by default
     events = [m["event"] for m in ports.markers]
     assert events[0] == "session_start" and events[-1] == "session_end"
     assert (
@@ -327,3 +340,36 @@ def test_unknown_parameters_of_the_node_are_refused_in_one_line():
     assert isinstance(_config().session.steady, SteadyStateConfig)
     assert isinstance(_config().session.sequence, SequenceConfig)
     assert isinstance(_config().session, SessionSettings)
+
+
+def test_exports_are_written_beside_the_results_and_a_failed_one_is_one_line(tmp_path):
+    """export_models: the identification job also writes the identified motor's MJCF,
+    URDF, ros2_control and gains files; a failure is a warning and a field of the
+    result, never a failed identification."""
+    from pmdc_ident.nodes.identify_call import run_identification_job, write_session_exports
+
+    cfg = _config(settle_s=0.0, export_models=True, export_reduction=3.0)
+    _, ports = _closed_loop(cfg)
+    job = ports.jobs[0]
+    # the gains' rate is the session's (the driver's 1 kHz)
+    assert job.exports == ExportRequest(reduction=3.0, sample_rate_hz=1000.0)
+    out = run_identification_job(replace(job, output_dir=tmp_path / "ok"))
+    assert not out.error, out.error
+    names = ["identified" + s for s in EXPORT_FILES]
+    assert json.loads(out.json_text)["exports"] == {"files": names, "error": None}
+    assert json.loads((tmp_path / "ok" / "parameters.json").read_text()) == json.loads(
+        out.json_text
+    )
+    mjcf, urdf_text, control, gains = ((tmp_path / "ok" / n).read_text() for n in names)
+    assert ET.fromstring(mjcf).tag == "mujoco"
+    assert ET.fromstring(urdf_text).find("joint/dynamics") is not None
+    assert yaml.safe_load(control) and yaml.safe_load(gains)["verification"]
+    assert ("info", f"exports written to {tmp_path / 'ok'}: {', '.join(names)}") in out.notes
+    # a speed loop the 1 kHz current loop cannot carry: no files, one warning, no raise
+    notes: list[tuple[str, str]] = []
+    spec = load_motor(str(tmp_path / "ok" / "parameters.yaml"))
+    bad = replace(job.exports, speed_bandwidth_hz=400.0)
+    said = write_session_exports(spec, tmp_path / "bad", bad, notes)
+    assert said["files"] == [] and "speed bandwidth 400 Hz" in said["error"], said
+    assert notes == [("warning", f"exports not written: {said['error']}")]
+    assert not (tmp_path / "bad").exists()

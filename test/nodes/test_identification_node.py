@@ -15,6 +15,7 @@ import signal
 import subprocess
 import sys
 import time
+import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ from helpers.plans import SHORT_SEQUENCE  # noqa: E402
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.dataio.bagio import read_bag, read_driver_arrays
+from pmdc_ident.exports import EXPORT_FILES
 from pmdc_ident.nodes.bringup import BringupResult, node_env, priority_setter, run_session
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -179,7 +181,10 @@ def _applied(probe: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
 # ---------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def short_session(tmp_path_factory, module_ros_domain) -> tuple[BringupResult, dict[str, Any]]:
-    return _session(tmp_path_factory.mktemp("short"), module_ros_domain)
+    # with the exports on: the identified motor is also written for MuJoCo, URDF, ...
+    return _session(
+        tmp_path_factory.mktemp("short"), module_ros_domain, ident={"export_models": True}
+    )
 
 
 def test_short_session_completes_and_the_bag_holds_every_driver_sample(short_session):
@@ -285,6 +290,33 @@ def test_session_recovers_the_simulated_motor(short_session):
     assert got["J"] == pytest.approx(truth.J, rel=0.05)
     assert got["B"] == pytest.approx(truth.B, rel=0.05)
     assert (res.bag / "parameters.yaml").is_file()
+
+
+def test_the_node_writes_the_exports_beside_the_bag(short_session):
+    """export_models:=true: MJCF, URDF, ros2_control and gains beside the bag, said in
+    the published result; the MJCF loads in MuJoCo and the URDF parses."""
+    res, _ = short_session
+    assert res.result is not None, _logs(res)
+    names = ["identified" + suffix for suffix in EXPORT_FILES]
+    assert res.result["exports"] == {"files": names, "error": None}, _logs(res)
+    mjcf, urdf_path, control, gains = (res.bag / n for n in names)
+    assert "exports written to" in res.logs["identification"].read_text()
+    assert yaml.safe_load(control.read_text())
+    assert yaml.safe_load(gains.read_text())["sample_rate_hz"] == pytest.approx(1000.0)
+    try:
+        import mujoco
+    except ImportError:
+        assert ET.parse(mjcf).getroot().tag == "mujoco"
+    else:
+        model = mujoco.MjModel.from_xml_path(str(mjcf))
+        assert model.nu == 1 and model.njnt == 1
+    try:
+        from urdf_parser_py.urdf import URDF
+    except ImportError:
+        assert ET.parse(urdf_path).getroot().tag == "robot"
+    else:
+        robot = URDF.from_xml_string(urdf_path.read_text())
+        assert robot.joints[0].dynamics is not None
 
 
 # ---------------------------------------------------------------------------

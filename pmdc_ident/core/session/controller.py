@@ -20,7 +20,7 @@ from __future__ import annotations
 import enum
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -31,6 +31,7 @@ from pmdc_ident.core.session.link import CommandPolicy, Latency, SafeConfirmatio
 from pmdc_ident.core.session.machine import Session, SessionState, SessionStep
 from pmdc_ident.core.session.ports import (
     ControllerPorts,
+    ExportRequest,
     IdentificationJob,
     IdentificationOutcome,
 )
@@ -82,6 +83,7 @@ class ControllerConfig:
     output_dir: str
     flush_timeout_s: float  # longest wait for a session's last samples (the QoS buffer)
     fixed: Mapping[str, float] = field(default_factory=dict)
+    exports: ExportRequest | None = None  # write the exports beside the results
 
 
 class SessionController:
@@ -434,8 +436,16 @@ class SessionController:
                 source=self.peers.recorder_paths.get(s.name) or f"session {s.name}",
                 output_dir=self._output_dir(s.name),
                 fixed=dict(self.config.fixed),
+                exports=self._exports(s),
             )
         )
+
+    def _exports(self, s: Session) -> ExportRequest | None:
+        """The configured exports at the session's sample rate (the gains' rate)."""
+        e = self.config.exports
+        if e is None:
+            return None
+        return replace(e, sample_rate_hz=e.sample_rate_hz or 1.0 / s.dt_s)
 
     def _output_dir(self, session: str) -> Path:
         path = self.peers.recorder_paths.get(session)

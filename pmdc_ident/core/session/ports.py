@@ -10,7 +10,18 @@ from typing import Protocol
 
 from pmdc_ident.core.session.recording import SessionSamples
 
-__all__ = ["ControllerPorts", "IdentificationJob", "IdentificationOutcome"]
+__all__ = ["ControllerPorts", "ExportRequest", "IdentificationJob", "IdentificationOutcome"]
+
+
+@dataclass(frozen=True)
+class ExportRequest:
+    """The identified motor in other tools' formats, written beside the session's results
+    (:func:`pmdc_ident.exports.write_exports`: MJCF, URDF, ros2_control, gains)."""
+
+    reduction: float = 1.0  # motor turns per joint turn
+    speed_bandwidth_hz: float = 0.0  # 0: a tenth of the current loop's crossover
+    phase_margin_deg: float = 60.0
+    sample_rate_hz: float = 0.0  # the gains' rate; 0 until the controller sets the session's
 
 
 @dataclass(frozen=True)
@@ -22,6 +33,7 @@ class IdentificationJob:
     source: str  # the bag's path, or 'session <name>' without a recorder
     output_dir: Path
     fixed: Mapping[str, float]
+    exports: ExportRequest | None = None  # None: no exports
 
 
 @dataclass(frozen=True)
