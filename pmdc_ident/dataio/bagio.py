@@ -281,7 +281,7 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
 
 def _recovered_arrays(p: Path, mcap: Path) -> DriverArrays:
     """The driver topics in the complete chunks of ``mcap``; one line says what was lost."""
-    from pmdc_ident.dataio.mcap_recover import scan_mcap
+    from pmdc_ident.dataio.mcap_recover import cut_markers, scan_mcap
 
     rec = scan_mcap(mcap)
     if not rec.messages:
@@ -292,7 +292,12 @@ def _recovered_arrays(p: Path, mcap: Path) -> DriverArrays:
         raise DataError(msg)
     messages = [(topic, raw) for topic, _, raw in rec.messages if _topic_role(topic)]
     arrays = _arrays_from(p, messages)
-    _log.warning(rec.line())
+    ends = [a[-1] for a in (arrays.encoder_ns, arrays.voltage_ns, arrays.current_ns) if a.size]
+    note = ""
+    if ends and arrays.encoder_ns.size > 1:
+        dt_ns = int(np.median(np.diff(arrays.encoder_ns)))
+        arrays.markers, note = cut_markers(arrays.markers, int(min(ends)), dt_ns)
+    _log.warning(rec.line() + note)
     return arrays
 
 

@@ -13,12 +13,14 @@ a :class:`~pmdc_ident.core.errors.DataError` with one line, never another except
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.session import Marker, MarkerEvent
 
-__all__ = ["Recovered", "scan_mcap", "unfinished"]
+__all__ = ["Recovered", "cut_markers", "scan_mcap", "unfinished"]
 
 MAGIC = b"\x89MCAP0\r\n"
 _OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 1, 2, 3, 4, 5, 6
@@ -60,10 +62,45 @@ class Recovered:
         if self.complete:
             return f"{self.path}: its index and footer are missing or cut: {read}; none lost"
         why = f" ({self.damage})" if self.damage else ""
-        return (
-            f"{self.path}: truncated bag (its recorder did not close it){why}: {read}; "
+        lost = (
             f"lost its last {self.lost_bytes} of {self.size} bytes (a chunk cut short)"
+            if self.lost_bytes
+            else "it ends with a complete chunk (what came after was never written)"
         )
+        return f"{self.path}: truncated bag (its recorder did not close it){why}: {read}; {lost}"
+
+
+def cut_markers(markers: Sequence[Marker], last_ns: int, dt_ns: int) -> tuple[list[Marker], str]:
+    """The segment markers a recovered bag can honour, and what its end cut short, in words.
+
+    The recorder holds driver samples ``hold_s`` before writing them but writes the
+    segment markers as they come, so a killed recorder's bag may hold the end marker
+    of a segment whose last samples were never written. Markers after ``last_ns``
+    (the last sample every driver topic has) are dropped: a segment cut short then has
+    a start and no end and is left out, never read as if whole.
+    """
+    keep: list[Marker] = []
+    for m in markers:
+        t = round(m.t_s * 1e9)
+        # a segment's last sample lies one period before its end marker
+        limit = last_ns + dt_ns + dt_ns // 2 if m.event is MarkerEvent.END else last_ns
+        if t <= limit:
+            keep.append(m)
+    ended = {(m.session, m.label) for m in keep if m.event is MarkerEvent.END}
+    short = [
+        repr(m.label)
+        for m in keep
+        if m.event is MarkerEvent.START and (m.session, m.label) not in ended
+    ]
+    starts = [m for m in keep if m.event is MarkerEvent.SESSION_START]
+    if not starts:
+        return keep, ""
+    into = (last_ns - round(starts[-1].t_s * 1e9)) * 1e-9
+    note = f"; its driver samples end {into:.2f} s into session {starts[-1].session}: "
+    note += f"{len(ended)} complete segment(s)"
+    if short:
+        note += f", {', '.join(short)} cut short and left out"
+    return keep, note
 
 
 def _string(b: memoryview, o: int) -> tuple[str, int]:

@@ -151,3 +151,38 @@ def test_a_killed_writer_leaves_every_chunk_but_the_pending_one(tmp_path):
     assert [m[1] for m in rec.messages] == list(range(30)) and not rec.complete
     w.close()
     assert len(scan_mcap(mcap).messages) == 50
+
+
+def test_a_segment_whose_samples_the_kill_cut_short_is_left_out(session_bag):
+    """The recorder writes markers at once but holds samples: a killed recorder's bag may
+    end a segment's samples before its end marker. That segment is left out, not read short."""
+    from dataclasses import replace
+
+    from pmdc_ident.dataio.bagio import assemble_run
+    from pmdc_ident.dataio.mcap_recover import cut_markers
+
+    arrays = read_driver_arrays(session_bag)
+    whole = assemble_run(arrays)
+    third = whole.segments[2]
+    t0 = round(arrays.markers[0].t_s * 1e9)
+    cut_ns = t0 + round(third.t[third.n // 2] * 1e9)  # samples end half-way through it
+    c, e, v = (getattr(arrays, f"{t}_ns") <= cut_ns for t in ("current", "encoder", "voltage"))
+    term = None if arrays.terminal_v is None else arrays.terminal_v[v]
+    short = {
+        "current_ns": arrays.current_ns[c],
+        "current_a": arrays.current_a[c],
+        "encoder_ns": arrays.encoder_ns[e],
+        "position_rad": arrays.position_rad[e],
+        "speed_rad_s": arrays.speed_rad_s[e],
+        "voltage_ns": arrays.voltage_ns[v],
+        "voltage_v": arrays.voltage_v[v],
+        "terminal_v": term,
+    }
+    cut = replace(arrays, **short)
+    assert [s.label for s in assemble_run(cut).segments][-1] == third.label  # read short
+    markers, note = cut_markers(cut.markers, cut_ns, 1_000_000)
+    part = assemble_run(replace(cut, markers=markers))
+    assert [s.label for s in part.segments] == list(whole.labels[:2])
+    assert [s.n for s in part.segments] == [s.n for s in whole.segments[:2]]
+    assert "2 complete segment(s)" in note and f"'{third.label}' cut short and left out" in note
+    assert f"end {third.t[third.n // 2]:.2f} s into session" in note
