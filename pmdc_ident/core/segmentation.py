@@ -26,7 +26,7 @@ history; the labels can be passed to ``diagnose --holdout``.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from pmdc_ident.core.data import Run, Segment, link_history
 from pmdc_ident.core.quality.timing import time_constants_s
 
-__all__ = ["Piece", "find_segments", "is_unlabeled", "segment_run"]
+__all__ = ["Piece", "contiguous_pieces", "find_segments", "is_unlabeled", "segment_run"]
 
 FloatArray = NDArray[np.float64]
 _MIN_HOLD = 20  # samples: a hold shorter than this is never a step of its own
@@ -261,3 +261,26 @@ def segment_run(run: Run) -> tuple[Run, list[str]]:
     segs = [seg.slice(p.start, p.stop, label=p.label) for p in pieces]
     lines = [p.describe(seg, unit) for p in pieces]
     return Run(link_history(segs), source=run.source), lines
+
+
+def contiguous_pieces(
+    seg: Segment, *, jitter: float = 0.25, min_samples: int = 21
+) -> tuple[list[Segment], int]:
+    """The stretches of ``seg`` between its gaps in time, and the number of gaps.
+
+    A gap is a sample interval off the median period by more than ``jitter`` of it
+    (dropped samples, a paused logger). Each stretch of at least ``min_samples``
+    becomes a segment ``label.1``, ``label.2``... (a fit gives each its own initial
+    state); shorter stretches are left out. A stretch after a gap keeps the heat
+    before it but not the commands (their timing across the gap is unknown).
+    """
+    dt = np.diff(seg.t)
+    breaks = np.flatnonzero(np.abs(dt - seg.dt_s) > jitter * seg.dt_s) + 1
+    bounds = [0, *breaks.tolist(), seg.n]
+    pieces = []
+    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        if hi - lo < min_samples:
+            continue
+        piece = seg.slice(lo, hi, label=f"{seg.label}.{len(pieces) + 1}")
+        pieces.append(piece if lo == 0 else replace(piece, history_voltage=None))
+    return pieces, int(breaks.size)

@@ -80,3 +80,55 @@ def test_closed_loop_speed_control_identifies(tmp_path, capsys):
     for name, truth in (("R", 2.0), ("Ke", 0.05), ("J", 2e-5)):
         assert _value(doc, name) == pytest.approx(truth, rel=0.005), name
     assert doc["quality"]["errors"] == 0 and doc["quality"]["warnings"] == 0
+
+
+def test_encoder_counts_from_the_data_enter_the_fit_and_agree_with_the_gate(tmp_path, capsys):
+    """A 256-count encoder, position only: the fit's noise model starts from the step the
+    gate reports (one rule, core.quantisation), and the result says so."""
+    motor = Motor(Tc=0.002)
+    rec = simulate(
+        motor,
+        steps([6, 12, None, -6, 0], 0.4, 1000),
+        1000,
+        substeps=10,
+        noise_current=0.005,
+        counts_per_rev=256,
+    )
+    doc, _ = _identify(write_csv(tmp_path / "enc.csv", rec, drop=("speed",)), capsys)
+    note = [a for a in doc["assumptions"] if a.startswith("position is quantised")]
+    assert note and "an encoder of 256 counts/rev" in note[0], doc["assumptions"]
+    enc = [f for f in doc["quality"]["findings"] if f["code"] == "encoder"]
+    assert enc and enc[0]["value"] == pytest.approx(256, rel=1e-9)
+    assert doc["noise"]["position"] >= 0.95 * (2 * np.pi / 256) / np.sqrt(12)
+    for name in ("R", "Ke", "J"):
+        assert _value(doc, name) == pytest.approx(getattr(motor, name), rel=0.01), name
+
+
+def test_dropped_samples_split_a_segment_into_pieces_that_are_fitted(tmp_path, capsys):
+    """40 samples lost inside one step and 3 inside another: each segment enters the fit
+    as its contiguous pieces (own initial states), the gaps named, not left out."""
+    motor = Motor(Tc=0.002)
+    labels = ("step_up", "step_up_2", "coast", "step_down", "step_down_2")
+    rec = simulate(
+        motor,
+        steps([6, 12, None, -6, 0], 0.4, 1000),
+        1000,
+        substeps=10,
+        noise_current=0.005,
+        noise_speed=0.05,
+        labels=list(np.repeat(labels, 400)),
+    )
+    keep = np.ones(rec.t.size, dtype=bool)
+    keep[450:490] = False
+    keep[1500:1503] = False
+    for name in ("t", "voltage", "current", "speed", "position"):
+        setattr(rec, name, getattr(rec, name)[keep])
+    rec.labels = [lab for lab, k in zip(rec.labels, keep, strict=True) if k]
+    doc, _ = _identify(write_csv(tmp_path / "gaps.csv", rec), capsys)
+    said = " ".join(doc["warnings"])
+    assert "'step_up_2' has 1 gap(s) in time" in said and "step_up_2.1, step_up_2.2" in said
+    assert "'step_down' has 1 gap(s) in time" in said and "left out of the dynamic fit" not in said
+    fitted = set(doc["fit"]["segments"])
+    assert {"step_up_2.1", "step_up_2.2", "step_down.1", "step_down.2"} <= fitted
+    for name in ("R", "L", "Ke", "J"):
+        assert _value(doc, name) == pytest.approx(getattr(motor, name), rel=0.005), name

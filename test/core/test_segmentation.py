@@ -99,3 +99,18 @@ def test_a_few_short_holds_do_not_break_the_segmentation():
     run = Run((Segment("run", t, None, current=current, speed=speed),))
     segmented, lines = segment_run(run)
     assert sum(s.n for s in segmented.segments) == 19
+
+
+def test_contiguous_pieces_cut_at_gaps_and_drop_stubs():
+    from pmdc_ident.core.data import Segment
+    from pmdc_ident.core.segmentation import contiguous_pieces
+
+    t = np.r_[np.arange(100), np.arange(150, 160), np.arange(200, 300)] * 1e-3
+    v = np.where(t < 0.05, 0.0, 6.0)
+    seg = Segment("step_up", t, v, current=np.sin(t), speed=np.cos(t), history_voltage=v[:3])
+    pieces, gaps = contiguous_pieces(seg, min_samples=21)
+    assert gaps == 2
+    assert [p.label for p in pieces] == ["step_up.1", "step_up.2"]  # the 10-sample stub left
+    assert [p.n for p in pieces] == [100, 100] and pieces[1].t[0] == pytest.approx(0.2)
+    assert pieces[0].history_voltage is not None  # the record before it is still contiguous
+    assert pieces[1].history_voltage is None  # the commands across a gap have no timing

@@ -53,6 +53,7 @@ from pmdc_ident.core.motors import Limits
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
 from pmdc_ident.core.progress import ProgressCallback, silent
 from pmdc_ident.core.results import IdentificationResult
+from pmdc_ident.core.segmentation import contiguous_pieces
 
 __all__ = ["ModelChoice", "identify", "merge_runs", "minus_two_log_likelihood"]
 
@@ -151,6 +152,7 @@ def identify(
     freq = _frequency_response(setup, fit, report) if frequency else None
     parameters = _estimates(fit, chosen, widen, setup.current_mode)
     _one_direction_term(setup.dynamic, parameters, report)
+    _quantisation_note(fit, report)
     return IdentificationResult(
         sources=sources,
         model_kind="mechanical" if setup.current_mode else chosen,
@@ -206,15 +208,46 @@ def _setup(
     added = {k: float(v) for k, v in (added_inertia or {}).items() if float(v) > 0.0}
     closure_used, assumptions = _closure(closure, fixed, added, current_mode)
     report = _Report(assumptions)
-    dyn = [s for s in segs if _is_dynamic(s)]
-    skipped = [s for s in segs if not _is_dynamic(s) and s.n > TABLE_MAX_ROWS]
+    dyn = _dynamic_segments(segs, added, report)
+    return _Setup(segs, dyn, fixed, closure_used, added, current_mode), report
+
+
+def _dynamic_segments(
+    segs: Sequence[Segment], added: dict[str, float], report: _Report
+) -> list[Segment]:
+    """The long, regularly sampled segments; one with gaps in time (dropped samples)
+    enters as its contiguous pieces (added inertia carried over), the gaps reported."""
+    dyn: list[Segment] = []
+    skipped: list[Segment] = []
+    for s in segs:
+        if s.n <= TABLE_MAX_ROWS:
+            continue  # a table (staircase levels, coast-down points)
+        if _is_dynamic(s):
+            dyn.append(s)
+            continue
+        pieces, gaps = contiguous_pieces(s, min_samples=TABLE_MAX_ROWS + 1)
+        pieces = [p for p in pieces if _is_dynamic(p)]
+        if not pieces:
+            skipped.append(s)
+            continue
+        dyn += pieces
+        kept = sum(p.n for p in pieces)
+        for p in pieces:
+            if s.label in added:
+                added[p.label] = added[s.label]
+        report.warnings.append(
+            f"segment {s.label!r} has {gaps} gap(s) in time ({_worst_gap([s])}): fitted as "
+            f"{len(pieces)} contiguous piece(s) {', '.join(p.label for p in pieces)}, each "
+            f"from its own initial state ({s.n - kept} sample(s) in pieces too short to fit "
+            "left out)"
+        )
     if skipped:
         report.warnings.append(
             "segments with gaps in time (a sample period off the median by more than 25 %), "
             f"left out of the dynamic fit: {', '.join(s.label for s in skipped)} "
             f"({_worst_gap(skipped)})"
         )
-    return _Setup(segs, dyn, fixed, closure_used, added, current_mode), report
+    return dyn
 
 
 def _closure(
@@ -485,6 +518,18 @@ def _note_choice(chosen: str, model: str, fits: Mapping[str, FitResult], report:
 # ---------------------------------------------------------------------------
 # 5.-6. validation and frequency response
 # ---------------------------------------------------------------------------
+def _quantisation_note(fit: FitResult, report: _Report) -> None:
+    """Each quantised signal the fit used, and the noise its step holds it at."""
+    units = {"current": "A", "speed": "rad/s", "position": "rad"}
+    for name, step in fit.quantisation_steps.items():
+        enc = f" (an encoder of {2 * math.pi / step:.6g} counts/rev)" if name == "position" else ""
+        report.assumptions.append(
+            f"{name} is quantised in steps of {step:.6g} {units[name]}{enc}: the fit's "
+            f"noise model starts from no less than step / sqrt(12) = "
+            f"{step / math.sqrt(12):.3g} {units[name]}, then takes the residuals' level"
+        )
+
+
 def _holdout_segments(dyn: Sequence[Segment]) -> list[Segment]:
     """One segment to predict: a step (prefer step_down), else the last non-sweep one."""
     if len(dyn) < 2:

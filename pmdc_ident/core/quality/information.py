@@ -23,8 +23,8 @@ from pmdc_ident.core.data import Segment
 from pmdc_ident.core.quality.linsim import zoh, zoh_response
 from pmdc_ident.core.quality.physics import noise_level
 from pmdc_ident.core.quality.regress import dynamic, electrical_fit, mechanical_fit
-from pmdc_ident.core.quality.signals import quantum
 from pmdc_ident.core.quality.timing import time_constants_s
+from pmdc_ident.core.quantisation import quantisation_sd, quantum
 
 __all__ = ["Information", "expected_information", "rate_for_inductance_hz"]
 
@@ -305,7 +305,7 @@ def _noise(segments: Sequence[Segment]) -> dict[str, float]:
             if arx is not None:
                 est = min(est, arx)
             q = quantum(x)  # a quantised signal is never quieter than its step / sqrt(12)
-            floor = q.step / math.sqrt(12.0) if q is not None else 0.0
+            floor = quantisation_sd(q.step) if q is not None else 0.0
             vals.append(max(est, floor, 1e-9 * float(np.sqrt(np.mean(x * x)) or 1.0)))
         return float(np.median(vals)) if vals else 1.0
 

@@ -13,15 +13,15 @@ from numpy.typing import NDArray
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.quality.findings import Finding, Severity
 from pmdc_ident.core.quality.regress import dynamic
+from pmdc_ident.core.quantisation import quantum, record_steps
 
 __all__ = [
-    "Quantum",
     "check_clipping",
     "check_columns",
     "check_quantisation",
     "check_wrap",
     "find_wrap",
-    "quantum",
+    "quantum",  # (from core.quantisation, the one rule)
 ]
 
 FloatArray = NDArray[np.float64]
@@ -85,59 +85,31 @@ def check_wrap(where: str, seg: Segment, *, position_declared: bool = False) -> 
     ]
 
 
-class Quantum:
-    """The step of a quantised signal and how many distinct levels it visits."""
-
-    def __init__(self, step: float, levels: int) -> None:
-        self.step = step
-        self.levels = levels
-
-
-def quantum(x: FloatArray) -> Quantum | None:
-    """The step ``q`` when every change of ``x`` is a whole multiple of one ``q``."""
-    d = np.abs(np.diff(x))
-    span = float(np.ptp(x))
-    d = d[(d > 1e-12 * max(span, 1e-300)) & (d < 0.5 * span)]
-    if d.size < 20:
-        return None
-    q0 = float(np.min(d))
-    r = d / q0
-    if float(np.median(r)) > 1e4:
-        return None
-    k = np.round(r)
-    err = np.abs(r - k)
-    if float(np.percentile(err, 95)) > 0.02:
-        return None
-    q = float(np.sum(d * k) / np.sum(k * k))
-    levels = int(np.unique(np.round(x / q)).size)
-    return Quantum(q, levels)
-
-
 def check_quantisation(
     where: str, segments: Sequence[Segment], *, position_declared: bool = False
 ) -> list[Finding]:
-    """Encoder counts per turn from the position's step; a step that is no encoder in rad."""
-    pos = [s.position for s in dynamic(segments) if s.position is not None]
+    """Encoder counts per turn from the position's step; a step that is no encoder in rad.
+
+    The steps come from :func:`core.quantisation.record_steps`, the rule the fit's
+    noise model uses too.
+    """
+    steps = record_steps(dynamic(segments), ("speed", "position"))
     out: list[Finding] = []
-    if pos:
-        q = quantum(np.concatenate([p - p[0] for p in pos]))
-        if q is not None:
-            out += _position_quantum(where, q.step, position_declared)
-    speeds = [s.speed for s in dynamic(segments) if s.speed is not None]
-    if speeds:
-        q = quantum(np.concatenate(speeds))
-        if q is not None:
-            out.append(
-                Finding(
-                    "speed-quantised",
-                    Severity.INFO,
-                    where,
-                    f"speed moves in steps of {q.step:.4g} rad/s ({q.levels} levels): its "
-                    "noise is at least the step / sqrt(12)",
-                    value=q.step,
-                    unit="rad/s",
-                )
+    if "position" in steps:
+        out += _position_quantum(where, steps["position"].step, position_declared)
+    if "speed" in steps:
+        q = steps["speed"]
+        out.append(
+            Finding(
+                "speed-quantised",
+                Severity.INFO,
+                where,
+                f"speed moves in steps of {q.step:.4g} rad/s ({q.levels} levels): its "
+                "noise is at least the step / sqrt(12)",
+                value=q.step,
+                unit="rad/s",
             )
+        )
     return out
 
 

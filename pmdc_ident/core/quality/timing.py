@@ -65,10 +65,10 @@ def check_timing(where: str, segments: Sequence[Segment]) -> list[Finding]:
                     f"{where} [{s.label}]",
                     f"{int(gaps.sum())} gap(s) in the time column, about {missing} sample(s) "
                     f"missing (largest {_fmt_period(float(d.max()))} = "
-                    f"{d.max() / med:.0f} periods at t = {s.t[int(np.argmax(d))]:.6g} s): a "
-                    "segment with gaps is left out of the dynamic fit",
-                    "record without dropped samples, or cut the segment at the gap "
-                    "(a 'segment' column)",
+                    f"{d.max() / med:.0f} periods at t = {s.t[int(np.argmax(d))]:.6g} s): the "
+                    "fit takes the contiguous pieces between gaps, each from its own "
+                    "initial state",
+                    "record without dropped samples (a faster link or logger, a larger buffer)",
                     value=float(missing),
                     unit="samples",
                 )

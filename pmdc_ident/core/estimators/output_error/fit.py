@@ -38,6 +38,7 @@ from pmdc_ident.core.estimators.output_error.simulators import FAST_EFFECTS
 from pmdc_ident.core.estimators.output_error.solver import LMState, levenberg_marquardt
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.params import PARAMETER_NAMES
+from pmdc_ident.core.quantisation import record_steps
 
 __all__ = ["CLOSURE_KT_KE", "fit_output_error"]
 
@@ -91,12 +92,18 @@ def fit_output_error(
     _check_weights(weights)
     fast = set(model.effect_names) <= FAST_EFFECTS
     base = build_model(model, values)
-    noise = initial_noise(segs)
+    # the first weights: an encoder's (any quantised signal's) step over the record, the
+    # gate's rule, floors its noise at step / sqrt(12); the refit then weights by the
+    # residuals (a floor there overweights current when a rotor rests in one count)
+    fitted = [n for n in SIGNALS if any(SIGNALS[idx] == n for ps in segs for idx, _ in ps.outputs)]
+    steps = {k: q.step for k, q in record_steps([ps.seg for ps in segs], fitted).items()}
+    noise = initial_noise(segs, steps)
     prob = Problem(segs, base, values, free_names, tie_kt, fast, noise, weights or {})
     z, lm = _solve(prob, max_nfev, progress, refine_noise)
     result = build_result(
         prob, z, lm, reasons, fixed, closure if tie_kt else None, warnings, t_start
     )
+    result = replace(result, quantisation_steps=steps)
     result = _flag_scale_ambiguity(result)
     if check_inductance and not current_mode:
         result = _flag_from_bound(result, segs, t_start)

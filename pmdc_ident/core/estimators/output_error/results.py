@@ -71,6 +71,8 @@ class FitResult:
     fast_path: bool
     warnings: tuple[str, ...] = ()
     added_inertia: dict[str, float] = field(default_factory=dict)
+    # step of each quantised signal over the record (its first noise level >= step/sqrt(12))
+    quantisation_steps: dict[str, float] = field(default_factory=dict)
     _fitted_segments: dict[str, int] = field(default_factory=dict, repr=False)
 
     def simulate_segments(

@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.errors import DataError, ParameterError
+from pmdc_ident.core.quantisation import quantisation_sd
 
 __all__ = [
     "SIGNALS",
@@ -133,22 +134,32 @@ def prepare_segments(
     return out
 
 
-def noise_level(signal: int, y: FloatArray, seg: Segment) -> float:
-    """Robust white-noise level from second differences, floored by resolution."""
+def noise_level(signal: int, y: FloatArray, seg: Segment, step: float | None = None) -> float:
+    """Robust white-noise level from second differences, floored by resolution.
+
+    ``step``: the signal's quantum over the whole record (``core.quantisation``);
+    without it, the smallest difference between the segment's values.
+    """
     if y.size < 8:
-        return max(1e-9, float(np.std(y)))
+        return max(1e-9, float(np.std(y)), quantisation_sd(step or 0.0))
     d2 = np.diff(y, 2)
     sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
     scale = float(np.max(np.abs(y))) or 1.0
-    step = float(np.min(np.abs(np.diff(np.unique(y))))) if np.unique(y).size > 1 else 0.0
-    floor = max(1e-4 * scale, step / math.sqrt(12.0), 1e-12)
+    if step is None:
+        step = float(np.min(np.abs(np.diff(np.unique(y))))) if np.unique(y).size > 1 else 0.0
+    floor = max(1e-4 * scale, quantisation_sd(step), 1e-12)
     return max(sigma, floor)
 
 
-def initial_noise(segs: list[PreparedSegment]) -> dict[str, float]:
-    """Per signal, the median over segments of :func:`noise_level`."""
+def initial_noise(
+    segs: list[PreparedSegment], steps: Mapping[str, float] | None = None
+) -> dict[str, float]:
+    """Per signal, the median over segments of :func:`noise_level` (``steps``: the
+    quantum of each quantised signal over the record)."""
+    steps = steps or {}
     per: dict[str, list[float]] = {}
     for ps in segs:
         for idx, y in ps.outputs:
-            per.setdefault(SIGNALS[idx], []).append(noise_level(idx, y, ps.seg))
+            name = SIGNALS[idx]
+            per.setdefault(name, []).append(noise_level(idx, y, ps.seg, steps.get(name)))
     return {k: float(np.median(v)) for k, v in per.items()}
