@@ -7,13 +7,15 @@ stderr, reason, method}``; non-finite numbers are written as ``null``.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from pmdc_ident.core.effects import parameter_unit
 from pmdc_ident.core.estimators.output_error import FitResult
+from pmdc_ident.core.params import NEEDED_PARAMETERS
 
-__all__ = ["ParameterEstimate", "estimate_from_fit", "finite_or_none"]
+__all__ = ["ParameterEstimate", "estimate_from_fit", "finite_or_none", "unidentified_needed"]
 
 
 def finite_or_none(x: float) -> float | None:
@@ -64,4 +66,30 @@ def estimate_from_fit(fit: FitResult, name: str, method: str) -> ParameterEstima
         stderr=fit.stderr.get(name),
         reason=fit.reasons.get(name, ""),
         method=method,
+    )
+
+
+def unidentified_needed(
+    params: Mapping[str, ParameterEstimate], free: Sequence[str]
+) -> str | None:
+    """The refusal when a free R, Ke or J is not identifiable (its value a guess), else None.
+
+    One line: which, what would pin each (its flag's own advice) and that ``--fix``
+    holds a known value. L, B and friction may stay flagged: a model runs with them.
+    """
+    bad = [
+        n for n in NEEDED_PARAMETERS if n in free and n in params and not params[n].identifiable
+    ]
+    if not bad:
+        return None
+    tips = []
+    for n in bad:
+        why, _, tip = params[n].reason.partition("; ")
+        tips.append(f"{n}: {tip or why or 'not identifiable'}")
+    verb = "is" if len(bad) == 1 else "are"
+    names = " and ".join([", ".join(bad[:-1]), bad[-1]] if len(bad) > 1 else bad)
+    return (
+        f"{names} {verb} not identifiable from these data (relative standard "
+        f"error above 50 % or no information), so a motor model would hold a guess; "
+        f"{'; '.join(tips)}; --fix {bad[0]}=... holds a value you know; nothing was written"
     )

@@ -29,6 +29,7 @@ from typing import Any
 from pmdc_ident.core.errors import ParameterError
 
 __all__ = [
+    "NEEDED_PARAMETERS",
     "PARAMETER_NAMES",
     "PARAMETER_RANGES",
     "PARAMETER_UNITS",
@@ -37,6 +38,9 @@ __all__ = [
 ]
 
 PARAMETER_NAMES: tuple[str, ...] = ("R", "L", "Ke", "Kt", "J", "B")
+# What a motor model cannot do without: identify refuses a result where one is a guess
+# (L, B and friction may stay flagged: a model runs with them).
+NEEDED_PARAMETERS: tuple[str, ...] = ("R", "Ke", "J")
 PARAMETER_UNITS: dict[str, str] = {
     "R": "ohm",
     "L": "H",

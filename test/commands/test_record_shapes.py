@@ -132,3 +132,29 @@ def test_dropped_samples_split_a_segment_into_pieces_that_are_fitted(tmp_path, c
     assert {"step_up_2.1", "step_up_2.2", "step_down.1", "step_down.2"} <= fitted
     for name in ("R", "L", "Ke", "J"):
         assert _value(doc, name) == pytest.approx(getattr(motor, name), rel=0.005), name
+
+
+def test_a_guessed_r_ke_or_j_is_exit_2_with_what_to_record_unless_fixed(tmp_path, capsys):
+    """Voltage and speed without current: only two combinations of R, Ke, J, B show, so the
+    fit flags R and J. A motor file holding guesses is no answer: one line (exit 2) with
+    what to record, nothing written; --fix R=... (a multimeter) pins what was missing."""
+    motor = Motor(Tc=0.002)
+    rec = simulate(
+        motor,
+        steps([6, 12, None, -6, 0], 0.4, 1000),
+        1000,
+        substeps=10,
+        noise_current=0.005,
+        noise_speed=0.05,
+    )
+    path = write_csv(tmp_path / "nocur.csv", rec, drop=("current", "position"))
+    js, yml = tmp_path / "r.json", tmp_path / "r.yaml"
+    rc = main(["identify", str(path), "--quiet", "--json", str(js), "--yaml", str(yml)])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc == 2
+    assert err.startswith("pmdc-ident identify: error: R and J are not identifiable"), err
+    assert "R: record a step from rest" in err and "--fix R=... holds a value you know" in err
+    assert not js.exists() and not yml.exists()
+    doc, _ = _identify(path, capsys, "--fix", "R=2")
+    assert doc["parameters"]["J"]["identifiable"] and doc["parameters"]["Ke"]["identifiable"]
+    assert _value(doc, "Ke") == pytest.approx(0.05, rel=0.005)

@@ -32,7 +32,7 @@ import numpy as np
 from pmdc_ident.core.data import Run, Segment, TestKind, check_excitation, unique_labels
 from pmdc_ident.core.effects import CoulombFriction, parameter_unit
 from pmdc_ident.core.errors import DataError, ParameterError, PmdcError
-from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit
+from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit, unidentified_needed
 from pmdc_ident.core.estimators.classical import ClassicalResult, CoastFit, classical_chain
 from pmdc_ident.core.estimators.equation_error import (
     EquationErrorResult,
@@ -151,6 +151,9 @@ def identify(
         )
     freq = _frequency_response(setup, fit, report) if frequency else None
     parameters = _estimates(fit, chosen, widen, setup.current_mode)
+    refusal = unidentified_needed(parameters, fit.free)
+    if refusal is not None:  # a motor file with a guessed R, Ke or J is no answer: exit 2
+        raise DataError(refusal)
     _one_direction_term(setup.dynamic, parameters, report)
     _quantisation_note(fit, report)
     return IdentificationResult(

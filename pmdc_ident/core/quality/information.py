@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment
+from pmdc_ident.core.params import NEEDED_PARAMETERS
 from pmdc_ident.core.quality.linsim import zoh, zoh_response
 from pmdc_ident.core.quality.physics import noise_level
 from pmdc_ident.core.quality.regress import dynamic, electrical_fit, mechanical_fit
@@ -468,6 +469,9 @@ def information_findings(where: str, segments: Sequence[Segment], fixed: Mapping
                 "not identifiable" if bad else "weakly identifiable"
             )
             severity = Severity.WARNING if bad else Severity.INFO
+            if bad and name in NEEDED_PARAMETERS:
+                # a prediction: the fit's own bound decides (it can be tighter than this)
+                text += " (identify refuses the result if its fit's bound agrees)"
         else:
             # the samples do not resolve the time constant: only indirect effects (the
             # current's lag behind the back-EMF, the speed's average response) remain,
