@@ -1,6 +1,6 @@
 """Record shapes and unit slips of issue 9: what `pmdc-ident` makes of each (a table).
 
-Each record comes from the independent RK4 motor of ``test/motor_records.py`` (not
+Each record comes from the independent RK4 motor of ``test/helpers/motor_records.py`` (not
 the package's simulator) and is written under ``--out DIR`` (default a temporary
 folder), so every row's command can be re-run by hand. For a shape that should
 identify, the row gives the largest error of R, Ke, J (and L where the record
@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 
-from motor_records import Motor, Record, prbs, simulate, steps, write_csv  # noqa: E402
+from helpers.motor_records import Motor, Record, prbs, simulate, steps, write_csv  # noqa: E402
 
 from pmdc_ident.cli import main  # noqa: E402
 
