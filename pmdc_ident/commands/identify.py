@@ -216,6 +216,9 @@ def run(args: argparse.Namespace) -> int:
         progress=progress,
         added_inertia=added,
     )
+    from pmdc_ident.core.quality.bias import flag_biased
+
+    result = flag_biased(result, report.findings, fixed)
     print(result.text_report(), file=text_out)
     body = result.to_json_dict()
     body.update(input_json(inputs, report))

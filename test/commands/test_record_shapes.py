@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
-from helpers.motor_records import Motor, simulate, steps, write_csv
+from helpers.motor_records import Motor, filtered_current, prbs, simulate, steps, write_csv
 
 from pmdc_ident.cli import main
 
@@ -158,3 +159,52 @@ def test_a_guessed_r_ke_or_j_is_exit_2_with_what_to_record_unless_fixed(tmp_path
     doc, _ = _identify(path, capsys, "--fix", "R=2")
     assert doc["parameters"]["J"]["identifiable"] and doc["parameters"]["Ke"]["identifiable"]
     assert _value(doc, "Ke") == pytest.approx(0.05, rel=0.005)
+
+
+@pytest.mark.parametrize("case", ["50hz-prbs-12-count-speed", "20khz-lr-0.14ms"])
+def test_sample_rates_from_50_hz_to_20_khz(tmp_path, capsys, case):
+    """A small geared motor at 50 Hz driven by a PRBS with a 12-count speed sensor (the
+    rotor settles within ~2 samples), and a small motor at 20 kHz (L/R = 0.14 ms)."""
+    if case.startswith("50hz"):
+        m = Motor(R=8.0, L=2e-3, Ke=0.008, Kt=0.008, J=2e-7, B=1e-8, Tc=2e-5)
+        rec = simulate(m, prbs(1000, 6.0, 1, seed=3), 50, substeps=100, noise_current=0.003)
+        q = 2 * math.pi / 12 / 0.02  # 12 counts per turn, counted over each 20 ms sample
+        rec.speed = np.round(rec.speed / q) * q
+        names, rel = ("R", "Ke", "J"), 0.01
+    else:
+        m = Motor(R=3.5, L=0.49e-3, Ke=0.012, Kt=0.012, J=1e-6, B=1e-8)
+        rec = simulate(
+            m,
+            steps([3, 6, -3, 0], 0.1, 20000),
+            20000,
+            substeps=4,
+            noise_current=0.002,
+            noise_speed=0.2,
+        )
+        names, rel = ("R", "L", "Ke", "J"), 0.005
+    doc, _ = _identify(write_csv(tmp_path / "rate.csv", rec, drop=("position",)), capsys)
+    for name in names:
+        assert _value(doc, name) == pytest.approx(getattr(m, name), rel=rel), name
+        assert doc["parameters"][name]["identifiable"], name
+    if case.startswith("50hz"):  # L/R = 0.25 ms against a 20 ms sample: said, with what biases it
+        assert "below the sample period 20 ms" in doc["parameters"]["L"]["reason"]
+
+
+def test_a_filtered_current_sensor_flags_l_and_keeps_r_ke_j(tmp_path, capsys):
+    """A 2 ms RC filter before the current ADC (L/R = 1 ms, 1 kHz): the fit reads the
+    filter's lag as inductance (L 2.1x, with a tight interval). The gate sees the S-shaped
+    rise, so L is marked not identifiable with the finding and its fix; R, Ke, J stay."""
+    motor = Motor(Tc=0.002)
+    rec = filtered_current(motor, steps([6, 12, None, -6, 0], 0.4, 1000), 1000, 2e-3)
+    doc, out = _identify(write_csv(tmp_path / "rc.csv", rec), capsys)
+    L = doc["parameters"]["L"]
+    assert not L["identifiable"] and L["ci95"] is None
+    assert L["reason"].startswith("the current sensor filters") and "--fix L=" in L["reason"]
+    assert "NOT IDENTIFIABLE the current sensor filters" in out
+    assert any("L (current-filter)" in w for w in doc["warnings"])
+    assert _value(doc, "R") == pytest.approx(2.0, rel=0.03)
+    assert _value(doc, "Ke") == pytest.approx(0.05, rel=0.005)
+    assert _value(doc, "J") == pytest.approx(2e-5, rel=0.05)
+    # an L the user knows is left alone
+    doc, _ = _identify(write_csv(tmp_path / "rc2.csv", rec), capsys, "--fix", "L=2e-3")
+    assert doc["parameters"]["L"]["reason"] == "fixed by the user"

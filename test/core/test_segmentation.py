@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from helpers.motor_records import Motor, prbs, simulate, steps, write_csv
@@ -114,3 +116,13 @@ def test_contiguous_pieces_cut_at_gaps_and_drop_stubs():
     assert [p.n for p in pieces] == [100, 100] and pieces[1].t[0] == pytest.approx(0.2)
     assert pieces[0].history_voltage is not None  # the record before it is still contiguous
     assert pieces[1].history_voltage is None  # the commands across a gap have no timing
+
+
+def test_found_segments_are_holdout_labels_for_diagnose(continuous, tmp_path, capsys):
+    js = tmp_path / "d.json"
+    argv = ["diagnose", str(continuous), "--holdout", "step_up_2", "--quiet"]
+    rc = main([*argv, "--effects", "coulomb_friction", "--json", str(js)])
+    assert rc == 0, capsys.readouterr().err
+    split = json.loads(js.read_text())["holdout"]
+    assert split["rule"] == "user" and split["held_out_segments"] == ["step_up_2"]
+    assert "step_up_2" not in split["fit_segments"] and "sweep_1" in split["fit_segments"]

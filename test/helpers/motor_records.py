@@ -112,6 +112,36 @@ def simulate(
     return Record(np.arange(n) * dt, voltage.astype(float), cur, spd, th_out, labels or [])
 
 
+def filtered_current(
+    m: Motor,
+    voltage: np.ndarray,
+    rate_hz: float,
+    tau_s: float,
+    *,
+    up: int = 20,
+    noise_current: float = 0.005,
+    noise_speed: float = 0.05,
+    seed: int = 0,
+) -> Record:
+    """A record whose current sensor sits behind a first-order RC filter of ``tau_s``
+    (simulated ``up`` times faster than it is sampled, filtered, then decimated)."""
+    fine = simulate(m, np.repeat(voltage, up), rate_hz * up, substeps=1)
+    a = math.exp(-1.0 / (tau_s * rate_hz * up))
+    f = np.empty_like(fine.current)
+    f[0] = fine.current[0]
+    for k in range(1, f.size):
+        f[k] = a * f[k - 1] + (1 - a) * fine.current[k]
+    rng = np.random.default_rng(seed)
+    n = voltage.size
+    return Record(
+        fine.t[::up],
+        np.asarray(voltage, dtype=float),
+        f[::up] + rng.normal(0, noise_current, n),
+        fine.speed[::up] + rng.normal(0, noise_speed, n),
+        fine.position[::up],
+    )
+
+
 def steps(levels: list[float | None], seconds_each: float, rate_hz: float) -> np.ndarray:
     """A staircase of held voltages (``None`` = armature open)."""
     n = int(round(seconds_each * rate_hz))

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers.motor_records import Motor, Record, simulate, steps, write_csv
+from helpers.motor_records import Motor, Record, filtered_current, simulate, steps, write_csv
 from helpers.paths import FIXTURES
 
 from pmdc_ident.cli import EXIT_USER_ERROR, main
@@ -250,24 +250,8 @@ def test_voltage_and_speed_without_current_says_what_it_can_tell(base, tmp_path,
 
 def test_an_analog_filter_on_the_current_sensor_is_a_warning(tmp_path):
     """2 ms RC before the ADC (L/R = 1 ms, 1 kHz): the current rises S-shaped."""
-    from helpers.motor_records import Record
-
-    up = 20
     v = steps([6, 12, None, -6, 0], 0.4, 1000)
-    fine = simulate(Motor(Tc=0.002), np.repeat(v, up), 1000 * up, substeps=1)
-    a = math.exp(-1.0 / (2e-3 * 1000 * up))
-    filtered = np.empty_like(fine.current)
-    filtered[0] = fine.current[0]
-    for k in range(1, filtered.size):
-        filtered[k] = a * filtered[k - 1] + (1 - a) * fine.current[k]
-    rng = np.random.default_rng(0)
-    rec = Record(
-        fine.t[::up],
-        v,
-        filtered[::up] + rng.normal(0, 0.005, v.size),
-        fine.speed[::up] + rng.normal(0, 0.05, v.size),
-        fine.position[::up],
-    )
+    rec = filtered_current(Motor(Tc=0.002), v, 1000, 2e-3)
     x = load_input(write_csv(tmp_path / "rc.csv", rec))
     found = [
         f for f in check_inputs([GateInput(x.path, x.run)]).findings if f.code == "current-filter"
@@ -275,7 +259,8 @@ def test_an_analog_filter_on_the_current_sensor_is_a_warning(tmp_path):
     assert found and found[0].severity is Severity.WARNING
     assert found[0].value > 1.2
     # the same motor with an unfiltered sensor: no such finding (see the clean test too)
-    y = load_input(write_csv(tmp_path / "raw.csv", replace(rec, current=fine.current[::up])))
+    raw = simulate(Motor(Tc=0.002), np.repeat(v, 20), 20000, substeps=1).current[::20]
+    y = load_input(write_csv(tmp_path / "raw.csv", replace(rec, current=raw)))
     assert not [
         f for f in check_inputs([GateInput(y.path, y.run)]).findings if f.code == "current-filter"
     ]
