@@ -72,6 +72,8 @@ _EVENTS = (
     ("identification", "identification ready", "identification node ready"),
     ("identification", "session ", "session started (plan sent, driver found)"),
     ("identification", "session ", "session complete (last segment ended)"),
+    ("identification", "session ", "last samples in, identification started"),
+    ("identification", "session ", "identification worker done"),
     ("identification", "session ", "identified, result published"),
 )
 
@@ -85,6 +87,8 @@ def _timeline(logs: dict, t0: float, t1: float) -> list[tuple[str, float]]:
     needles = {
         "session started (plan sent, driver found)": " segments, nominal ",
         "session complete (last segment ended)": " complete: ",
+        "last samples in, identification started": "; identifying",
+        "identification worker done": " in the worker",
         "identified, result published": ": identified from ",
     }
     out = []

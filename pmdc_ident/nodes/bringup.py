@@ -186,6 +186,11 @@ class _Proc:
             time.sleep(0.02)
         return self.popen.returncode
 
+    def interrupt(self) -> None:
+        """Ask the node to stop (SIGINT) without waiting for it."""
+        if self.poll() is None:
+            self.popen.send_signal(signal.SIGINT)
+
     def stop(self, timeout_s: float = 10.0) -> int | None:
         if self.poll() is None:
             self.popen.send_signal(signal.SIGINT)
@@ -214,7 +219,8 @@ def run_session(
     during: Callable[[dict[str, subprocess.Popen[bytes]], float], None] | None = None,
     before_identification: Callable[[], None] | None = None,
 ) -> BringupResult:
-    """Start the three nodes, run one session, stop them in the safe order.
+    """Start the three nodes, run one session, stop them in the safe order (after a
+    failed or interrupted session the recorder drains before the driver stops).
 
     ``before_identification()`` runs once the driver and the recorder are started
     and before the identification node is (a test waits there until its own
@@ -227,6 +233,7 @@ def run_session(
     and its recorder must not wait behind a compiler or another test suite.
     """
     t0 = time.monotonic()
+    started_wall = time.time()
     out = Path(output_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
     logs, files = _log_files(log_dir, quiet)
@@ -265,6 +272,12 @@ def run_session(
             _watch(procs, t0, timeout_s, during)
             rc["identification"] = procs["identification"].stop(timeout_s=10.0)
     finally:
+        if rc.get("identification") == 0 and _bag_closed_since(out, started_wall):
+            # The session ended normally and the recorder closed its bag (the result lies
+            # beside it): the driver need not outlive the recorder; both stop at once.
+            for name in ("recorder", "driver"):
+                if name in procs:
+                    procs[name].interrupt()
         for name in ("identification", "recorder", "driver"):
             if name in procs:
                 rc[name] = procs[name].stop(timeout_s=10.0)
@@ -380,6 +393,15 @@ def _in_main_thread() -> bool:
     import threading
 
     return threading.current_thread() is threading.main_thread()
+
+
+def _bag_closed_since(out: Path, since_s: float) -> bool:
+    """A bag closed by the recorder (metadata written) holds a result written after
+    ``since_s`` (wall clock): this session's recording is complete."""
+    bag = _newest_bag(out) if out.is_dir() else None
+    if bag is None or not (bag / "parameters.json").is_file():
+        return False
+    return (bag / "metadata.yaml").stat().st_mtime >= since_s - 1.0
 
 
 def _newest_bag(out: Path) -> Path | None:

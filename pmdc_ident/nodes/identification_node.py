@@ -27,8 +27,9 @@ defaults, latency, publish policy, confirming the safe state), which this node f
 with its callbacks and which publishes through the methods below. Parameters are
 declared from :data:`pmdc_ident.nodes.parameter_tables.IDENTIFICATION`; QoS profiles
 come from :mod:`pmdc_ident.nodes.qos`. The finished session is identified in a child
-process (:class:`~pmdc_ident.nodes.identify_call.IdentificationWorker`) with the same
-function and options as ``pmdc-ident identify``.
+process (:class:`~pmdc_ident.nodes.identify_call.IdentificationWorker`, started and
+warmed up when the session starts) with the same function and options as
+``pmdc-ident identify``.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
+from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.session.controller import SessionController
 from pmdc_ident.core.session.ports import IdentificationJob
 from pmdc_ident.dataio.bagio import parse_joint_state
@@ -163,7 +165,6 @@ class IdentificationNode(Node):
         if self._worker is not None:
             outcome = self._worker.poll()
             if outcome is not None:
-                self._worker = None
                 self.controller.on_identified(outcome)
         self.controller.tick(time.monotonic())
 
@@ -209,8 +210,14 @@ class IdentificationNode(Node):
         self._param_names = names
         return True
 
+    def prepare_identification(self, nominal: MotorSpec) -> None:
+        if self._worker is None or not self._worker.alive:
+            self._worker = IdentificationWorker(nominal)
+
     def start_identification(self, job: IdentificationJob) -> None:
-        self._worker = IdentificationWorker(job)
+        if self._worker is None or not self._worker.alive:
+            self._worker = IdentificationWorker()
+        self._worker.submit(job)
 
     def log(self, level: str, text: str) -> None:
         node_log(self, level, text)

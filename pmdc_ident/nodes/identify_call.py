@@ -17,7 +17,9 @@ import json
 import multiprocessing
 import os
 import signal
-from collections.abc import Mapping
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -26,6 +28,7 @@ import numpy as np
 
 from pmdc_ident.core.data import Run
 from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.motors import MotorSpec, motor_to_yaml
 from pmdc_ident.core.session.ports import ExportRequest, IdentificationJob, IdentificationOutcome
 from pmdc_ident.core.session.recording import SessionSamples
@@ -37,10 +40,12 @@ __all__ = [
     "IdentifyOutput",
     "identify_session_run",
     "run_identification_job",
+    "warm_up",
     "write_session_exports",
 ]
 
 EXPORT_STEM = "identified"  # the exports beside the bag: identified.mjcf.xml, ...
+WORKER_NICE = -5  # the worker's priority where permitted (see _normal_priority)
 
 
 @dataclass(frozen=True)
@@ -187,7 +192,14 @@ def _completeness(s: SessionSamples) -> Completeness:
 
 
 class IdentificationWorker:
-    """:func:`run_identification_job` in a child process, polled by the node's timer.
+    """Identifies finished sessions in a child process, warmed up before it is needed.
+
+    Started when a session starts (:meth:`SessionController` calls the node's
+    ``prepare_identification``): while the motor runs, the child imports the
+    estimators and identifies a short synthetic run of the nominal motor
+    (:func:`warm_up`), so every numba kernel is loaded from the on-disk cache and the
+    session's end costs only the fit. It then serves one job at a time over its pipe
+    and stays for the next session.
 
     A process, not a thread: the identification's Python-level work then never holds
     the node's interpreter lock while driver samples and signals must be served, and
@@ -195,27 +207,47 @@ class IdentificationWorker:
     DDS threads) and gets plain data.
     """
 
-    def __init__(self, job: IdentificationJob) -> None:
+    def __init__(self, nominal: MotorSpec | None = None) -> None:
         ctx = multiprocessing.get_context("spawn")
-        self._conn, child = ctx.Pipe(duplex=False)
+        self._conn, child = ctx.Pipe(duplex=True)
         self._process = ctx.Process(
-            target=_work, args=(job, child), name="pmdc_ident identification", daemon=True
+            target=_serve, args=(child, nominal), name="pmdc_ident identification", daemon=True
         )
-        self._process.start()
+        with _spawning_at_normal_priority():
+            self._process.start()
         child.close()
+        self._busy = False
+        self._notes: list[tuple[str, str]] = []
+
+    @property
+    def alive(self) -> bool:
+        return self._process.is_alive()
+
+    def submit(self, job: IdentificationJob) -> None:
+        """Hand a finished session over; :meth:`poll` returns its outcome."""
+        self._busy = True
+        try:
+            self._conn.send(job)
+        except OSError:
+            pass  # the child is gone: poll() says so
 
     def poll(self) -> IdentificationOutcome | None:
-        """The outcome once the child has finished (``None`` while it works)."""
-        if self._conn.poll():
+        """The outcome of the submitted job once the child has it (``None`` meanwhile,
+        and while no job is submitted)."""
+        while self._busy and self._conn.poll():
             try:
-                outcome = self._conn.recv()
-            except EOFError:
-                outcome = None
-            self._process.join(timeout=5.0)
-            if isinstance(outcome, IdentificationOutcome):
-                return outcome
-        if self._process.is_alive():
+                msg = self._conn.recv()
+            except (EOFError, OSError):
+                break
+            if isinstance(msg, IdentificationOutcome):
+                self._busy = False
+                notes = (*self._notes, *msg.notes)
+                self._notes = []
+                return replace(msg, notes=notes)
+            self._notes.append(msg)  # the warm-up's line
+        if not self._busy or self._process.is_alive():
             return None
+        self._busy = False
         code = self._process.exitcode
         return IdentificationOutcome(
             error=f"the identification process ended without a result (exit code {code})",
@@ -229,20 +261,96 @@ class IdentificationWorker:
         self._conn.close()
 
 
-def _work(job: IdentificationJob, conn: Any) -> None:
+# A short default sequence (about a tenth of the default's length) for the warm-up.
+WARM_UP_SEQUENCE = SequenceConfig(
+    staircase_levels=2,
+    staircase_hold_tau=3.0,
+    step_hold_tau=3.0,
+    sweep_duration_tau=6.0,
+    coast_spinup_tau=3.0,
+    coast_open_s=0.3,
+)
+
+
+def warm_up(nominal: MotorSpec, rate_hz: float = 1000.0) -> float:
+    """Identify a short synthetic run of ``nominal`` (discarded): imports the
+    estimators and loads every kernel the identification of a session uses. Returns
+    the wall time it took, s."""
+    from pmdc_ident.core.excitation import plan_for_motor, synthesize_run
+
+    t0 = time.monotonic()
+    plan = plan_for_motor(nominal, 1.0 / rate_hz, WARM_UP_SEQUENCE)
+    identify_session_run(synthesize_run(nominal.model, plan, source="warm-up"))
+    return time.monotonic() - t0
+
+
+def _serve(conn: Any, nominal: MotorSpec | None) -> None:
     # Ctrl-C reaches the whole process group: the node decides (it terminates this
     # process with SIGTERM when it stops), so no KeyboardInterrupt traceback here.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _normal_priority()  # the fit is batch work: never at the loop's real-time priority
-    conn.send(run_identification_job(job))
-    conn.close()
+    if nominal is not None:
+        cpu0 = time.process_time()
+        try:
+            wall = warm_up(nominal)
+            conn.send(
+                (
+                    "info",
+                    f"identification worker warmed up during the session in {wall:.2f} s "
+                    f"({time.process_time() - cpu0:.2f} s CPU)",
+                )
+            )
+        except Exception as exc:  # noqa: BLE001 - the session's own fit still runs
+            conn.send(("warning", f"identification warm-up failed (the fit still runs): {exc!r}"))
+    while True:
+        try:
+            job = conn.recv()
+        except (EOFError, OSError):
+            return  # the node is gone
+        t0, cpu0 = time.monotonic(), time.process_time()
+        outcome = run_identification_job(job)
+        took = (
+            "info",
+            f"session {job.session}: identification took {time.monotonic() - t0:.2f} s "
+            f"({time.process_time() - cpu0:.2f} s CPU) in the worker",
+        )
+        conn.send(replace(outcome, notes=(*outcome.notes, took)))
+
+
+@contextmanager
+def _spawning_at_normal_priority() -> Iterator[None]:
+    """This thread at the worker's priority while it starts a child, so the child never
+    runs its start-up (imports) at the node's real-time priority, beside the loop.
+
+    Linux applies scheduling to the calling thread and a child inherits it."""
+    try:
+        old = os.sched_getscheduler(0), os.sched_getparam(0)
+        if old[0] != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        old = None
+    try:
+        yield
+    finally:
+        if old is not None and old[0] != os.SCHED_OTHER:
+            try:
+                os.sched_setscheduler(0, old[0], old[1])
+            except OSError:
+                pass
 
 
 def _normal_priority() -> None:
     """This process back to the normal scheduler: a child inherits the node's SCHED_RR
-    (bring-up runs the session's nodes real-time where permitted)."""
+    (bring-up runs the session's nodes real-time where permitted). It keeps a raised
+    priority where permitted (nice -5, as bring-up's nodes without real-time): the
+    fit the session waits for goes before background batch work."""
     try:
         if os.sched_getscheduler(0) != os.SCHED_OTHER:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     except (OSError, AttributeError):
         pass
+    try:
+        if os.getpriority(os.PRIO_PROCESS, 0) > WORKER_NICE:
+            os.setpriority(os.PRIO_PROCESS, 0, WORKER_NICE)
+    except OSError:
+        pass  # not permitted: the normal priority

@@ -229,7 +229,7 @@ IDENTIFICATION = ParameterTable(
           0.01, 60.0),
         P("max_start_latency_s", 0.05, "start only once driver samples arrive within this of "
           "their stamp, s", 0.001, 10.0),
-        P("settle_s", 1.0, "driver samples must arrive on time this long before a start, s",
+        P("settle_s", 0.3, "driver samples must arrive on time this long before a start, s",
           0.0, 60.0),
         P("confirm_timeout_s", 3.0, "after an abort, resend the safe command until the driver "
           "reports it, s", 0.1, 60.0),

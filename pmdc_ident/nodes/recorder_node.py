@@ -104,12 +104,15 @@ class RecorderNode(Node):
     def _driver_cb(self, topic: str) -> Any:
         def cb(raw: bytes) -> None:
             ns = header_stamp_ns(raw)
+            first = self.last_ns[topic] < 0
             self.last_ns[topic] = ns
             self._last_arrival = time.monotonic()
             raw_lag = time.time_ns() - ns  # arrival - stamp (a board's clock may be offset)
             self._lag_base_ns = min(self._lag_base_ns, raw_lag)
             self._lag_ns[topic] = raw_lag - self._lag_base_ns
             self.ring.append((topic, ns, raw, time.time_ns()))
+            if first and min(self.last_ns.values()) >= 0:
+                self._heartbeat()  # receiving on all topics: a session may start now
             if self.writer is not None:
                 self._drain(ns - self.hold_ns)
                 end = self.end_ns

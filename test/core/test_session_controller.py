@@ -20,7 +20,7 @@ from helpers.plans import SHORT_SEQUENCE
 from pmdc_ident.core.enums import AbortReason, SafeMode
 from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.model import Plant
-from pmdc_ident.core.motors import load_motor
+from pmdc_ident.core.motors import MotorSpec, load_motor
 from pmdc_ident.core.safety import SafetyConfig
 from pmdc_ident.core.session.controller import ControllerConfig, Phase, SessionController
 from pmdc_ident.core.session.ports import (
@@ -61,6 +61,7 @@ class Ports:
         self.logs: list[tuple[str, str]] = []
         self.asked: list[tuple[str, ...]] = []
         self.jobs: list[IdentificationJob] = []
+        self.prepared: list[str] = []
 
     def send_voltage(self, voltage_v: float) -> None:
         self.sent.append(voltage_v)
@@ -84,6 +85,9 @@ class Ports:
     def request_driver_parameters(self, names: tuple[str, ...]) -> bool:
         self.asked.append(names)
         return True
+
+    def prepare_identification(self, nominal: MotorSpec) -> None:
+        self.prepared.append(nominal.name)
 
     def start_identification(self, job: IdentificationJob) -> None:
         self.jobs.append(job)
@@ -127,8 +131,11 @@ def test_start_up_waits_for_each_check_in_order_then_starts():
     c.on_recorder_status(json.dumps({"receiving": {"a": 5, "b": 5}}), 0.58)
     assert c.start_check(0.58) is StartCheck.RECORDER  # not yet on all three topics
     c.on_recorder_status(json.dumps({"receiving": {"a": 5, "b": 5, "c": 5}}), 0.58)
+    assert ports.prepared == []
     c.tick(0.58)
     assert c.phase is Phase.RUNNING and ports.status[-1]["state"] == "running"
+    # the identification warms up while the session runs
+    assert ports.prepared == ["seed001_110v"]
     assert ports.sent == []  # the first command answers the first sample of the session
 
 

@@ -293,6 +293,8 @@ class SessionController:
         self.commands.armature_open = False
         session.start()
         self.phase = Phase.RUNNING
+        # the identification warms up while the motor runs: the end costs only the fit
+        self.ports.prepare_identification(self.config.session.nominal)
         self.ports.log(
             "info",
             f"session {session.name}: {len(session.plan.segments)} segments, nominal "
@@ -428,6 +430,10 @@ class SessionController:
             if arriving:
                 return  # still arriving (a backlog on a loaded machine)
         self.phase = Phase.IDENTIFYING
+        waited = now_s - (self._flush_deadline_s - self.config.flush_timeout_s)
+        self.ports.log(
+            "info", f"session {s.name}: last samples in after {waited:.2f} s; identifying"
+        )
         self._publish_status("identifying")
         self.ports.start_identification(
             IdentificationJob(

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
+from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.session.recording import SessionSamples
 
 __all__ = ["ControllerPorts", "ExportRequest", "IdentificationJob", "IdentificationOutcome"]
@@ -68,6 +69,10 @@ class ControllerPorts(Protocol):
     def request_driver_parameters(self, names: tuple[str, ...]) -> bool:
         """Ask the driver node for ``names``; False when it is not reachable yet. The
         answer comes back through :meth:`SessionController.on_driver_parameters`."""
+
+    def prepare_identification(self, nominal: MotorSpec) -> None:
+        """A session started: get the identification ready (imports, compiled kernels)
+        while it runs, so that :meth:`start_identification` costs only the fit."""
 
     def start_identification(self, job: IdentificationJob) -> None:
         """Run the job off the I/O callbacks; its outcome comes back through
