@@ -121,16 +121,17 @@ def priority_setter(nice: int, realtime: bool) -> Callable[[], None]:
 
 
 @contextmanager
-def realtime_thread() -> Iterator[bool]:
+def realtime_thread(priority: int = RT_PRIORITY) -> Iterator[bool]:
     """This thread (and the threads it starts meanwhile) at the nodes' SCHED_RR priority.
 
     For an in-process ROS client that talks to the nodes (the step demo, a test's
     client): enter before ``rclpy.init`` so DDS's threads inherit it. Yields whether
-    the system permitted it; the previous scheduling is restored on exit.
+    the system permitted it; the previous scheduling is restored on exit. A higher
+    ``priority`` preempts the nodes (a test's stand-in for a board's microcontroller).
     """
     try:
         old = os.sched_getscheduler(0), os.sched_getparam(0)
-        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(RT_PRIORITY))
+        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
     except (OSError, AttributeError):
         yield False
         return
