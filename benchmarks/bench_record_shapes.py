@@ -26,7 +26,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 
-from helpers.motor_records import Motor, Record, prbs, simulate, steps, write_csv  # noqa: E402
+from helpers.motor_records import (  # noqa: E402
+    Motor,
+    Record,
+    filtered_current,
+    prbs,
+    simulate,
+    steps,
+    write_csv,
+)
 
 from pmdc_ident.cli import main  # noqa: E402
 
@@ -66,6 +74,8 @@ def _cases(out: Path) -> list[tuple[str, Callable[[], tuple[str, str]]]]:
     base = simulate(
         BASE, v_steps, 1000, noise_current=0.005, noise_speed=0.05, counts_per_rev=2048
     )
+
+    epoch = replace(base, t=base.t + 1.7e9)  # Unix time in s (x 1e3: in ms)
 
     def identify(name: str, rec: Record, truth: Motor, names=("R", "Ke", "J"), extra=(), **kw):
         path = write_csv(out / f"{name}.csv", rec, **kw)
@@ -168,25 +178,43 @@ def _cases(out: Path) -> list[tuple[str, Callable[[], tuple[str, str]]]]:
         return identify("position_wrapped_no_speed", rec, BASE, drop=("speed",))
 
     def filtered():
-        up = 20
-        fine = simulate(BASE, np.repeat(v_steps, up), 1000 * up, substeps=1)
-        a = math.exp(-1.0 / (2e-3 * 1000 * up))
-        f = np.empty_like(fine.current)
-        f[0] = fine.current[0]
-        for k in range(1, f.size):
-            f[k] = a * f[k - 1] + (1 - a) * fine.current[k]
-        rng = np.random.default_rng(0)
-        rec = Record(
-            fine.t[::up],
-            v_steps,
-            f[::up] + rng.normal(0, 0.005, v_steps.size),
-            fine.speed[::up] + rng.normal(0, 0.05, v_steps.size),
-            fine.position[::up],
-        )
-        return check("current_sensor_rc_2ms", rec)
+        rec = filtered_current(BASE, v_steps, 1000, 2e-3)
+        path = write_csv(out / "current_sensor_rc_2ms.csv", rec)
+        res = _fit(path, BASE, [], ("R", "L", "Ke", "J")) + " / " + _check(path, [])
+        return res, f"pmdc-ident identify {path}"
 
-    def slip(name: str, scale: dict, **kw):
-        return lambda: check(f"slip_{name}", base, scale=scale, **kw)
+    def no_current():
+        path = write_csv(out / "no_current_column.csv", base, drop=("current", "position"))
+        res = _fit(path, BASE, [], ("R", "Ke", "J"))
+        fixed = _fit(path, BASE, ["--fix", "R=2"], ("Ke", "J"))
+        return f"{res} / with --fix R=2: {fixed}", f"pmdc-ident identify {path} [--fix R=2]"
+
+    def gaps():
+        labels = ("step_up", "step_up_2", "coast", "step_down", "step_down_2")
+        rec = replace(base, labels=list(np.repeat(labels, 400)))
+        keep = np.ones(rec.t.size, dtype=bool)
+        keep[450:490] = False
+        keep[1500:1503] = False
+        cut = Record(
+            *(getattr(rec, k)[keep] for k in ("t", "voltage", "current", "speed", "position")),
+            labels=[lab for lab, k in zip(rec.labels, keep, strict=True) if k],
+        )
+        return identify("dropped_samples_43", cut, BASE, names=("R", "L", "Ke", "J"))
+
+    def slip(name: str, scale: dict, undo: tuple[str, ...] = (), rec: Record | None = None):
+        """The gate's line on the slipped record; then identify with the option undoing it."""
+
+        def case():
+            path = write_csv(out / f"slip_{name}.csv", rec or base, scale=scale)
+            caught = _check(path, [])
+            cmd = f"pmdc-ident check {path}"
+            if undo:
+                names = ("R", "L", "Ke", "J")
+                caught += f" / with {' '.join(undo)}: {_fit(path, BASE, list(undo), names)}"
+                cmd += f"; pmdc-ident identify {path} {' '.join(undo)}"
+            return caught, cmd
+
+        return case
 
     def empty_voltage():
         return check(
@@ -219,15 +247,46 @@ def _cases(out: Path) -> list[tuple[str, Callable[[], tuple[str, str]]]]:
         ("256-count encoder, no speed column", encoder_only),
         ("position wrapped to [0, 2 pi), no speed column", wrapped),
         ("current sensor behind a 2 ms RC filter", filtered),
-        ("slip: speed in rpm", slip("rpm", {"speed": 30 / math.pi})),
-        ("slip: speed in deg/s", slip("degs", {"speed": 180 / math.pi})),
-        ("slip: position in deg", slip("posdeg", {"position": 180 / math.pi})),
-        ("slip: position in counts", slip("counts", {"position": 2048 / (2 * math.pi)})),
-        ("slip: time in ms", slip("ms", {"t": 1e3})),
-        ("slip: time in ns", slip("ns", {"t": 1e9})),
-        ("slip: current in mA", slip("mA", {"current": 1e3})),
-        ("slip: voltage in mV", slip("mV", {"voltage": 1e3})),
-        ("slip: current wires swapped", slip("isign", {"current": -1.0})),
+        ("voltage and speed, no current column", no_current),
+        ("43 dropped samples (gaps in 2 segments)", gaps),
+        ("slip: speed in rpm", slip("rpm", {"speed": 30 / math.pi}, ("--speed-unit", "rpm"))),
+        (
+            "slip: speed in deg/s",
+            slip("degs", {"speed": 180 / math.pi}, ("--speed-unit", "deg/s")),
+        ),
+        (
+            "slip: position in deg",
+            slip("posdeg", {"position": 180 / math.pi}, ("--position-unit", "deg")),
+        ),
+        (
+            "slip: position in counts",
+            slip(
+                "counts",
+                {"position": 2048 / (2 * math.pi)},
+                ("--position-unit", "counts", "--counts-per-rev", "2048"),
+            ),
+        ),
+        ("slip: time in ms", slip("ms", {"t": 1e3}, ("--time-unit", "ms"))),
+        ("slip: time in us", slip("us", {"t": 1e6}, ("--time-unit", "us"))),
+        ("slip: time in ns", slip("ns", {"t": 1e9}, ("--time-unit", "ns"))),
+        (
+            "slip: epoch time in ms",
+            slip("epoch_ms", {"t": 1e3}, ("--time-unit", "ms"), rec=epoch),
+        ),
+        ("slip: current in mA", slip("mA", {"current": 1e3}, ("--current-unit", "mA"))),
+        ("slip: voltage in mV", slip("mV", {"voltage": 1e3}, ("--voltage-unit", "mV"))),
+        (
+            "slip: voltage logged as duty % of a 24 V supply",
+            slip("duty", {"voltage": 100 / 24}, ("--voltage-unit", "duty%", "--supply-v", "24")),
+        ),
+        (
+            "slip: speed and position on the load side of a 10:1 gear",
+            slip("gear", {"speed": 0.1, "position": 0.1}, ("--gear-ratio", "10")),
+        ),
+        (
+            "slip: current wires swapped",
+            slip("isign", {"current": -1.0}, ("--column", "current=-current")),
+        ),
         ("slip: voltage column all empty", empty_voltage),
         ("slip: current all zero", zero_current),
         ("slip: the same file twice", twice),

@@ -39,6 +39,10 @@ def test_one_direction_step_identifies_and_names_the_one_term(tmp_path, capsys, 
     # the Coulomb model is chosen, so J carries a small bias
     assert _value(doc, "J") == pytest.approx(5e-6, rel=0.03)
     assert any("turns one way only" in a and "in reverse" in a for a in doc["assumptions"])
+    # on at the first sample: the initial state is estimated, and the result says so
+    said = [a for a in doc["assumptions"] if "8 V already on" in a]
+    assert len(said) == (0 if rest_first else 1), doc["assumptions"]
+    assert rest_first or "initial current and speed are estimated" in said[0]
     assert "no excitation" not in out
 
 
@@ -159,6 +163,10 @@ def test_a_guessed_r_ke_or_j_is_exit_2_with_what_to_record_unless_fixed(tmp_path
     doc, _ = _identify(path, capsys, "--fix", "R=2")
     assert doc["parameters"]["J"]["identifiable"] and doc["parameters"]["Ke"]["identifiable"]
     assert _value(doc, "Ke") == pytest.approx(0.05, rel=0.005)
+    # J and L from the speed's response alone, the fit started from its gain and time
+    # constant (from the generic J = 0.1 Kt it settled at L -> 0 with J 5.6 % low)
+    assert _value(doc, "J") == pytest.approx(2e-5, rel=0.01)
+    assert _value(doc, "L") == pytest.approx(2e-3, rel=0.05)
 
 
 @pytest.mark.parametrize("case", ["50hz-prbs-12-count-speed", "20khz-lr-0.14ms"])

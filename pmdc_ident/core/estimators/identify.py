@@ -156,6 +156,7 @@ def identify(
         raise DataError(refusal)
     _one_direction_term(setup.dynamic, parameters, report)
     _quantisation_note(fit, report)
+    _initial_state_note(fit, setup.dynamic, report)
     return IdentificationResult(
         sources=sources,
         model_kind="mechanical" if setup.current_mode else chosen,
@@ -530,6 +531,22 @@ def _quantisation_note(fit: FitResult, report: _Report) -> None:
             f"{name} is quantised in steps of {step:.6g} {units[name]}{enc}: the fit's "
             f"noise model starts from no less than step / sqrt(12) = "
             f"{step / math.sqrt(12):.3g} {units[name]}, then takes the residuals' level"
+        )
+
+
+def _initial_state_note(fit: FitResult, dyn: Sequence[Segment], report: _Report) -> None:
+    """A record that starts with the voltage already on: its initial state is estimated."""
+    for s in dyn:
+        if s.voltage is None or (s.history_voltage is not None and s.history_voltage.size):
+            continue
+        v0 = float(s.voltage[0])
+        x0 = fit.initial_states.get(s.label)
+        if x0 is None or not math.isfinite(v0) or v0 == 0.0:
+            continue
+        report.assumptions.append(
+            f"{s.label} starts with {v0:.4g} V already on and nothing recorded before it: its "
+            f"initial current and speed are estimated with the parameters (i0 = {x0[0]:.4g} A, "
+            f"w0 = {x0[1]:.4g} rad/s), not assumed at rest"
         )
 
 

@@ -92,6 +92,9 @@ def start_values(
     vals: dict[str, float] = dict(classical)
     vals.update({k: v for k, v in equation_error.items() if math.isfinite(v)})
     dt = min(s.dt_s for s in dyn)
+    if not current_mode and all(s.current is None for s in dyn):
+        for k, v in _speed_response_start(dyn, {**vals, **fixed}).items():
+            vals.setdefault(k, v)
     if ("R" not in vals or "Ke" not in vals) and not current_mode:
         p = equation_error_start(dyn, {})
         vals.update({"R": p.R, "Ke": p.Ke})
@@ -113,6 +116,25 @@ def start_values(
     vals["B"] = vals["B"] if vals["B"] > 0 else 1e-3 * scale_b
     vals[COULOMB_TORQUE] = max(vals.get(COULOMB_TORQUE, 0.0), 0.0)
     return vals
+
+
+def _speed_response_start(dyn: Sequence[Segment], known: Mapping[str, float]) -> dict[str, float]:
+    """No current measured: R (as known, else 1 ohm), Ke and J from voltage -> speed.
+
+    Its gain is ``Ke / (R B + Ke Kt)`` and its time constant ``R J / (R B + Ke Kt)``;
+    with B neglected, Ke = 1 / gain and J = tau Ke Kt / R. (J's generic start, 0.1 Kt,
+    was 250x off on a small motor, and the fit then settled on L -> 0 with J 5.6 % low.)
+    """
+    from pmdc_ident.core.quality.regress import voltage_speed_response
+
+    response = voltage_speed_response(dyn)
+    if response is None:
+        return {}
+    gain, tau = response
+    r = float(known.get("R", 1.0))
+    ke = float(known.get("Ke", known.get("Kt", 1.0 / gain)))
+    kt = float(known.get("Kt", ke))
+    return {"R": r, "Ke": ke, "J": tau * ke * kt / r}
 
 
 def start_model(

@@ -11,7 +11,12 @@ import numpy as np
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.quality.findings import Finding, Severity
-from pmdc_ident.core.quality.regress import dynamic, electrical_fit, mechanical_fit
+from pmdc_ident.core.quality.regress import (
+    dynamic,
+    electrical_fit,
+    mechanical_fit,
+    voltage_speed_response,
+)
 
 __all__ = [
     "check_current_filter",
@@ -264,23 +269,12 @@ def check_no_current(where: str, segments: Sequence[Segment]) -> list[Finding]:
     dyn = [s for s in dynamic(segments) if s.voltage is not None and s.current is None]
     if not dyn or any(s.current is not None for s in segments):
         return []
-    gains, taus = [], []
-    for s in dyn:
-        driven = ~s.open_mask
-        if driven.sum() < 10 or np.ptp(s.voltage[driven]) == 0:
-            continue
-        w = s.speed_or_derivative()
-        v = np.where(driven, s.voltage, 0.0)
-        a = np.column_stack([w[:-1], v[:-1], np.ones(s.n - 1)])[driven[:-1]]
-        coef, *_ = np.linalg.lstsq(a, w[1:][driven[:-1]], rcond=None)
-        if 0.0 < coef[0] < 1.0 and coef[1] > 0:
-            gains.append(coef[1] / (1.0 - coef[0]))
-            taus.append(-s.dt_s / np.log(coef[0]))
+    response = voltage_speed_response(dyn)
     what = ""
-    if gains:
+    if response is not None:
         what = (
-            f" shows a gain of {np.median(gains):.4g} rad/s per V and a time constant of "
-            f"{np.median(taus) * 1e3:.3g} ms, i.e."
+            f" shows a gain of {response[0]:.4g} rad/s per V and a time constant of "
+            f"{response[1] * 1e3:.3g} ms, i.e."
         )
     return [
         Finding(

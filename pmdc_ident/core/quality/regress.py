@@ -31,6 +31,7 @@ __all__ = [
     "mechanical_fit",
     "memo",
     "memoised",
+    "voltage_speed_response",
 ]
 
 
@@ -206,3 +207,33 @@ def arx_pole(
     if fit is None or not np.isfinite(fit.stderr[0]) or abs(fit.t("x0")) < 5:
         return None
     return float(fit.coef[0])
+
+
+def voltage_speed_response(segments: Sequence[Segment]) -> tuple[float, float] | None:
+    """Gain (rad/s per V) and time constant (s) of voltage -> speed, or ``None``.
+
+    One first-order ARX ``w[k+1] = a w[k] + b v[k] + c`` over the driven samples of
+    all dynamic segments together (a step holds its voltage: only several of them
+    vary it), on their median period: with ``Kt = Ke`` the gain is
+    ``Ke / (R B + Ke^2)`` and the time constant ``R J / (R B + Ke^2)`` (L neglected).
+    """
+    rows, ys, dts = [], [], []
+    for s in dynamic(segments):
+        if s.voltage is None:
+            continue
+        driven = (~s.open_mask)[:-1] & (~s.open_mask)[1:]
+        if driven.sum() < 10:
+            continue
+        w = s.speed_or_derivative()
+        rows.append(np.column_stack([w[:-1], s.voltage[:-1], np.ones(s.n - 1)])[driven])
+        ys.append(w[1:][driven])
+        dts.append(s.dt_s)
+    if not rows:
+        return None
+    a = np.vstack(rows)
+    if np.ptp(a[:, 1]) == 0:
+        return None
+    coef, *_ = np.linalg.lstsq(a, np.concatenate(ys), rcond=None)
+    if not (0.0 < coef[0] < 1.0 and coef[1] > 0):
+        return None
+    return float(coef[1] / (1.0 - coef[0])), float(-np.median(dts) / np.log(coef[0]))
