@@ -165,6 +165,7 @@ class _Proc:
         )
 
         self.cpu_s: float | None = None  # user + system CPU time of the process
+        self.interrupted = False  # SIGINT sent
 
     def poll(self) -> int | None:
         """Exit status once the process ended (reaped with its CPU time), else None."""
@@ -188,13 +189,14 @@ class _Proc:
         return self.popen.returncode
 
     def interrupt(self) -> None:
-        """Ask the node to stop (SIGINT) without waiting for it."""
-        if self.poll() is None:
+        """Ask the node to stop (one SIGINT) without waiting for it."""
+        if self.poll() is None and not self.interrupted:
+            self.interrupted = True
             self.popen.send_signal(signal.SIGINT)
 
     def stop(self, timeout_s: float = 10.0) -> int | None:
         if self.poll() is None:
-            self.popen.send_signal(signal.SIGINT)
+            self.interrupt()
             if self.wait(timeout_s) is None:
                 self.popen.terminate()
                 if self.wait(3.0) is None:
@@ -220,8 +222,8 @@ def run_session(
     during: Callable[[dict[str, subprocess.Popen[bytes]], float], None] | None = None,
     before_identification: Callable[[], None] | None = None,
 ) -> BringupResult:
-    """Start the three nodes, run one session, stop them in the safe order (after a
-    failed or interrupted session the recorder drains before the driver stops).
+    """Start the three nodes, run one session, stop them in the safe order (see
+    :func:`_watch`).
 
     ``before_identification()`` runs once the driver and the recorder are started
     and before the identification node is (a test waits there until its own
@@ -270,15 +272,9 @@ def run_session(
             procs["identification"] = _start(
                 "identification", args["identification"], env, ident_log, nice, realtime
             )
-            _watch(procs, t0, timeout_s, during)
+            _watch(procs, t0, timeout_s, during, lambda: _bag_closed_since(out, started_wall))
             rc["identification"] = procs["identification"].stop(timeout_s=10.0)
     finally:
-        if rc.get("identification") == 0 and _bag_closed_since(out, started_wall):
-            # The session ended normally and the recorder closed its bag (the result lies
-            # beside it): the driver need not outlive the recorder; both stop at once.
-            for name in ("recorder", "driver"):
-                if name in procs:
-                    procs[name].interrupt()
         for name in ("identification", "recorder", "driver"):
             if name in procs:
                 rc[name] = procs[name].stop(timeout_s=10.0)
@@ -348,14 +344,28 @@ def _watch(
     t0: float,
     timeout_s: float,
     during: Callable[[dict[str, subprocess.Popen[bytes]], float], None] | None,
+    recorded: Callable[[], bool],
 ) -> None:
-    """Until the identification node exits (a crashed peer is noticed by it)."""
+    """Until the identification node exits (a crashed peer is noticed by it).
+
+    Once ``recorded()`` (the recorder closed the session's bag and the result lies
+    beside it) the recorder and the driver are stopped together while the
+    identification node publishes and exits: nothing of the session is left to record,
+    and the motor is at rest. After a failed or interrupted session they are stopped
+    after the identification node, the recorder before the driver (it drains first).
+    """
     ident = procs["identification"]
     deadline = time.monotonic() + timeout_s
+    peers_stopped = False
     while ident.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
         if during is not None:
             during({k: v.popen for k, v in procs.items()}, time.monotonic() - t0)
+        if not peers_stopped and recorded():
+            peers_stopped = True
+            for name in ("recorder", "driver"):
+                if name in procs:
+                    procs[name].interrupt()
 
 
 def _result(

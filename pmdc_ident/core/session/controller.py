@@ -278,10 +278,13 @@ class SessionController:
             self._fail(f"session not started, motor untouched: {why}")
             return
         if self.peers.driver is None:
+            self.peers.note_wait(StartCheck.DRIVER, now_s)
             if not self.peers.driver_asked:
                 self.peers.driver_asked = self.ports.request_driver_parameters(DRIVER_PARAMETERS)
             return
-        if self.start_check(now_s) is not StartCheck.READY:
+        check = self.start_check(now_s)
+        self.peers.note_wait(check, now_s)
+        if check is not StartCheck.READY:
             return
         try:
             session = build_session(self.config.session, self.peers.driver, self._next_name())
@@ -298,7 +301,8 @@ class SessionController:
         self.ports.log(
             "info",
             f"session {session.name}: {len(session.plan.segments)} segments, nominal "
-            f"{session.plan.duration_s:.1f} s ({', '.join(session.plan_labels)})",
+            f"{session.plan.duration_s:.1f} s ({', '.join(session.plan_labels)}); start-up "
+            f"waited for {self.peers.waits_line()}",
         )
         self._publish_status("running")
 
