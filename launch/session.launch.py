@@ -3,6 +3,7 @@
     ros2 launch pmdc_ident session.launch.py motor:=seed000_ebike backend:=sim
     ros2 launch pmdc_ident session.launch.py backend:=serial port:=/dev/ttyACM0 \
         motor:=/path/to/nominal.yaml output_dir:=$HOME/pmdc_sessions
+    ros2 launch pmdc_ident session.launch.py export_models:=true   # + MJCF, URDF, gains
 
 The same graph as the ``bringup`` command (which needs no ``ros2 launch``): the
 parameters files in ``share/pmdc_ident/config/`` give the defaults (keyed ``/**``,
@@ -54,6 +55,7 @@ def generate_launch_description() -> LaunchDescription:
         declare("output_dir", RECORDER),  # the bags, and the results beside them
         declare("safe_mode", IDENTIFICATION),
         declare("autostart", IDENTIFICATION),
+        declare("export_models", IDENTIFICATION),  # MJCF, URDF, ... beside the bag
         DeclareLaunchArgument(
             "exit_when_done", default_value="true", description="end the launch after one run"
         ),
@@ -95,6 +97,7 @@ def generate_launch_description() -> LaunchDescription:
                 "safe_mode": arg("safe_mode"),
                 "autostart": ParameterValue(arg("autostart"), value_type=bool),
                 "exit_when_done": ParameterValue(arg("exit_when_done"), value_type=bool),
+                "export_models": ParameterValue(arg("export_models"), value_type=bool),
             },
         ],
     )
