@@ -270,6 +270,41 @@ def test_a_stop_while_idle_is_a_clean_exit():
     assert c.finished and c.exit_code == 0 and ports.sent == [0.0]  # safe all the same
 
 
+def test_a_stop_while_idle_with_the_driver_stopping_too_ends_without_an_error():
+    """ros2 launch stops every node at once: the driver stops publishing (it makes its
+    motor safe itself), so an idle stop's confirmation ends at once, not in an error
+    after confirm_timeout_s (launch escalated to SIGTERM at its 5 s)."""
+    ports = Ports()
+    c = SessionController(_config(safe_mode="zero", confirm_timeout_s=3.0), ports)
+    c.start(autostart=False, now_s=0.0)
+    c.on_encoder(1_000_000, 0.0, 0.0, 1.0, 1_000_000)  # the driver publishes...
+    c.request_stop()
+    c.tick(1.1)
+    assert c.confirming and ports.logs[-1][0] == "info"
+    c.confirm_tick(1.3)  # ... and stops: not yet quiet for long
+    assert c.confirming
+    c.confirm_tick(1.6)
+    assert not c.confirming and not c.safe_confirmed
+    assert ports.logs[-1] == (
+        "info",
+        "the driver stopped too (it makes the motor safe when it stops)",
+    )
+    assert c.finished and c.exit_code == 0
+    assert not [t for level, t in ports.logs if level == "error"]
+    # a driver still publishing is waited for (and confirms) as before
+    ports = Ports()
+    c = SessionController(_config(safe_mode="zero", confirm_timeout_s=3.0), ports)
+    c.start(autostart=False, now_s=0.0)
+    c.request_stop()
+    c.tick(1.0)
+    for k in range(1, 10):
+        c.on_encoder(k * 100_000_000, 0.0, 0.0, 1.0 + 0.1 * k, 0)
+        c.confirm_tick(1.0 + 0.1 * k)
+    assert c.confirming
+    c.on_voltage(900_000_000, 0.0, math.nan)
+    assert c.safe_confirmed
+
+
 def test_a_lost_recorder_aborts_the_running_session():
     ports = Ports()
     c = SessionController(_config(settle_s=0.0, peer_timeout_s=0.5), ports)

@@ -59,6 +59,7 @@ EXIT_REFUSED = 2
 EXIT_INTERRUPTED = 130
 PROGRESS_EVERY_S = 0.2
 DRIVER_GONE_S = 2.0  # flushing: no driver sample for this long, the rest will not come
+DRIVER_QUIET_S = 0.5  # stopped while idle: no driver sample for this long, it stopped too
 LATE_TICK_S = 0.1  # a timer this late means the node itself was held up
 LATE_TICK_GRACE_S = 0.05
 
@@ -111,6 +112,7 @@ class SessionController:
         self._last_progress_s = 0.0
         self._flush_deadline_s = 0.0
         self._session_count = 0
+        self._stopped_idle = False  # a stop that cut nothing short (see confirm_tick)
 
     # -- state ---------------------------------------------------------------------------
     @property
@@ -257,6 +259,15 @@ class SessionController:
 
     def confirm_tick(self, now_s: float) -> None:
         """Repeat the safe command until the driver confirms it, up to the timeout."""
+        quiet = now_s - self.peers.last_sample_s > DRIVER_QUIET_S
+        if self._stopped_idle and quiet and self.confirmation.pending:
+            # ros2 launch stops every node at once: a driver that stops makes its motor
+            # safe itself, and a stop while idle left nothing applied to confirm away
+            self.confirmation.cancel()
+            self.ports.log(
+                "info", "the driver stopped too (it makes the motor safe when it stops)"
+            )
+            return
         what = self.confirmation.tick(now_s)
         if what == "timeout":
             self.ports.log(
@@ -387,9 +398,10 @@ class SessionController:
         else:
             self._make_safe(now_s)
             self.ports.log(
-                "warning",
+                "warning" if cut_short else "info",
                 f"stopped by signal while {self.phase.value}: no session running, 0 V / open sent",
             )
+            self._stopped_idle = not cut_short
             self._publish_status("stopped", reason=reason.value)
             self.confirmation.start(self._last_stamp_ns, now_s)
         self.finished = True

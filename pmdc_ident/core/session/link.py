@@ -76,6 +76,10 @@ class SafeConfirmation:
         self.deadline_s = now_s + self.timeout_s
         self.sent_s = now_s
 
+    def cancel(self) -> None:
+        """Stop waiting (nothing confirmed)."""
+        self.after_ns = None
+
     def on_voltage(self, stamp_ns: int, voltage_v: float) -> str:
         """The safe state the driver reports ('' if this sample shows none)."""
         if self.after_ns is None or stamp_ns < self.after_ns:
