@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import enum
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -478,5 +479,21 @@ def _with_unit_hint(message: str) -> str:
         return message
     for name, hint in _UNIT_HINT.items():
         if f": {name} = " in message:
+            epoch = _epoch_unit(message) if name == "t" else None
+            if epoch is not None:
+                return f"{message} (Unix time in {epoch}: --time-unit {epoch})"
             return f"{message} (if the column is in other units, say which: {hint})"
     return message
+
+
+def _epoch_unit(message: str) -> str | None:
+    """``ms``, ``us`` or ``ns`` when the refused time read in that unit is a date
+    between 2001 and 2096 in Unix seconds (a logger's epoch stamps), else None."""
+    m = re.search(r": t = ([-+0-9.eE]+) s", message)
+    if m is None:
+        return None
+    t = abs(float(m.group(1)))
+    for unit, factor in (("ms", 1e3), ("us", 1e6), ("ns", 1e9)):
+        if 1e9 <= t / factor <= 4e9:
+            return unit
+    return None

@@ -88,3 +88,18 @@ def test_sidecar_with_an_unknown_key_is_refused(rec, tmp_path):
     (tmp_path / "r.csv.yaml").write_text("speed_units: rpm\n")
     with pytest.raises(DataError, match="unknown key 'speed_units'"):
         load_input(path)
+
+
+@pytest.mark.parametrize(("unit", "factor"), [("ms", 1e3), ("us", 1e6), ("ns", 1e9)])
+def test_epoch_stamps_name_their_unit_and_the_option_reads_them(
+    rec, tmp_path, capsys, unit, factor
+):
+    """A logger's Unix time (2023) in ms, us or ns: one line naming the unit, exit 2."""
+    from dataclasses import replace
+
+    stamped = replace(rec, t=(1.7e9 + rec.t) * factor)
+    path = write_csv(tmp_path / "epoch.csv", stamped)
+    assert main(["check", str(path)]) == EXIT_USER_ERROR
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"(Unix time in {unit}: --time-unit {unit})" in err, err
+    assert main(["check", str(path), "--time-unit", unit]) == 0
