@@ -15,6 +15,7 @@ model on held-out data by the penalty of what it adds (greedy, up to
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -50,7 +51,7 @@ def choose(search: Search, scoring: Scoring, base: Fitted, singles: list[Fitted]
     # held-out samples, beats its penalty on them and closes most of that gap: the
     # held-out improvement is the evidence (on effect-free runs no candidate does).
     shown = bool(helping) and g0 > 0 and (g0 - helping[0][0].gap) >= th.explained_shrink * g0
-    gap_significant = g0 > th.no_gap_noise * scoring.noise_rel or shown
+    gap_significant = g0 > th.no_gap_noise or shown
     choice = Choice(base, gap_significant, scores=[s for s, _ in scored])
     if not (helping and gap_significant):
         return choice
@@ -61,20 +62,27 @@ def choose(search: Search, scoring: Scoring, base: Fitted, singles: list[Fitted]
     return choice
 
 
-def separated(best: Fitted, other: Fitted, extra_params: int, penalty: float) -> bool:
+def separated(
+    best: Fitted, other: Fitted, extra_params: int, penalty: float, decisive: float = math.inf
+) -> bool:
     """Whether the held-out evidence prefers ``best`` to ``other`` beyond doubt.
 
     ``extra_params``: parameters ``other`` has beyond ``best`` (negative when fewer),
-    each costing ``penalty``. The per-sample excess errors of the two are compared in
-    contiguous blocks; the mean difference must exceed :data:`TIE_SIGMAS` standard
-    errors of the block means.
+    each costing ``penalty``. The per-sample excess errors of the two are compared:
+    what ``other`` leaves beyond ``best`` (plus the penalty difference) separates them
+    when it is itself a gap (``decisive`` noise variances, the no-gap level) or when
+    it exceeds :data:`TIE_SIGMAS` standard errors of the means of contiguous blocks.
+    The block test alone would tie two effects that differ only where the evidence
+    is (a coast-down is one or two blocks of twenty), however large the difference.
     """
     d = other.res.excess_per_sample() - best.res.excess_per_sample()
     if d.size < 2:
         return False
+    margin = float(np.mean(d)) + extra_params * penalty
+    if margin >= decisive:
+        return True
     blocks = [b for b in np.array_split(d, min(TIE_BLOCKS, d.size)) if b.size]
     means = np.array([float(np.mean(b)) for b in blocks])
-    margin = float(np.mean(d)) + extra_params * penalty
     se = float(np.std(means, ddof=1)) / np.sqrt(means.size) if means.size > 1 else 0.0
     return margin > TIE_SIGMAS * se
 
@@ -99,7 +107,9 @@ def break_ties(
         if (g0 - s.gap) >= th.explained_shrink * g0
         and (
             (g0 - s.gap) >= (1.0 - th.tie_fraction) * gain_best
-            or not separated(best_f, f, s.added_parameters - best_s.added_parameters, penalty)
+            or not separated(
+                best_f, f, s.added_parameters - best_s.added_parameters, penalty, th.no_gap_noise
+            )
         )
     ]
     if not tied:
@@ -146,6 +156,8 @@ def combine(
         best_trial = min(trials, key=lambda f: f.gap + n_added(f.fit.model, f.effects) * penalty)
         choice.scores.extend(scoring.score(f, chosen) for f in trials)
         k_new = n_added(best_trial.fit.model, best_trial.effects[-1:])
+        # a larger model must be preferred beyond doubt in every block sense (no
+        # ``decisive`` shortcut: an added effect must earn its place across the record)
         if chosen.gap - best_trial.gap > k_new * penalty and separated(
             best_trial, chosen, -k_new, penalty
         ):

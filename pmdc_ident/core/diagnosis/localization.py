@@ -200,7 +200,7 @@ def angle_harmonics(
     moving = np.abs(w) > 0.002 * (float(np.max(np.abs(w))) or 1.0)
     if moving.sum() < 50 or np.ptp(theta[moving]) < 4 * math.pi:
         return None, 0.0, ()
-    total = float(np.sum(np.maximum(res.excess_per_sample(), 0.0)))
+    total = _relative_excess(res)
     if total <= 0:
         return None, 0.0, ()
     ranked = harmonic_energies(theta[moving], res, moving, max_harmonic)
@@ -211,6 +211,18 @@ def angle_harmonics(
     median_e = float(np.median([e for _, e in ranked])) or 1e-300
     periodic = best_e >= MIN_PROMINENCE * median_e
     return (best_n if periodic else None), share, top
+
+
+def _relative_excess(res: Residuals) -> float:
+    """Excess residual energy relative to each signal's scale (the units of
+    :func:`harmonic_energies`: the weighting that finds a detent's count, where noise
+    units would let a noisy speed's own harmonics drown it), averaged over signals."""
+    parts = [
+        float(np.nansum(np.maximum(err**2 - res.noise.sigma[sig] ** 2, 0.0)))
+        / res.noise.scale[sig] ** 2
+        for sig, err in res.error.items()
+    ]
+    return float(np.mean(parts)) if parts else 0.0
 
 
 def harmonic_energies(

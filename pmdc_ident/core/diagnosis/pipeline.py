@@ -78,7 +78,7 @@ def diagnose(
     base = _baseline(search)
     masks = regime_masks(split.held_out, base.fit.model.params.mechanical_time_constant_s)
     loc = localize(split.held_out, base.res, masks)
-    scoring = Scoring.for_baseline(base, noise, cfg.thresholds)
+    scoring = Scoring.for_baseline(base, cfg.thresholds)
     untestable, singles = _single_candidates(search, base, loc, scoring)
     choice = choose(search, scoring, base, singles)
     verdict = _verdict(choice, scoring)
@@ -102,8 +102,8 @@ def diagnose(
         elapsed_s=time.perf_counter() - t_start,
         n_samples=sum(s.n for s in segments),
         held_out=split.held_out,
-        predictions_before=tuple(predictions(base.fit, split.held_out)),
-        predictions_after=tuple(predictions(final.fit, split.held_out)),
+        predictions_before=tuple(search.held_out_predictions(base.fit)),
+        predictions_after=tuple(search.held_out_predictions(final.fit)),
     )
 
 
@@ -164,6 +164,7 @@ def _baseline(search: Search) -> Fitted:
     """The linear model fitted on the fit segments and scored on the held-out ones."""
     cfg, split, noise = search.cfg, search.split, search.noise
     p0 = cfg.initial or equation_error_start(split.fit, search.fixed)
+    search.set_lead_ins(p0.mechanical_time_constant_s)
     try:
         base = search.evaluate((), Model(p0))
     except FIT_ERRORS as exc:
@@ -183,6 +184,10 @@ def _baseline(search: Search) -> Fitted:
     if "L" not in search.fixed and not base.fit.identifiable.get("L", True):
         # L/R below the sample period: hold L for the candidates (one fit, not two)
         search.fixed["L"] = float(base.fit.model.params.L)
+    # lead-ins sized by the fitted motor from here on (the start's tau_m is rough)
+    search.set_lead_ins(base.fit.model.params.mechanical_time_constant_s)
+    base.res = search.held_out_residuals(base.fit)
+    base.gap = base.res.gap()
     search.say(f"baseline (linear model): held-out gap {base.gap:.3g}")
     return base
 
@@ -288,20 +293,20 @@ def _penalized(f: Fitted, scoring: Scoring) -> float:
 # 6. verdict, regimes, assumptions
 # ---------------------------------------------------------------------------
 def _verdict(choice: Choice, scoring: Scoring) -> Verdict:
-    g0, noise_rel, chosen = scoring.g0, scoring.noise_rel, choice.chosen
+    g0, chosen = scoring.g0, choice.chosen
     shrink = (g0 - chosen.gap) / g0 if g0 > 0 else 0.0
     if not chosen.effects:
         if choice.gap_significant and g0 > 0:
             status = VerdictStatus.UNEXPLAINED
             message = (
-                f"the linear model leaves a held-out gap of {g0:.3g} (noise {noise_rel:.2g}) "
-                "and no candidate effect closes it beyond its penalty"
+                f"the linear model leaves a held-out gap of {g0:.3g} noise variances and no "
+                "candidate effect closes it beyond its penalty"
             )
         else:
             status = VerdictStatus.NO_GAP
             message = (
-                f"the linear model matches held-out data to the noise (gap {g0:.3g}, "
-                f"noise {noise_rel:.2g}); no effect is needed"
+                f"the linear model matches held-out data to the noise (gap {g0:.3g} noise "
+                "variances); no effect is needed"
             )
     elif shrink >= scoring.thresholds.explained_shrink:
         status = VerdictStatus.EXPLAINED

@@ -151,7 +151,7 @@ class DiagnosisResult:
                 "noise_sigma": self.noise_sigma,
                 "gap_definition": (
                     "held-out mean squared simulation error minus the noise variance, "
-                    "relative to the signal's mean square, averaged over current and speed"
+                    "in noise variances, averaged over current and speed"
                 ),
                 "regimes": [r.to_json() for r in self.regimes],
             },

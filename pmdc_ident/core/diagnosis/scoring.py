@@ -1,12 +1,15 @@
 """Held-out residuals, noise floors and the gap measure shared by every stage.
 
-The gap of a model on a set of segments is its *excess* simulation error: for
-each measured signal (current, speed), the mean squared free-run simulation
-error minus the measurement noise variance, relative to the signal's mean
-square, averaged over the signals. 0 means "as good as the noise allows"; 0.1
-means a tenth of the signal's energy is unexplained. The noise variance is
-estimated from the data alone (robust spread of sample-to-sample differences),
-so the measure needs no ground truth.
+The gap of a model on a set of segments is its *excess* simulation error in
+units of the measurement noise: for each measured signal (current, speed), the
+mean squared free-run simulation error minus the noise variance, divided by the
+noise variance, averaged over the signals (a signal's excess below zero, noise
+estimated a little high, counts as zero). 0 means "as good as the noise allows";
+1 means the error energy is twice the noise. Each signal counts by what it can
+show: a clean current is not drowned by a speed differentiated from a coarse
+encoder (the output-error fit weighs its residuals the same way). The noise
+variance is estimated from the data alone (:func:`estimate_noise`), so the
+measure needs no ground truth.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment
+from pmdc_ident.core.quality.noise import signal_noise
 
 __all__ = ["SIGNALS", "NoiseModel", "Residuals", "estimate_noise", "residuals"]
 
@@ -45,13 +49,12 @@ class NoiseModel:
     def signals(self) -> tuple[str, ...]:
         return tuple(self.sigma)
 
-    def noise_rel(self, signal: str) -> float:
-        """Noise variance relative to the signal's mean square."""
-        return (self.sigma[signal] / self.scale[signal]) ** 2
-
 
 def estimate_noise(segments: Sequence[Segment]) -> NoiseModel:
-    """Robust noise level per signal: 1.4826 MAD of second differences / sqrt(6)."""
+    """Noise level per signal, the data-quality gate's estimator
+    (:func:`~pmdc_ident.core.quality.noise.signal_noise`: the smaller of the
+    second-difference spread and a one-step ARX prediction residual, per segment),
+    floored at ``NOISE_FLOOR_REL`` of the signal's RMS."""
     sigma: dict[str, float] = {}
     scale: dict[str, float] = {}
     for sig in SIGNALS:
@@ -60,14 +63,10 @@ def estimate_noise(segments: Sequence[Segment]) -> NoiseModel:
             continue  # a signal is compared where segments carry it
         allv = np.concatenate(arrays)
         rms = float(np.sqrt(np.mean(allv**2)))
-        if rms <= 0.0:
+        sd = signal_noise(segments, lambda s, sig=sig: _measured(s, sig))
+        if rms <= 0.0 or sd is None:
             continue
-        diffs = np.concatenate([np.diff(a, 2) for a in arrays if a.size > 3] or [np.zeros(1)])
-        mad = float(np.median(np.abs(diffs - np.median(diffs))))
-        sd = 1.4826 * mad / np.sqrt(6.0)
-        uniq = np.unique(allv)
-        step = float(np.min(np.diff(uniq))) if 1 < uniq.size < allv.size // 2 else 0.0
-        sigma[sig] = max(sd, step / np.sqrt(12.0), NOISE_FLOOR_REL * rms)
+        sigma[sig] = max(sd, NOISE_FLOOR_REL * rms)
         scale[sig] = rms
     return NoiseModel(sigma, scale)
 
@@ -83,35 +82,47 @@ class Residuals:
     seg_index: NDArray[np.int64]
     noise: NoiseModel
 
+    def _excess(self, sig: str) -> FloatArray:
+        """Per-sample excess squared error of one signal in noise variances (NaN where
+        the segment lacks the signal); a diverged simulation (errors of 1e200) is just
+        very wrong: ratios are capped where their square stays finite."""
+        err = self.error[sig]
+        ratio = np.minimum(np.abs(err) / self.noise.sigma[sig], _REL_ERROR_CAP)
+        return np.where(np.isfinite(err), ratio**2 - 1.0, np.nan)
+
     def excess_per_sample(self) -> FloatArray:
-        """Relative excess squared error per sample, averaged over the signals it has."""
+        """Excess squared error per sample in noise variances, averaged over the
+        signals the sample has."""
         acc = np.zeros(self.seg_index.size)
         cnt = np.zeros(self.seg_index.size)
-        for sig, err in self.error.items():
-            ok = np.isfinite(err)
-            scale = self.noise.scale[sig]
-            # a diverged simulation (errors of 1e200) is just very wrong: relative errors
-            # are capped where their square stays finite
-            rel = np.minimum(np.abs(err[ok]) / scale, _REL_ERROR_CAP)
-            acc[ok] += rel**2 - (self.noise.sigma[sig] / scale) ** 2
+        for sig in self.error:
+            x = self._excess(sig)
+            ok = np.isfinite(x)
+            acc[ok] += x[ok]
             cnt += ok
         return acc / np.maximum(cnt, 1)
 
     def gap(self, mask: NDArray[np.bool_] | None = None) -> float:
-        """The gap (see module notes) over all samples or a mask."""
-        e = self.excess_per_sample()
-        if mask is not None:
-            e = e[mask]
-        return float(np.mean(e)) if e.size else 0.0
+        """The gap (see module notes) over all samples or a mask: each signal's mean
+        excess (floored at zero), averaged over the signals present."""
+        parts = []
+        for sig in self.error:
+            x = self._excess(sig)
+            if mask is not None:
+                x = x[mask]
+            x = x[np.isfinite(x)]
+            if x.size:
+                parts.append(max(float(np.mean(x)), 0.0))
+        return float(np.mean(parts)) if parts else 0.0
 
     def gap_by_signal(self) -> dict[str, float]:
-        return {
-            sig: float(
-                (np.nanmean(err**2) - self.noise.sigma[sig] ** 2) / self.noise.scale[sig] ** 2
-            )
-            for sig, err in self.error.items()
-            if np.isfinite(err).any()
-        }
+        """Each signal's excess error over all samples, in noise variances."""
+        out = {}
+        for sig in self.error:
+            x = self._excess(sig)
+            if np.isfinite(x).any():
+                out[sig] = float(np.nanmean(x))
+        return out
 
     def rms_by_signal(self) -> dict[str, float]:
         return {
@@ -119,6 +130,18 @@ class Residuals:
             for sig, err in self.error.items()
             if np.isfinite(err).any()
         }
+
+
+def _simulated(seg: Segment, pred: object, signal: str) -> FloatArray:
+    """The prediction of a measured signal, made the way the measurement was: a speed
+    the log lacks is the central difference of the encoder's position, which damps
+    fast motion (to 64 % at a quarter of the sample rate), so the simulated position
+    is differentiated the same way rather than compared as the model's true speed."""
+    if signal == "speed" and seg.speed is None:
+        pos = getattr(pred, "position", None)
+        if pos is not None and np.size(pos) == seg.n and seg.n > 1:
+            return np.gradient(np.asarray(pos, dtype=float), seg.t)
+    return np.asarray(getattr(pred, signal), dtype=float)
 
 
 def residuals(
@@ -133,8 +156,7 @@ def residuals(
             if meas is None:
                 err[sig].append(np.full(seg.n, np.nan))
                 continue
-            sim = np.asarray(getattr(pred, sig), dtype=float)
-            e = sim - meas
+            e = _simulated(seg, pred, sig) - meas
             err[sig].append(np.where(np.isfinite(e), e, 1e6 * noise.scale[sig]))
         idx.append(np.full(seg.n, k, dtype=np.int64))
     return Residuals(

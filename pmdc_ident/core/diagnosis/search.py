@@ -17,6 +17,7 @@ from pmdc_ident.core.data import Segment
 from pmdc_ident.core.diagnosis.candidates import DataScales, fit_model, free_fields, scan_start
 from pmdc_ident.core.diagnosis.config import DiagnosisConfig
 from pmdc_ident.core.diagnosis.holdout import HoldoutSplit
+from pmdc_ident.core.diagnosis.leadin import LeadIn, lead_ins, predict_held_out
 from pmdc_ident.core.diagnosis.results import CandidateScore
 from pmdc_ident.core.diagnosis.scoring import NoiseModel, Residuals, residuals
 from pmdc_ident.core.diagnosis.verdict import Thresholds
@@ -59,6 +60,17 @@ class Search:
         self.cfg = cfg
         self.progress = progress
         self.fixed = dict(cfg.fixed)
+        self.leads = [LeadIn(seg, 0) for seg in split.held_out]
+
+    def set_lead_ins(self, tau_s: float) -> None:
+        """Predict held-out segments from lead-ins of ``LEAD_IN_TAU`` x ``tau_s``."""
+        self.leads = lead_ins([*self.split.fit, *self.split.held_out], self.split.held_out, tau_s)
+
+    def held_out_predictions(self, fit: FitResult) -> list[Prediction]:
+        return predict_held_out(fit, self.leads)
+
+    def held_out_residuals(self, fit: FitResult) -> Residuals:
+        return residuals(self.split.held_out, self.held_out_predictions(fit), self.noise)
 
     def say(self, text: str) -> None:
         if self.progress is not None:
@@ -70,7 +82,7 @@ class Search:
         if "L" in fixed and "L" not in self.cfg.fixed:
             fixed["L"] = float(model.params.L)  # held where the candidate's scan put it
         fit = fit_model(self.split.fit, model, max_nfev=self.cfg.max_nfev, fixed=fixed or None)
-        res = residuals(self.split.held_out, predictions(fit, self.split.held_out), self.noise)
+        res = self.held_out_residuals(fit)
         return Fitted(effects, fit, res, res.gap(), time.perf_counter() - t0)
 
     def try_evaluate(self, effects: tuple[str, ...], model: Model, fallback: Fitted) -> Fitted:
@@ -114,17 +126,13 @@ class Scoring:
 
     g0: float
     penalty: float
-    noise_rel: float
     thresholds: Thresholds
 
     @classmethod
-    def for_baseline(cls, base: Fitted, noise: NoiseModel, th: Thresholds) -> Scoring:
-        g0 = base.gap
-        noise_rel = float(np.mean([noise.noise_rel(s) for s in noise.signals]))
-        penalty = max(
-            th.penalty_rel_per_param * max(g0, 0.0), th.penalty_noise_per_param * noise_rel
-        )
-        return cls(g0, penalty, noise_rel, th)
+    def for_baseline(cls, base: Fitted, th: Thresholds) -> Scoring:
+        g0 = base.gap  # in noise variances (see core.diagnosis.scoring)
+        penalty = max(th.penalty_rel_per_param * max(g0, 0.0), th.penalty_noise_per_param)
+        return cls(g0, penalty, th)
 
     def score(self, f: Fitted, parent: Fitted | None = None) -> CandidateScore:
         g0, penalty = self.g0, self.penalty

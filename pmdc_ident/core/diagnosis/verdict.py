@@ -3,8 +3,9 @@
 A candidate *helps* when its held-out gap improvement over the baseline beats a
 penalty per added parameter. The penalty has two parts: a fraction of the
 baseline gap (so a flexible effect cannot win by shaving a little off a large
-gap) and a fraction of the measurement-noise energy (so on effect-free data a
-lucky fit of noise is not mistaken for an effect). Both fractions were
+gap) and a fraction of the measurement-noise variance (so on effect-free data a
+lucky fit of noise is not mistaken for an effect); gaps are in noise variances
+(:mod:`~pmdc_ident.core.diagnosis.scoring`). Both fractions were
 calibrated on effect-free benchmark runs (``pmdc-ident benchmark``) to keep
 false attribution at or below 5 %.
 """
@@ -24,11 +25,11 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Thresholds:
-    """Decision constants (relative gaps; see module notes)."""
+    """Decision constants (gaps in noise variances; see module notes)."""
 
     penalty_rel_per_param: float = 0.02  # of the baseline gap
-    penalty_noise_per_param: float = 0.3  # of the relative noise energy
-    no_gap_noise: float = 1.0  # baseline gap below this many noise energies: no gap
+    penalty_noise_per_param: float = 0.3  # noise variances
+    no_gap_noise: float = 1.0  # baseline gap below this many noise variances: no gap
     explained_shrink: float = 0.5  # "most of the gap"
     tie_fraction: float = 0.1  # improvements within 10 % of each other are a tie
 

@@ -22,10 +22,9 @@ from numpy.typing import NDArray
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.params import NEEDED_PARAMETERS
 from pmdc_ident.core.quality.linsim import zoh, zoh_response
-from pmdc_ident.core.quality.physics import noise_level
+from pmdc_ident.core.quality.noise import signal_noise
 from pmdc_ident.core.quality.regress import dynamic, electrical_fit, mechanical_fit
 from pmdc_ident.core.quality.timing import time_constants_s
-from pmdc_ident.core.quantisation import quantisation_sd, quantum
 
 __all__ = ["Information", "expected_information", "rate_for_inductance_hz"]
 
@@ -285,53 +284,13 @@ def _scale(name: str, p: Mapping[str, float]) -> float:
 
 
 def _noise(segments: Sequence[Segment]) -> dict[str, float]:
-    """Per-sample noise of each signal: the smaller of two estimates that each err high.
-
-    Second differences are right for a well-sampled signal but count a signal that
-    changes within a sample as noise; the one-step prediction residual of a small
-    ARX model is right for that case but counts model error as noise.
-    """
+    """Per-sample noise of each signal (:mod:`.noise`; position without the ARX step)."""
 
     def level(name: str) -> float:
-        vals = []
-        for s in segments:
-            x = getattr(s, name)
-            if x is None:
-                continue
-            est = noise_level(x)
-            # a well-sampled signal's second differences are its noise; only a signal
-            # that changes within a sample needs the (costlier) prediction residual
-            resolved = est < 0.01 * float(np.ptp(x))
-            arx = _arx_residual(s, x) if name != "position" and not resolved else None
-            if arx is not None:
-                est = min(est, arx)
-            q = quantum(x)  # a quantised signal is never quieter than its step / sqrt(12)
-            floor = quantisation_sd(q.step) if q is not None else 0.0
-            vals.append(max(est, floor, 1e-9 * float(np.sqrt(np.mean(x * x)) or 1.0)))
-        return float(np.median(vals)) if vals else 1.0
+        sd = signal_noise(segments, lambda s: getattr(s, name), arx=name != "position")
+        return 1.0 if sd is None else sd
 
     return {"current": level("current"), "speed": level("speed"), "position": level("position")}
-
-
-def _arx_residual(s: Segment, x: FloatArray) -> float | None:
-    """RMS one-step prediction error of ``x`` from its past and the other signals."""
-    if s.n < 20:
-        return None
-    cols = [x[:-1], np.ones(s.n - 1)]
-    for other in (s.voltage, s.current, s.speed):
-        if other is not None and other is not x:
-            o = np.nan_to_num(other)
-            cols += [o[:-1], o[1:]]
-    w = s.speed_or_derivative()
-    cols.append(np.sign(w[1:]))
-    a = np.column_stack(cols)
-    scale = np.sqrt((a * a).sum(axis=0))
-    scale[scale == 0] = 1.0
-    a /= scale
-    coef = np.linalg.pinv(a.T @ a, rcond=1e-12) @ (a.T @ x[1:])
-    resid = x[1:] - a @ coef
-    dof = max(s.n - 1 - a.shape[1], 1)
-    return float(np.sqrt(resid @ resid / dof))
 
 
 def _information(blocks: list[FloatArray], n_par: int) -> FloatArray | None:

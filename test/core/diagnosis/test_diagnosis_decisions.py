@@ -26,11 +26,21 @@ def test_evidence_separates_only_what_the_held_out_blocks_show():
     a = rng.normal(1.0, 1.0, 4000)
     same = a + rng.normal(0.0, 1.0, 4000)  # as good as a, up to noise
     worse = a + 0.5 + rng.normal(0.0, 1.0, 4000)  # worse by half a unit everywhere
-    assert not separated(_cand(a), _cand(same), 0, 0.0)
-    assert separated(_cand(a), _cand(worse), 0, 0.0)
+    assert not separated(_cand(a), _cand(same), 0, 0.0, 1.0)
+    assert separated(_cand(a), _cand(worse), 0, 0.0, 1.0)
     # a candidate with an extra parameter must beat the best by that parameter's penalty
-    assert separated(_cand(a), _cand(same), 1, 0.5)
-    assert not separated(_cand(a), _cand(worse), -1, 0.5)
+    assert separated(_cand(a), _cand(same), 1, 0.5, 1.0)
+    assert not separated(_cand(a), _cand(worse), -1, 0.5, 1.0)
+
+
+def test_a_difference_that_is_itself_a_gap_separates_wherever_it_lies():
+    # the other candidate fails only in one stretch (a coast-down, 1/20 of the samples)
+    # but there by 100 noise variances: 5 on average, beyond the no-gap level of 1
+    rng = np.random.default_rng(1)
+    a = rng.normal(0.0, 1.0, 4000)
+    other = a + np.where(np.arange(4000) < 200, 100.0, 0.0)
+    assert separated(_cand(a), _cand(other), 0, 0.0, 1.0)
+    assert not separated(_cand(a), _cand(other), 0, 0.0, 10.0)  # the block test alone
 
 
 def _session(tau_s: float, k: float = 0.02):  # type: ignore[no-untyped-def]
