@@ -71,7 +71,10 @@ def test_a_host_reconnects_after_the_board_process_restarts() -> None:
                 errors.append(str(exc))
             time.sleep(0.01)
         assert errors and "reconnecting" in errors[0]
-        assert be.state is LinkState.LOST
+        if be.state is LinkState.FAILED:  # the freed /dev/pts/N went to another program
+            assert "another program's terminal" in be.link_stats.last_error  # (a busy host)
+        else:
+            assert be.state is LinkState.LOST
     finally:
         be.close()
         if proc.poll() is None:
