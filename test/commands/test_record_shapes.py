@@ -60,6 +60,15 @@ def test_current_driven_fit_prints_no_transfer_function(tmp_path, capsys):
     assert _value(doc, "J") == pytest.approx(2e-5, rel=0.01)
     assert "transfer functions: none (mechanical-only fit" in out
     assert "I(s)/V(s) = " not in out and doc["transfer_functions"] == {}
+    # the data show Kt/J: a known inertia (CAD, a datasheet) gives Kt instead
+    doc, _ = _identify(path, capsys, "--fix", "J=2e-5")
+    assert _value(doc, "Kt") == pytest.approx(0.05, rel=0.01)
+    assert doc["parameters"]["Kt"]["ci95"] is not None
+    assert "given J = 2e-05 kg*m^2" in " ".join(doc["assumptions"])
+    # neither: one line naming both options
+    rc = main(["identify", str(path), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc == 2 and "show only Kt/J: --fix Kt=" in err and "--fix J=" in err, err
 
 
 def test_closed_loop_speed_control_identifies(tmp_path, capsys):

@@ -237,9 +237,17 @@ def _mechanical_regression(w0, w1, i_avg, s0, dt, coulomb):
 
 
 def fit_mechanical_equation_error(
-    segments: Sequence[Segment], *, Kt: float, coulomb: bool = True
+    segments: Sequence[Segment],
+    *,
+    Kt: float | None = None,
+    J: float | None = None,
+    coulomb: bool = True,
 ) -> EquationErrorResult:
-    """Current-driven data: ``J dw/dt = Kt i - B w - Tc sign(w) - T_load`` given ``Kt``."""
+    """Current-driven data: ``J dw/dt = Kt i - B w - Tc sign(w) - T_load`` given ``Kt``
+    or ``J`` (the data show only their ratio)."""
+    if (Kt is None) == (J is None):
+        msg = "the mechanical-only fit needs exactly one of Kt and J"
+        raise ValueError(msg)
     parts = [[], [], [], [], []]
     for s in segments:
         if s.current is None or s.n < 4:
@@ -270,7 +278,10 @@ def fit_mechanical_equation_error(
     if beta[0] <= 0:
         msg = "equation error: current does not accelerate the rotor (check the signs)"
         raise DataError(msg)
-    J = Kt / float(beta[0])
+    if J is None:
+        J = Kt / float(beta[0])
+    else:
+        Kt = float(beta[0]) * J
     vals = {"Kt": Kt, "J": J, "B": max(float(beta[1]) * J, 0.0)}
     if coulomb:
         vals["coulomb_friction.torque_nm"] = float(beta[2]) * J

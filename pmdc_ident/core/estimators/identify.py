@@ -266,13 +266,17 @@ def _closure(
         closure_used = None
     assumptions: list[str] = []
     if current_mode:
-        if "Kt" not in fixed:
-            msg = "current-driven data (no voltage column) need the torque constant: --fix Kt=..."
+        if "Kt" in fixed:
+            given = f"(J, B, Coulomb, load torque) given Kt = {fixed['Kt']:g} N*m/A"
+        elif "J" in fixed:
+            given = f"(Kt, B, Coulomb, load torque) given J = {fixed['J']:g} kg*m^2"
+        else:
+            msg = (
+                "current-driven data (no voltage column) show only Kt/J: --fix Kt=... (the "
+                "torque constant) or --fix J=... (a known rotor inertia)"
+            )
             raise ParameterError(msg)
-        assumptions.append(
-            f"no voltage column: mechanical-only fit (J, B, Coulomb, load torque) "
-            f"given Kt = {fixed['Kt']:g} N*m/A"
-        )
+        assumptions.append(f"no voltage column: mechanical-only fit {given}")
         closure_used = None
     elif added:
         amounts = ", ".join(sorted({f"{v:g}" for v in added.values()}))
@@ -358,7 +362,9 @@ def _equation_error(
     say("equation error (discretised equations)")
     try:
         if setup.current_mode:
-            ee = fit_mechanical_equation_error(setup.dynamic, Kt=setup.fixed["Kt"])
+            kt = setup.fixed.get("Kt")
+            j = setup.fixed.get("J") if kt is None else None
+            ee = fit_mechanical_equation_error(setup.dynamic, Kt=kt, J=j)
         else:
             j_known = setup.fixed.get("J") if setup.closure is None else None
             ee = fit_equation_error(setup.dynamic, Kt=setup.fixed.get("Kt"), J=j_known)

@@ -138,8 +138,8 @@ def _closure(
         tie_kt = False
         for n in ("R", "L", "Ke"):
             reasons[n] = "no voltage in the data: electrical parameters are not observable"
-        if "Kt" not in fixed:
-            reasons["Kt"] = "given (current-driven data fix the scale through Kt)"
+        if "Kt" not in fixed and "J" not in fixed:
+            reasons["Kt"] = "given (current-driven data fix the scale through Kt or J)"
     return tie_kt, reasons
 
 
@@ -152,11 +152,13 @@ def _free_names(
 ) -> list[str]:
     """The parameters to fit: ``free`` (checked) or every fittable one."""
     if free is None:
+        # current-driven data: Kt is fitted when a known J fixes the scale instead
+        unseen = ("R", "L", "Ke") if "J" in fixed else _ELECTRICAL
         return [
             n
             for n in values
             if n not in fixed
-            and not (current_mode and n in _ELECTRICAL)
+            and not (current_mode and n in unseen)
             and not (tie_kt and n == "Kt")
             and (n in PARAMETER_NAMES or is_fitted_field(n))
         ]
