@@ -13,12 +13,17 @@ motor (``make demo``'s; ``--bag PATH`` times a recorded bag instead, e.g.
 ``pmdc_sessions/demo/<session>``). Every figure is the median of ``--repeat`` runs
 (min-max in brackets); the load average is printed before and after, since the
 machine is shared and wall time depends on it while CPU time much less so.
+
+Naive references in the same run: ``--help`` against a process importing every command
+module and the estimators up front (the pre-lazy-import start-up), ``identify`` and
+``diagnose`` warm against cold (every kernel compiled, as without the on-disk cache).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import resource
 import statistics
 import subprocess
@@ -33,13 +38,15 @@ EXE = Path(sys.executable).with_name("pmdc-ident")
 
 
 def _timed(cmd: list[str], env: dict[str, str]) -> tuple[float, float, int]:
-    """Wall and CPU (user + system) time of one child process, and its exit status."""
+    """Wall and CPU (user + system) time of one child process, and its exit status
+    (its standard error is kept in ``_timed.stderr``)."""
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    _timed.stderr = proc.stderr  # type: ignore[attr-defined]
     if proc.returncode not in (0, 2):
         print(f"  ! {' '.join(cmd[1:])}: exit {proc.returncode}\n{proc.stderr[-2000:]}")
     return wall, cpu, proc.returncode
@@ -52,9 +59,30 @@ def _fmt(values: list[float]) -> str:
     return f"{med:7.2f} [{min(values):.2f}-{max(values):.2f}]"
 
 
-def measure(name: str, args: list[str], repeat: int, scratch: Path) -> None:
-    """Cold (fresh numba cache) and warm (second use of that cache) runs of one command."""
+# The naive reference for start-up: the same help text from a process that imports every
+# command module and the estimators they use up front (what --help cost before the imports
+# were made lazy).
+EAGER_HELP = (
+    "import pmdc_ident.cli as cli\n"
+    "for m in cli.COMMANDS.values():\n"
+    "    __import__('pmdc_ident.commands.' + m)\n"
+    "import pmdc_ident.core.estimators.identify, pmdc_ident.core.diagnosis.pipeline\n"
+    "import pmdc_ident.dataio.bagio, pmdc_ident.report.plots\n"
+    "cli.main(['--help'])\n"
+)
+
+
+def measure(
+    name: str, args: list[str], repeat: int, scratch: Path, fits: bool = False
+) -> dict[str, tuple[list[float], list[float]]]:
+    """Cold (fresh numba cache) and warm (second use of that cache) runs of one command.
+
+    With ``fits=True`` (``identify`` with its progress lines) the warm runs' time from
+    the start of the linear output-error fit to the end of the Coulomb fit and the
+    model choice (the progress stamps of 'output error, linear model' and 'validation')
+    is printed too."""
     rows: dict[str, tuple[list[float], list[float]]] = {"cold": ([], []), "warm": ([], [])}
+    fit_s: list[float] = []
     for _ in range(repeat):
         cache = Path(tempfile.mkdtemp(prefix="numba_cache_", dir=scratch))
         env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
@@ -62,8 +90,43 @@ def measure(name: str, args: list[str], repeat: int, scratch: Path) -> None:
             wall, cpu, _rc = _timed([str(EXE), *args], env)
             rows[mode][0].append(wall)
             rows[mode][1].append(cpu)
+            if mode == "warm" and fits:
+                fit_s.extend(_fit_span(_timed.stderr))  # type: ignore[attr-defined]
     for mode, (walls, cpus) in rows.items():
         print(f"  {name:<28} {mode}  wall {_fmt(walls)} s   CPU {_fmt(cpus)} s", flush=True)
+    if fit_s:
+        print(f"  {'  of it linear+Coulomb fits':<28} warm  wall {_fmt(fit_s)} s")
+    return rows
+
+
+_STAMP = re.compile(r"^\[\s*([0-9.]+) s\] (output error, linear model|validation)")
+
+
+def _fit_span(stderr: str) -> list[float]:
+    """Seconds from 'output error, linear model' to 'validation' in identify's progress."""
+    t = {m.group(2): float(m.group(1)) for m in map(_STAMP.match, stderr.splitlines()) if m}
+    if len(t) < 2:
+        return []
+    return [t["validation"] - t["output error, linear model"]]
+
+
+def _ratio(name: str, ref: list[float], ours: list[float], what: str) -> None:
+    r = statistics.median(ref) / statistics.median(ours)
+    print(f"  {name:<28} ratio {r:5.1f}x  ({what})", flush=True)
+
+
+def measure_eager_help(repeat: int) -> list[float]:
+    """Wall times of the eager-import reference of ``--help``."""
+    walls, cpus = [], []
+    for _ in range(repeat):
+        wall, cpu, _rc = _timed([sys.executable, "-c", EAGER_HELP], dict(os.environ))
+        walls.append(wall)
+        cpus.append(cpu)
+    print(
+        f"  {'--help, eager imports':<28} ref   wall {_fmt(walls)} s   CPU {_fmt(cpus)} s",
+        flush=True,
+    )
+    return walls
 
 
 def make_runs(scratch: Path) -> dict[str, Path]:
@@ -100,13 +163,18 @@ def main(argv: list[str] | None = None) -> int:
         runs = make_runs(scratch)
         runs.update({f"bag {Path(b).name}": Path(b) for b in args.bag})
         print("== pmdc-ident start-up")
-        measure("--help", ["--help"], args.repeat, scratch)
+        helps = measure("--help", ["--help"], args.repeat, scratch)
+        eager = measure_eager_help(args.repeat)
+        _ratio("--help", eager, helps["warm"][0], "eager-import reference / ours, wall")
         measure("identify (argument error)", ["identify", "--bootstrap"], args.repeat, scratch)
         for label, path in runs.items():
             print(f"== {label}: {path.name}")
-            measure("identify", ["identify", str(path), "--quiet"], args.repeat, scratch)
+            cmd = ["identify", str(path), "--json", str(scratch / "identify.json")]
+            rows = measure("identify", cmd, args.repeat, scratch, fits=True)
+            _ratio("identify", rows["cold"][0], rows["warm"][0], "cold cache / warm, wall")
             if not args.skip_diagnose:
-                measure("diagnose", ["diagnose", str(path)], args.repeat, scratch)
+                rows = measure("diagnose", ["diagnose", str(path)], args.repeat, scratch)
+                _ratio("diagnose", rows["cold"][0], rows["warm"][0], "cold cache / warm, wall")
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     return 0
 

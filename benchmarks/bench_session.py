@@ -72,6 +72,7 @@ _EVENTS = (
     ("identification", "identification ready", "identification node ready"),
     ("identification", "session ", "session started (plan sent, driver found)"),
     ("identification", "session ", "session complete (last segment ended)"),
+    ("identification", "identification worker", "identification worker warm"),
     ("identification", "session ", "last samples in, identification started"),
     ("identification", "session ", "identification worker done"),
     ("identification", "session ", "identified, result published"),
@@ -88,6 +89,7 @@ def _timeline(logs: dict, t0: float, t1: float) -> list[tuple[str, float]]:
         "session started (plan sent, driver found)": " segments, nominal ",
         "session complete (last segment ended)": " complete: ",
         "last samples in, identification started": "; identifying",
+        "identification worker warm": " warmed up during the session",
         "identification worker done": " in the worker",
         "identified, result published": ": identified from ",
     }
@@ -99,6 +101,17 @@ def _timeline(logs: dict, t0: float, t1: float) -> list[tuple[str, float]]:
             out.append((label, hit - t0))
     out.append(("nodes stopped, bring-up returned", t1 - t0))
     return sorted(out, key=lambda e: e[1])
+
+
+def _worker_notes(log: Path) -> list[str]:
+    """The identification node's lines on its start-up waits, warm-up and fit time."""
+    notes = []
+    for line in log.read_text().splitlines():
+        m = _LOG_LINE.match(line)
+        text = m.group(2) if m else ""
+        if any(k in text for k in ("start-up waited", "warmed up", "in the worker")):
+            notes.append(text.split("; ")[-1])
+    return notes
 
 
 def session(name: str, motor: str, params: dict, domain: int) -> None:
@@ -127,6 +140,7 @@ def session(name: str, motor: str, params: dict, domain: int) -> None:
                 print(f"--- {k}\n{p.read_text()[-2000:]}")
             return
         events = _timeline(res.logs, t0, t1)
+        notes = _worker_notes(res.logs["identification"])
         a = read_driver_arrays(res.bag)
         ms = a.markers
         t_start, t_end = ms[0].t_s, ms[-1].t_s
@@ -150,6 +164,8 @@ def session(name: str, motor: str, params: dict, domain: int) -> None:
     for label, t in events:
         print(f"    {t:7.2f}  (+{t - last:5.2f})  {label}")
         last = t
+    for text in notes:
+        print(f"    identification node: {text}")
     print(
         f"  samples recorded / expected {recorded} / {expected} "
         f"({100.0 * recorded / expected:.2f} %, {gaps} gaps); "
