@@ -33,6 +33,7 @@ from pathlib import Path
 from pmdc_ident.core.effects import CoulombFriction, QuadraticDrag
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.motors import MotorSpec
+from pmdc_ident.core.params import MotorParams
 
 __all__ = ["MUJOCO_FLAVOURS", "MujocoExport", "installed_mujoco_flavour", "mujoco_xml"]
 
@@ -98,30 +99,13 @@ def mujoco_xml(
     """MJCF of the motor ``spec`` behind a gear of ratio ``reduction`` (motor turns per
     joint turn); ``flavour`` None picks :func:`installed_mujoco_flavour`."""
     flavour = flavour or installed_mujoco_flavour()
-    if flavour not in MUJOCO_FLAVOURS:
-        msg = f"MuJoCo actuator flavour must be one of {', '.join(MUJOCO_FLAVOURS)}, got {flavour}"
-        raise ParameterError(msg)
-    if not (math.isfinite(reduction) and reduction > 0):
-        msg = f"gear reduction must be a positive number, got {reduction}"
-        raise ParameterError(msg)
-    if not (math.isfinite(timestep_s) and 0 < timestep_s <= 0.01):
-        msg = f"MuJoCo timestep must lie in (0, 0.01] s, got {timestep_s}"
-        raise ParameterError(msg)
+    _check_arguments(flavour, reduction, timestep_s)
     p, n = spec.model.params, float(reduction)
     coulomb = spec.model.effect("coulomb_friction")
     drag = spec.model.effect("quadratic_drag")
     tc = coulomb.torque_nm if isinstance(coulomb, CoulombFriction) else 0.0
     cq = drag.coeff_nm_s2 if isinstance(drag, QuadraticDrag) else 0.0
-    not_carried = (
-        tuple(
-            f"{name}: {_NOT_CARRIED[name]}"
-            for name in spec.model.effect_names
-            if name in _NOT_CARRIED
-        )
-        + _ALWAYS_NOTED
-    )
-    if cq > 0 and flavour == "general":
-        not_carried += ("quadratic_drag: polynomial joint damping needs MuJoCo >= 4",)
+    not_carried = _not_carried(spec, flavour, cq)
 
     root = ET.Element("mujoco", model=spec.name or "pmdc_motor")
     ET.SubElement(root, "option", timestep=_f(timestep_s), gravity="0 0 0")
@@ -144,8 +128,8 @@ def mujoco_xml(
     )
     # The rotor's inertia is the joint armature; the body itself is nearly massless.
     ET.SubElement(body, "inertial", pos="0 0 0", mass="1e-6", diaginertia="1e-12 1e-12 1e-12")
-    act = ET.SubElement(root, "actuator")
     vmax = spec.limits.voltage_max_v
+    notes = [f"ctrl is the armature voltage in V (limited to +-{vmax:g} V)"]
     common = {
         "name": f"{joint}_motor",
         "joint": joint,
@@ -153,34 +137,7 @@ def mujoco_xml(
         "ctrllimited": "true",
         "ctrlrange": f"{_f(-vmax)} {_f(vmax)}",
     }
-    notes = [f"ctrl is the armature voltage in V (limited to +-{vmax:g} V)"]
-    if flavour == "dcmotor":
-        scale = p.Ke / p.Kt
-        ET.SubElement(
-            act,
-            "dcmotor",
-            **common,
-            resistance=_f(p.R * scale),
-            motorconst=f"{_f(p.Ke)} {_f(p.Ke)}",
-            inductance=f"{_f(p.L * scale)} 0",
-        )
-        notes.append(
-            f"MuJoCo's K = Ke; R and L scaled by Ke/Kt = {scale:.6g}, so the actuator's "
-            f"current state reads i * Kt/Ke (speed and torque are exact)"
-        )
-    else:
-        ET.SubElement(
-            act,
-            "general",
-            **common,
-            dyntype="filterexact",
-            dynprm=_f(p.L / p.R),
-            gaintype="fixed",
-            gainprm=_f(p.Kt / p.R),
-            biastype="affine",
-            biasprm=f"0 0 {_f(-p.Kt * p.Ke / p.R)}",
-        )
-        notes.append("the inductance lags the voltage only, not the back-EMF (see module doc)")
+    notes.append(_actuator(ET.SubElement(root, "actuator"), flavour, common, p))
     text = ET.tostring(root, encoding="unicode")
     header = _comment(spec, n, flavour, notes, not_carried)
     xml = _pretty(header + text)
@@ -193,6 +150,59 @@ def mujoco_xml(
         not_carried=not_carried,
         notes=tuple(notes),
     )
+
+
+def _check_arguments(flavour: str, reduction: float, timestep_s: float) -> None:
+    if flavour not in MUJOCO_FLAVOURS:
+        msg = f"MuJoCo actuator flavour must be one of {', '.join(MUJOCO_FLAVOURS)}, got {flavour}"
+        raise ParameterError(msg)
+    if not (math.isfinite(reduction) and reduction > 0):
+        msg = f"gear reduction must be a positive number, got {reduction}"
+        raise ParameterError(msg)
+    if not (math.isfinite(timestep_s) and 0 < timestep_s <= 0.01):
+        msg = f"MuJoCo timestep must lie in (0, 0.01] s, got {timestep_s}"
+        raise ParameterError(msg)
+
+
+def _not_carried(spec: MotorSpec, flavour: str, quadratic_drag: float) -> tuple[str, ...]:
+    """What of the motor's model the MJCF cannot carry, one line each."""
+    out = tuple(
+        f"{name}: {_NOT_CARRIED[name]}" for name in spec.model.effect_names if name in _NOT_CARRIED
+    )
+    out += _ALWAYS_NOTED
+    if quadratic_drag > 0 and flavour == "general":
+        out += ("quadratic_drag: polynomial joint damping needs MuJoCo >= 4",)
+    return out
+
+
+def _actuator(act: ET.Element, flavour: str, common: dict[str, str], p: MotorParams) -> str:
+    """The motor's actuator element in ``act``; returns the note it needs."""
+    if flavour == "dcmotor":
+        scale = p.Ke / p.Kt
+        ET.SubElement(
+            act,
+            "dcmotor",
+            **common,
+            resistance=_f(p.R * scale),
+            motorconst=f"{_f(p.Ke)} {_f(p.Ke)}",
+            inductance=f"{_f(p.L * scale)} 0",
+        )
+        return (
+            f"MuJoCo's K = Ke; R and L scaled by Ke/Kt = {scale:.6g}, so the actuator's "
+            f"current state reads i * Kt/Ke (speed and torque are exact)"
+        )
+    ET.SubElement(
+        act,
+        "general",
+        **common,
+        dyntype="filterexact",
+        dynprm=_f(p.L / p.R),
+        gaintype="fixed",
+        gainprm=_f(p.Kt / p.R),
+        biastype="affine",
+        biasprm=f"0 0 {_f(-p.Kt * p.Ke / p.R)}",
+    )
+    return "the inductance lags the voltage only, not the back-EMF (see module doc)"
 
 
 def _f(x: float) -> str:
