@@ -80,21 +80,7 @@ def levenberg_marquardt(
         d[d <= 0] = 1.0
         improved = False
         while nfev < max_nfev:
-            M = A + lam * np.diag(d)
-            active = np.ones(prob.n_total, dtype=bool)
-            for _ in range(3):
-                step = np.zeros(prob.n_total)
-                sub = np.ix_(active, active)
-                try:
-                    step[active] = -np.linalg.solve(M[sub], g[active])
-                except np.linalg.LinAlgError:
-                    step[active] = -np.linalg.lstsq(M[sub], g[active], rcond=None)[0]
-                out = ((z <= lo) & (step < 0)) | ((z >= hi) & (step > 0))
-                if not (out & active).any():
-                    break
-                active &= ~out
-            if not np.isfinite(step).all():  # a singular system: damp harder
-                step = np.zeros(prob.n_total)
+            step = _bounded_step(A + lam * np.diag(d), g, z, lo, hi)
             z_new = prob.clip(z + prob.limit_step(step))
             # After an accepted step the next trial is usually accepted too: compute
             # its Jacobian at once; after a rejection, try residuals only.
@@ -137,3 +123,27 @@ def levenberg_marquardt(
         if converged or not improved:
             break
     return z, LMState(cost, nfev, it, converged, message)
+
+
+def _bounded_step(
+    M: FloatArray, g: FloatArray, z: FloatArray, lo: FloatArray, hi: FloatArray
+) -> FloatArray:
+    """The damped step ``M step = -g``; a parameter at a bound whose step points
+    outwards is held (active set, at most three passes); zero when not finite (a
+    singular system: the caller damps harder)."""
+    n = g.size
+    active = np.ones(n, dtype=bool)
+    for _ in range(3):
+        step = np.zeros(n)
+        sub = np.ix_(active, active)
+        try:
+            step[active] = -np.linalg.solve(M[sub], g[active])
+        except np.linalg.LinAlgError:
+            step[active] = -np.linalg.lstsq(M[sub], g[active], rcond=None)[0]
+        out = ((z <= lo) & (step < 0)) | ((z >= hi) & (step > 0))
+        if not (out & active).any():
+            break
+        active &= ~out
+    if not np.isfinite(step).all():
+        step = np.zeros(n)
+    return step
