@@ -4,25 +4,42 @@ numba is used when importable; otherwise the kernels run as plain Python (same
 results, slower). Set ``PMDC_IDENT_NO_JIT=1`` to force plain Python.
 
 Every kernel is compiled once and cached on disk (``cache=True``), so only the
-first process on a machine pays the compilation. numba looks for a writable
-place in this order: ``NUMBA_CACHE_DIR``, the ``__pycache__`` beside the source,
-the user's cache directory (``~/.cache/numba``). An installed package is often
-read-only and a service may have no writable home: then the kernels are cached
-in a private directory under the system's temporary directory instead (see
-:func:`_private_cache_dir`), and if even that is impossible they are compiled
+first process pays the compilation. numba alone would invalidate a cached kernel
+only when *its own* source file changes, not when a kernel it calls from another
+module does (``output_error/kernel.py`` inlines ``model.effects_kernel``): after a
+``git pull`` that changes only ``model.py`` the old physics would run on, silently.
+So unless ``NUMBA_CACHE_DIR`` is set, the cache lives in a folder named by a hash of
+every kernel source (:data:`KERNEL_SOURCES`): ``$XDG_CACHE_HOME/pmdc_ident`` (or
+``~/.cache/pmdc_ident``), and where that is not writable (a service with no home)
+a private directory under the system's temporary directory
+(:func:`_private_cache_dir`). If even that is impossible the kernels are compiled
 per process, never an import error.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
+import shutil
 import stat
 import tempfile
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["HAVE_NUMBA", "njit"]
+__all__ = ["HAVE_NUMBA", "KERNEL_SOURCES", "njit"]
+
+#: every module with a numba kernel, relative to the package; a test keeps it complete
+KERNEL_SOURCES = (
+    "core/_jit.py",
+    "core/model.py",
+    "core/estimators/output_error/kernel.py",
+    "core/drift_estimator.py",
+    "dataio/mcap_scan.py",
+    "benchmark/plant.py",
+)
+_STALE_AFTER_S = 7 * 24 * 3600.0  # caches of other source versions unused this long go
 
 try:
     if os.environ.get("PMDC_IDENT_NO_JIT"):
@@ -33,6 +50,19 @@ try:
 except ImportError:  # pragma: no cover - exercised only without numba
     _numba = None
     HAVE_NUMBA = False
+
+
+def kernel_fingerprint(root: Path | None = None) -> str:
+    """A short hash of every kernel source under ``root`` (the package): a changed
+    kernel gets a fresh cache."""
+    h = hashlib.sha1()
+    root = root or Path(__file__).resolve().parents[1]
+    for rel in KERNEL_SOURCES:
+        try:
+            h.update((root / rel).read_bytes())
+        except OSError:
+            h.update(rel.encode())
+    return h.hexdigest()[:12]
 
 
 def _private_cache_dir() -> str | None:
@@ -53,6 +83,47 @@ def _private_cache_dir() -> str | None:
     return str(path)
 
 
+def _user_cache_dir() -> str | None:
+    """``$XDG_CACHE_HOME/pmdc_ident`` or ``~/.cache/pmdc_ident`` when writable."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    path = Path(base) / "pmdc_ident"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    return str(path) if os.access(path, os.W_OK | os.X_OK) else None
+
+
+def _versioned_cache_dir() -> str | None:
+    """``<user or private cache>/numba-<fingerprint>``, created; older versions'
+    folders unused for a week are removed. ``None`` when nothing is writable."""
+    for base in (_user_cache_dir(), _private_cache_dir()):
+        if base is None:
+            continue
+        path = Path(base) / f"numba-{kernel_fingerprint()}"
+        try:
+            path.mkdir(mode=0o700, exist_ok=True)
+        except OSError:
+            continue
+        _prune(Path(base), keep=path)
+        return str(path)
+    return None
+
+
+def _prune(base: Path, keep: Path) -> None:
+    now = time.time()
+    for old in base.glob("numba-*"):
+        try:
+            if old != keep and now - old.stat().st_mtime > _STALE_AFTER_S:
+                shutil.rmtree(old, ignore_errors=True)
+        except OSError:
+            pass
+
+
+if _numba is not None and not _numba.config.CACHE_DIR:
+    _numba.config.CACHE_DIR = _versioned_cache_dir() or ""
+
+
 def njit(func: Callable[..., Any]) -> Callable[..., Any]:
     """``numba.njit(cache=True, nogil=True)`` when numba is available, else the function."""
     if _numba is None:
@@ -60,11 +131,4 @@ def njit(func: Callable[..., Any]) -> Callable[..., Any]:
     try:
         return _numba.njit(cache=True, nogil=True)(func)
     except RuntimeError:  # "cannot cache function ...: no locator available"
-        pass
-    if not _numba.config.CACHE_DIR and (private := _private_cache_dir()) is not None:
-        _numba.config.CACHE_DIR = private  # numba reads it for every later kernel too
-        try:
-            return _numba.njit(cache=True, nogil=True)(func)
-        except RuntimeError:
-            pass
-    return _numba.njit(nogil=True)(func)
+        return _numba.njit(nogil=True)(func)

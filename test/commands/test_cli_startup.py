@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from pmdc_ident.commands.identify import MODEL_CHOICES
+from pmdc_ident.core import _jit
 from pmdc_ident.core.estimators.identify import ModelChoice
 
 HEAVY = ("numpy", "scipy", "numba", "llvmlite", "matplotlib", "rosbags", "mcap", "yaml")
@@ -112,11 +115,16 @@ print(json.dumps({"value": kernel_module.add_one(1.0), "cache_dir": cache,
 """
 
 
-def _kernel_probe(tmp_path, locators: str) -> dict:
-    """Compile a kernel through ``_jit.njit`` with only ``locators`` allowed to numba."""
+def _kernel_probe(tmp_path, locators: str, home: Path | None = None) -> dict:
+    """Compile a kernel through ``_jit.njit`` with only ``locators`` allowed to numba
+    and ``home`` as the user's home (default: one under ``tmp_path``)."""
     (tmp_path / "kernel_module.py").write_text(_KERNEL)
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
-    env.update(NUMBA_CACHE_LOCATOR_CLASSES=locators, TMPDIR=str(tmp_path))
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME")}
+    env.update(
+        NUMBA_CACHE_LOCATOR_CLASSES=locators,
+        TMPDIR=str(tmp_path),
+        HOME=str(home or tmp_path / "home"),
+    )
     env["PYTHONPATH"] = os.pathsep.join([str(tmp_path), env.get("PYTHONPATH", "")])
     out = subprocess.run(
         [sys.executable, "-c", _KERNEL_PROBE],
@@ -129,12 +137,48 @@ def _kernel_probe(tmp_path, locators: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def test_kernels_are_cached_in_a_folder_named_by_the_kernel_sources(tmp_path) -> None:
+    res = _kernel_probe(tmp_path, "UserProvidedCacheLocator,IPythonCacheLocator")
+    assert res["value"] == 2.0
+    want = tmp_path / "home" / ".cache" / "pmdc_ident" / f"numba-{_jit.kernel_fingerprint()}"
+    assert res["cache_dir"] == str(want)
+    assert res["files"]  # the compiled kernel landed there
+
+
+def test_a_change_in_any_kernel_source_moves_the_cache(tmp_path) -> None:
+    # numba alone invalidates a cached kernel only when its own file changes; the
+    # output-error kernel inlines model.effects_kernel from another file
+    root = Path(_jit.__file__).resolve().parents[1]
+    for rel in _jit.KERNEL_SOURCES:
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(root / rel, tmp_path / rel)
+    before = _jit.kernel_fingerprint(tmp_path)
+    assert before == _jit.kernel_fingerprint()
+    with (tmp_path / "core" / "model.py").open("a") as f:
+        f.write("# a changed crossing rule\n")
+    assert _jit.kernel_fingerprint(tmp_path) != before
+
+
+def test_every_module_with_a_kernel_is_in_the_fingerprint() -> None:
+    root = Path(_jit.__file__).resolve().parents[1]
+    users = {
+        str(p.relative_to(root))
+        for p in root.rglob("*.py")
+        if "core._jit import" in p.read_text() or "core import _jit" in p.read_text()
+    }
+    assert users | {"core/_jit.py"} == set(_jit.KERNEL_SOURCES)
+
+
 def test_kernels_are_cached_privately_when_no_cache_location_is_writable(tmp_path) -> None:
     # As for a read-only installed package run by a user without a writable home:
     # numba finds no cache location beside the source nor in the user's cache.
-    res = _kernel_probe(tmp_path, "UserProvidedCacheLocator,IPythonCacheLocator")
+    (tmp_path / "not_a_folder").write_text("")
+    res = _kernel_probe(
+        tmp_path, "UserProvidedCacheLocator,IPythonCacheLocator", tmp_path / "not_a_folder" / "h"
+    )
     assert res["value"] == 2.0
-    assert res["cache_dir"] == str(tmp_path / f"pmdc_ident-numba-{os.getuid()}")
+    private = tmp_path / f"pmdc_ident-numba-{os.getuid()}"
+    assert res["cache_dir"] == str(private / f"numba-{_jit.kernel_fingerprint()}")
     assert res["files"]  # the compiled kernel landed there
 
 
