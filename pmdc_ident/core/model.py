@@ -447,6 +447,18 @@ def _zoh2(a11, a12, a21, a22, h):  # pragma: no cover - jitted
 
 
 @njit
+def _from_rest(i, th, v, t_opp, r, ind, ke, kt, j, b, h):  # pragma: no cover - jitted
+    """Exact ZOH step of length ``h`` from speed 0 (current ``i``) with the opposing
+    torque ``t_opp`` held; returns (i, w, theta), theta by the trapezoid."""
+    e11, e12, e21, e22, g11, g12, g21, g22 = _zoh2(-r / ind, -ke / ind, kt / j, -b / j, h)
+    u1 = v / ind
+    u2 = -t_opp / j
+    i_new = e11 * i + g11 * u1 + g12 * u2
+    w_new = e21 * i + g21 * u1 + g22 * u2
+    return i_new, w_new, th + 0.5 * w_new * h
+
+
+@njit
 def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - jitted
     """Simulate ``v`` (one value per sample) with every effect, ``nsub`` sub-steps of ``h``
     per sample; ``c`` from :func:`effect_coefficients`, ``phi``/``gam`` the sub-step ZOH
@@ -532,11 +544,34 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
                 w_new = phi[1, 0] * i + phi[1, 1] * w + gam[1, 0] * v_eff + gam[1, 1] * t_opp
                 th_new = phi[2, 0] * i + phi[2, 1] * w + th + gam[2, 0] * v_eff + gam[2, 1] * t_opp
             if t_static > 0.0 and w_new * sgn < 0.0:
-                # Friction brought the rotor to rest within the sub-step.
-                w_new = 0.0
-                held = -t_pos if is_open else kt * i_new - t_pos
+                # The speed crossed zero within the sub-step: the rotor stops there and
+                # stays unless the drive breaks it away; then it turns the other way for
+                # the rest of the sub-step, friction reversed (clamping w to 0 lost that
+                # motion: at 50 Hz a reversing drive lost most of each crossing sample).
+                frac = w / (w - w_new)
+                i_c = i + frac * (i_new - i)
+                th_c = th + 0.5 * w * frac * h
+                held = -t_pos if is_open else kt * i_c - t_pos
                 if abs(held) <= t_static:
                     stuck = True
+                    w_new, th_new = 0.0, th_c
+                elif is_open:
+                    t_rev = t_pos + (t_static if held > 0.0 else -t_static)
+                    w_new, th_new = _coast_step(0.0, th_c, t_rev, a_mech, j, (1.0 - frac) * h)
+                else:
+                    i_new, w_new, th_new = _from_rest(
+                        i_c,
+                        th_c,
+                        v_eff,
+                        t_pos + (t_static if held > 0.0 else -t_static),
+                        r,
+                        lcur,
+                        ke,
+                        kt,
+                        j,
+                        b,
+                        (1.0 - frac) * h,
+                    )
             if not is_open:
                 q += 0.5 * (i * i + i_new * i_new) * h
             i, w, th = i_new, w_new, th_new

@@ -113,7 +113,10 @@ def test_encoder_counts_from_the_data_enter_the_fit_and_agree_with_the_gate(tmp_
     assert note and "an encoder of 256 counts/rev" in note[0], doc["assumptions"]
     enc = [f for f in doc["quality"]["findings"] if f["code"] == "encoder"]
     assert enc and enc[0]["value"] == pytest.approx(256, rel=1e-9)
-    assert doc["noise"]["position"] >= 0.95 * (2 * np.pi / 256) / np.sqrt(12)
+    # the refit weights by the residuals' own level: about the rounding's sd (less where
+    # the rotor rests within one count and the rounding error is a constant)
+    sd = (2 * np.pi / 256) / np.sqrt(12)
+    assert 0.7 * sd <= doc["noise"]["position"] <= 1.5 * sd
     for name in ("R", "Ke", "J"):
         assert _value(doc, name) == pytest.approx(getattr(motor, name), rel=0.01), name
 

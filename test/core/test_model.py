@@ -484,3 +484,19 @@ def test_bad_motor_yaml_is_one_clear_parameter_error(tmp_path, text, fragment):
 def test_missing_motor_file_names_the_builtins():
     with pytest.raises(ParameterError, match="built-in motors: seed000_ebike, seed001_110v"):
         load_motor("/nonexistent/motor.yaml")
+
+
+def test_a_drive_that_reverses_the_rotor_carries_it_through_zero():
+    """A +-6 V pseudo-random drive at 50 Hz reverses a small rotor (mechanical time
+    constant ~ one sample) in most samples. With negligible Coulomb friction the speed
+    must follow the linear model: clamping it to 0 at each crossing (the drive breaks
+    it away at once) lost the rest of the sub-step's motion, 19 rad/s rms here."""
+    p = MotorParams(R=8.0, L=2e-3, Ke=0.008, Kt=0.008, J=2e-7, B=1e-8)
+    rng = np.random.default_rng(3)
+    v = (rng.integers(0, 2, 400) * 2 - 1) * 6.0
+    lin = simulate_linear(p, v, 0.02)
+    tiny = simulate(Model(p, (CoulombFriction(1e-12),)), v, 0.02)
+    assert np.sqrt(np.mean((tiny.speed - lin.speed) ** 2)) < 1e-3 * np.ptp(lin.speed)
+    # a real friction torque still stops a rotor the drive cannot move: open coast
+    coast = simulate(Model(p, (CoulombFriction(2e-4),)), np.r_[6.0, np.full(60, np.nan)], 0.02)
+    assert coast.speed[-1] == 0.0 and coast.final_state[4] == 1.0

@@ -102,7 +102,11 @@ def simulate(
             th += 0.5 * h * (w + w_new)
             i += h / 6 * (a1[0] + 2 * a2[0] + 2 * a3[0] + a4[0])
             if m.Tc and w != 0.0 and w * w_new < 0:
-                w_new = 0.0  # friction stops the rotor; it does not reverse it
+                # through zero: friction stops the rotor unless the drive breaks it away
+                # (then it turns on; clamping every crossing lost up to a sub-step's motion)
+                drive = (0.0 if is_open else m.Kt * i) - m.T_load
+                if abs(drive) <= m.Tc:
+                    w_new = 0.0
             w = w_new
     cur = i_out + cur_noise
     spd = w_out + spd_noise

@@ -1,6 +1,11 @@
 """The fast path's numba kernel: one exact zero-order-hold step per sample with the
 sensitivity equations propagated alongside the state (see :mod:`.simulators` for the
 matrices it is given and :mod:`.problem` for how its normal equations are used).
+
+Its compiled form embeds :func:`pmdc_ident.core.model.effects_kernel`, but numba's
+on-disk cache checks only this file's time stamp: a change to ``effects_kernel`` must
+touch this file too (this note was last touched for the zero-crossing split of
+effects_kernel), or processes keep running the old crossing logic here.
 """
 
 from __future__ import annotations
