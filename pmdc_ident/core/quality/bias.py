@@ -7,7 +7,7 @@ the lag as inductance and returns a tight interval around a wrong L (a 2 ms RC
 filter on a motor with L/R = 1 ms: L came out 2.1x the truth, ci95 +-2 %). Such a
 parameter is marked not identifiable in the result, its reason naming the
 finding and its fix; the other parameters keep their values (R, Ke and J moved
-by 1.4 %, 0.01 % and 2.4 % on that record) and a warning says which were checked.
+by 1.3 %, 0.01 % and 2.6 % on that record) and a warning says which were checked.
 """
 
 from __future__ import annotations
