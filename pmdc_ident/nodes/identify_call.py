@@ -17,6 +17,7 @@ import json
 import multiprocessing
 import os
 import signal
+import threading
 import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -46,6 +47,7 @@ __all__ = [
 
 EXPORT_STEM = "identified"  # the exports beside the bag: identified.mjcf.xml, ...
 WORKER_NICE = -5  # the worker's priority where permitted (see _normal_priority)
+WARM_UP_NICE = 10  # while it warms up during the session, where it can raise it again
 
 
 @dataclass(frozen=True)
@@ -224,12 +226,23 @@ class IdentificationWorker:
         return self._process.is_alive()
 
     def submit(self, job: IdentificationJob) -> None:
-        """Hand a finished session over; :meth:`poll` returns its outcome."""
+        """Hand a finished session over; :meth:`poll` returns its outcome.
+
+        Sent from a thread: a session's samples are megabytes, more than the pipe
+        holds, and a child still warming up reads them only then; the node's callbacks
+        must not wait for that."""
         self._busy = True
+        if self._process.pid is not None:
+            _set_nice(WORKER_NICE, self._process.pid)  # were it still warming up
+        threading.Thread(
+            target=self._send, args=(job,), name="pmdc_ident job", daemon=True
+        ).start()
+
+    def _send(self, job: IdentificationJob) -> None:
         try:
             self._conn.send(job)
-        except OSError:
-            pass  # the child is gone: poll() says so
+        except (OSError, ValueError):
+            pass  # the child is gone (or we closed): poll() says so
 
     def poll(self) -> IdentificationOutcome | None:
         """The outcome of the submitted job once the child has it (``None`` meanwhile,
@@ -288,10 +301,14 @@ def _serve(conn: Any, nominal: MotorSpec | None) -> None:
     # Ctrl-C reaches the whole process group: the node decides (it terminates this
     # process with SIGTERM when it stops), so no KeyboardInterrupt traceback here.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _normal_priority()  # the fit is batch work: never at the loop's real-time priority
+    fit_nice = _normal_priority()  # the fit is batch work: never at real-time priority
     if nominal is not None:
         cpu0 = time.process_time()
         try:
+            # the warm-up has the whole session: it yields to everything else meanwhile
+            # (back to the fit's priority only where that is permitted)
+            if fit_nice < 0:
+                _set_nice(WARM_UP_NICE)
             wall = warm_up(nominal)
             conn.send(
                 (
@@ -302,6 +319,8 @@ def _serve(conn: Any, nominal: MotorSpec | None) -> None:
             )
         except Exception as exc:  # noqa: BLE001 - the session's own fit still runs
             conn.send(("warning", f"identification warm-up failed (the fit still runs): {exc!r}"))
+        finally:
+            _set_nice(fit_nice)
     while True:
         try:
             job = conn.recv()
@@ -339,18 +358,32 @@ def _spawning_at_normal_priority() -> Iterator[None]:
                 pass
 
 
-def _normal_priority() -> None:
+def _normal_priority() -> int:
     """This process back to the normal scheduler: a child inherits the node's SCHED_RR
     (bring-up runs the session's nodes real-time where permitted). It keeps a raised
     priority where permitted (nice -5, as bring-up's nodes without real-time): the
-    fit the session waits for goes before background batch work."""
+    fit the session waits for goes before background batch work. Returns the nice
+    value it runs at."""
     try:
         if os.sched_getscheduler(0) != os.SCHED_OTHER:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     except (OSError, AttributeError):
         pass
+    if os.getpriority(os.PRIO_PROCESS, 0) > WORKER_NICE:
+        _set_nice(WORKER_NICE)
+    return os.getpriority(os.PRIO_PROCESS, 0)
+
+
+def _set_nice(value: int, pid: int = 0) -> None:
+    """Every thread of process ``pid`` (0: this one) at nice ``value`` where permitted
+    (Linux keeps a nice value per thread; the fit's thread pool outlives the warm-up)."""
+    pid = pid or os.getpid()
     try:
-        if os.getpriority(os.PRIO_PROCESS, 0) > WORKER_NICE:
-            os.setpriority(os.PRIO_PROCESS, 0, WORKER_NICE)
+        tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
     except OSError:
-        pass  # not permitted: the normal priority
+        tids = [pid]
+    for tid in tids:
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, value)
+        except OSError:
+            pass  # not permitted (or the thread ended): as it was

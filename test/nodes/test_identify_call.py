@@ -1,15 +1,20 @@
-"""The identification worker's warm-up covers what a session's identification runs."""
+"""The identification worker: its warm-up covers what a session's identification runs,
+and a job handed over meanwhile does not hold the node up."""
 
 from __future__ import annotations
 
 import sys
+import time
 
+import numpy as np
 import pytest
 
 from pmdc_ident.core._jit import HAVE_NUMBA
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.motors import load_motor
-from pmdc_ident.nodes.identify_call import identify_session_run, warm_up
+from pmdc_ident.core.session.ports import IdentificationJob
+from pmdc_ident.core.session.recording import SessionSamples
+from pmdc_ident.nodes.identify_call import IdentificationWorker, identify_session_run, warm_up
 
 
 def _kernels() -> dict[str, int]:
@@ -37,3 +42,24 @@ def test_after_the_warm_up_a_session_identification_loads_no_kernel():
     out = identify_session_run(synthesize_run(other.model, plan, other.sensors, seed=3))
     assert out.values["R"] > 0
     assert _kernels() == before
+
+
+def test_a_job_handed_to_a_worker_still_warming_up_does_not_block_the_node(tmp_path):
+    n = 400_000  # ~13 MB of samples: far more than a pipe holds
+    ns = np.arange(n, dtype=np.int64) * 1_000_000
+    zeros = np.zeros(n)
+    samples = SessionSamples(ns, zeros, ns, zeros, zeros, ns, zeros, None, markers=())
+    job = IdentificationJob(samples, "s", "session s", tmp_path / "out", {})
+    worker = IdentificationWorker(load_motor("seed001_110v"))
+    try:
+        t0 = time.monotonic()
+        worker.submit(job)
+        assert time.monotonic() - t0 < 0.5  # the child reads it only after its warm-up
+        outcome = None
+        while outcome is None and time.monotonic() - t0 < 120:
+            outcome = worker.poll()
+            time.sleep(0.02)
+    finally:
+        worker.terminate()
+    assert outcome is not None and outcome.error  # no markers: refused, in one outcome
+    assert "warmed up" in outcome.notes[0][1]
