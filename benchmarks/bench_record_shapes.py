@@ -161,11 +161,13 @@ def _cases(out: Path) -> list[tuple[str, Callable[[], tuple[str, str]]]]:
     def fifty_hz():
         m = Motor(R=8.0, L=2e-3, Ke=0.008, Kt=0.008, J=2e-7, B=1e-8, Tc=2e-5)
         rec = simulate(m, prbs(1000, 6.0, 1, seed=3), 50, substeps=100, noise_current=0.003)
-        q = 2 * math.pi / 12 / 0.02
-        rec.speed = np.round(rec.speed / q) * q
-        path = write_csv(out / "prbs_50hz_quantised.csv", rec, drop=("position",))
-        res = _fit(path, m, [], ("R", "Ke", "J"))
-        return res + " | " + _check(path, []), f"pmdc-ident identify {path}"
+        # an encoder interface's speed: the counts since the last sample over the period
+        q = 2 * math.pi / 12
+        rec.speed = np.r_[0.0, np.diff(np.floor(rec.position / q))] * q / 0.02
+        path = write_csv(out / "prbs_50hz_counted_speed.csv", rec, drop=("position",))
+        res = _check(path, []) + " / with --speed-averaged: "
+        res += _fit(path, m, ["--speed-averaged"], ("R", "L", "Ke", "J"))
+        return res, f"pmdc-ident identify {path} [--speed-averaged]"
 
     def encoder_only():
         rec = simulate(BASE, v_steps, 1000, substeps=10, noise_current=0.005, counts_per_rev=256)
@@ -243,7 +245,7 @@ def _cases(out: Path) -> list[tuple[str, Callable[[], tuple[str, str]]]]:
             "1 kHz geared, L/R = 0.9 ms",
             lambda: rate(1000, geared, "geared_1khz", ("R", "L", "Ke", "J"), 0.5, 10),
         ),
-        ("50 Hz PRBS, 12-count speed sensor", fifty_hz),
+        ("50 Hz PRBS, speed = 12-count encoder counts per sample", fifty_hz),
         ("256-count encoder, no speed column", encoder_only),
         ("position wrapped to [0, 2 pi), no speed column", wrapped),
         ("current sensor behind a 2 ms RC filter", filtered),

@@ -67,6 +67,14 @@ def add_unit_arguments(parser: argparse.ArgumentParser) -> None:
         help="encoder counts per shaft turn, for counts and counts/s",
     )
     g.add_argument(
+        "--speed-averaged",
+        action="store_true",
+        default=None,
+        help="the speed column is the counts since the last sample (their mean over the "
+        "interval, as most encoder interfaces report): its running sum is used as the "
+        "position",
+    )
+    g.add_argument(
         "--gear-ratio",
         default=None,
         metavar="N",
@@ -136,8 +144,10 @@ def quality(
     from pmdc_ident.core.quality import GateInput, check_inputs
 
     return check_inputs(
-        [GateInput(x.path, x.run, x.spec.declared(), x.notes) for x in inputs], fixed=fixed
-    ).downgraded(getattr(args, "ignore", []) or [])
+        [GateInput(x.path, x.run, x.spec.declared(), x.notes) for x in inputs],
+        fixed=fixed,
+        ignore=getattr(args, "ignore", []) or [],
+    )
 
 
 def show_quality(

@@ -130,6 +130,18 @@ def _positive(key: str, value: Any) -> float:
     return v
 
 
+def _flag(key: str, value: Any) -> bool:
+    if isinstance(value, bool):
+        return value
+    text = str(value).strip().lower()
+    if text in ("true", "yes", "1", "on"):
+        return True
+    if text in ("false", "no", "0", "off"):
+        return False
+    msg = f"{key.replace('_', '-')} must be true or false, got {value!r}"
+    raise DataError(msg)
+
+
 @dataclass(frozen=True)
 class InputSpec:
     """What the columns of a recording are and their units (``None`` = the SI default)."""
@@ -143,6 +155,9 @@ class InputSpec:
     supply_v: float | None = None
     counts_per_rev: float | None = None
     gear_ratio: float | None = None
+    # speed is the counts since the last sample (its mean over the interval): read its
+    # running sum as the encoder's position instead
+    speed_averaged: bool | None = None
     origin: str = "command line"
 
     def __post_init__(self) -> None:
@@ -164,13 +179,15 @@ class InputSpec:
                 kwargs[key] = parse_unit(_UNIT_KEYS[key], value, key)
             elif key in _NUMBER_KEYS:
                 kwargs[key] = _positive(key, value)
+            elif key == "speed_averaged":
+                kwargs[key] = _flag(key, value)
             elif key in ("columns", "column"):
                 if not isinstance(value, Mapping):
                     msg = f"{origin}: 'columns' must map NAME: HEADER, got {value!r}"
                     raise DataError(msg)
                 kwargs["columns"] = tuple((str(k), str(v)) for k, v in value.items())
             else:
-                known = ", ".join([*_UNIT_KEYS, *_NUMBER_KEYS, "columns"])
+                known = ", ".join([*_UNIT_KEYS, *_NUMBER_KEYS, "speed_averaged", "columns"])
                 msg = f"{origin}: unknown key {raw_key!r} (known: {known})"
                 raise DataError(msg)
         return cls(**kwargs)
@@ -255,6 +272,8 @@ def spec_from_args(args: Any) -> InputSpec:
         value = getattr(args, key, None)
         if value is not None:
             data[key] = value
+    if getattr(args, "speed_averaged", False):
+        data["speed_averaged"] = True
     cols: dict[str, str] = {}
     for item in getattr(args, "column", None) or []:
         name, sep, header = item.partition("=")
@@ -378,7 +397,7 @@ def convert_run(run: Run, spec: InputSpec) -> tuple[Run, tuple[str, ...]]:
     if drop:
         run = _drop(run, drop)
     if all(v == 1.0 for v in f.values()):
-        return _unwrap(run, notes)
+        return _finish(run, notes, spec)
 
     def conv(seg: Segment) -> Segment:
         def s(name: str) -> np.ndarray | None:
@@ -399,7 +418,34 @@ def convert_run(run: Run, spec: InputSpec) -> tuple[Run, tuple[str, ...]]:
             history_heat_a2s=None if heat is None else heat * f["current"] ** 2 * f["t"],
         )
 
-    return _unwrap(Run(tuple(conv(s) for s in run.segments), source=run.source), notes)
+    return _finish(Run(tuple(conv(s) for s in run.segments), source=run.source), notes, spec)
+
+
+def _finish(run: Run, notes: list[str], spec: InputSpec) -> tuple[Run, tuple[str, ...]]:
+    """Wrapped positions unwrapped; an averaged speed read as the position it sums to."""
+    if spec.speed_averaged:
+        run = _speed_as_counts(run, notes)
+    return _unwrap(run, notes)
+
+
+def _speed_as_counts(run: Run, notes: list[str]) -> Run:
+    """``--speed-averaged``: a speed that is the counts since the last sample (their mean
+    over the interval, half a sample late) becomes the position it sums to; where the
+    file has the position too, the speed is dropped."""
+    segs = []
+    for s in run.segments:
+        if s.speed is None:
+            segs.append(s)
+            continue
+        pos = s.position
+        if pos is None:
+            pos = np.cumsum(s.speed * np.r_[0.0, np.diff(s.t)])
+        segs.append(replace(s, speed=None, position=pos))
+    notes.append(
+        "speed is the mean over each sample interval (--speed-averaged): its running sum "
+        "is the encoder's position, which the fit uses instead"
+    )
+    return Run(tuple(segs), source=run.source)
 
 
 def _unwrap(run: Run, notes: list[str]) -> tuple[Run, tuple[str, ...]]:
@@ -467,7 +513,7 @@ def load_input(path: str | Path, spec: InputSpec | None = None) -> LoadedInput:
             raw = load_data(path, columns=full.column_map() or None, scale=factors)
         except DataError as exc:
             raise DataError(_with_unit_hint(str(exc))) from None
-        run, notes = _unwrap(raw, note_list)
+        run, notes = _finish(raw, note_list, full)
     if side is not None:
         notes = (f"units and columns from {sidecar_path(path)}", *notes)
     return LoadedInput(str(path), run, full, notes)

@@ -181,16 +181,30 @@ def test_a_guessed_r_ke_or_j_is_exit_2_with_what_to_record_unless_fixed(tmp_path
     assert _value(doc, "L") == pytest.approx(2e-3, rel=0.05)
 
 
+def _counts_per_sample_speed(rec, cpr: int) -> np.ndarray:
+    """What an encoder interface reports as speed: the counts since the last sample over
+    the period (the mean speed over the interval)."""
+    counts = np.floor(rec.position / (2 * math.pi / cpr))
+    return np.r_[0.0, np.diff(counts)] * (2 * math.pi / cpr) / np.r_[1.0, np.diff(rec.t)]
+
+
 @pytest.mark.parametrize("case", ["50hz-prbs-12-count-speed", "20khz-lr-0.14ms"])
 def test_sample_rates_from_50_hz_to_20_khz(tmp_path, capsys, case):
-    """A small geared motor at 50 Hz driven by a PRBS with a 12-count speed sensor (the
-    rotor settles within ~2 samples), and a small motor at 20 kHz (L/R = 0.14 ms)."""
+    """A small geared motor at 50 Hz driven by a PRBS, its speed counted by a 12-count
+    encoder over each 20 ms sample (the rotor settles within ~2 samples), and a small
+    motor at 20 kHz (L/R = 0.14 ms)."""
+    extra: tuple[str, ...] = ()
     if case.startswith("50hz"):
         m = Motor(R=8.0, L=2e-3, Ke=0.008, Kt=0.008, J=2e-7, B=1e-8, Tc=2e-5)
         rec = simulate(m, prbs(1000, 6.0, 1, seed=3), 50, substeps=100, noise_current=0.003)
-        q = 2 * math.pi / 12 / 0.02  # 12 counts per turn, counted over each 20 ms sample
-        rec.speed = np.round(rec.speed / q) * q
-        names, rel = ("R", "Ke", "J"), 0.01
+        rec.speed = _counts_per_sample_speed(rec, 12)
+        names, rel, extra = ("R", "Ke", "J"), 0.01, ("--speed-averaged",)
+        # read as the speed at each sample it gave R +55 %: the gate stops that, naming it
+        path = write_csv(tmp_path / "counted.csv", rec, drop=("position",))
+        assert main(["identify", str(path), "--quiet"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert "speed-counts" in err and "one count of a 12-count encoder" in err, err
+        assert "fix: --speed-averaged" in err
     else:
         m = Motor(R=3.5, L=0.49e-3, Ke=0.012, Kt=0.012, J=1e-6, B=1e-8)
         rec = simulate(
@@ -202,12 +216,20 @@ def test_sample_rates_from_50_hz_to_20_khz(tmp_path, capsys, case):
             noise_speed=0.2,
         )
         names, rel = ("R", "L", "Ke", "J"), 0.005
-    doc, _ = _identify(write_csv(tmp_path / "rate.csv", rec, drop=("position",)), capsys)
+    path = write_csv(tmp_path / "rate.csv", rec, drop=("position",))
+    doc, _ = _identify(path, capsys, *extra)
     for name in names:
         assert _value(doc, name) == pytest.approx(getattr(m, name), rel=rel), name
         assert doc["parameters"][name]["identifiable"], name
-    if case.startswith("50hz"):  # L/R = 0.25 ms against a 20 ms sample: said, with what biases it
-        assert "below the sample period 20 ms" in doc["parameters"]["L"]["reason"]
+    if case.startswith("50hz"):  # L/R = 0.25 ms against a 20 ms sample: said, and in range
+        L = doc["parameters"]["L"]
+        assert "below the sample period 20 ms" in L["reason"]
+        assert L["ci95"][0] <= 2e-3 <= L["ci95"][1], L
+        assert any("an encoder of 12 counts/rev" in a for a in doc["assumptions"])
+        # the same key in a sidecar
+        path.with_name(path.name + ".yaml").write_text("speed_averaged: true\n")
+        assert main(["check", str(path)]) == 0
+        capsys.readouterr()
 
 
 def test_a_filtered_current_sensor_flags_l_and_keeps_r_ke_j(tmp_path, capsys):

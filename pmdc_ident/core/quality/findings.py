@@ -33,6 +33,7 @@ CODES: tuple[str, ...] = (
     "power-balance",
     "sample-period",
     "sign",
+    "speed-counts",
     "speed-position",
     "speed-quantised",
     "speed-unit",

@@ -135,18 +135,25 @@ def _excitation(names: str, segs: list[Segment], found: list[Finding]) -> list[F
 
 
 def check_inputs(
-    inputs: Sequence[GateInput], *, fixed: Mapping[str, float] | None = None
+    inputs: Sequence[GateInput],
+    *,
+    fixed: Mapping[str, float] | None = None,
+    ignore: Sequence[str] = (),
 ) -> QualityReport:
     """All findings over ``inputs`` (each a file already converted to SI units).
 
     ``fixed``: parameters the fit will hold (``--fix``), left out of the
-    expected-uncertainty estimate.
+    expected-uncertainty estimate. ``ignore``: error codes the user overrides
+    (``--ignore CODE``); they become warnings and do not stop the expected
+    uncertainties from being computed.
     """
     with memo():
-        return _check_inputs(inputs, fixed)
+        return _check_inputs(inputs, fixed, frozenset(ignore)).downgraded(ignore)
 
 
-def _check_inputs(inputs: Sequence[GateInput], fixed: Mapping[str, float] | None) -> QualityReport:
+def _check_inputs(
+    inputs: Sequence[GateInput], fixed: Mapping[str, float] | None, ignore: frozenset[str]
+) -> QualityReport:
     findings: list[Finding] = []
     findings += _duplicates(inputs)
     for x in inputs:
@@ -171,7 +178,7 @@ def _check_inputs(inputs: Sequence[GateInput], fixed: Mapping[str, float] | None
             )
         findings += _excitation(names, segs, findings)
     rsd: dict[str, float] = {}
-    if segs and not any(f.severity is Severity.ERROR for f in findings):
+    if segs and not any(f.severity is Severity.ERROR and f.code not in ignore for f in findings):
         from pmdc_ident.core.quality.information import information_findings
 
         def information() -> list[Finding]:

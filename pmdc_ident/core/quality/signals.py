@@ -110,7 +110,35 @@ def check_quantisation(
                 unit="rad/s",
             )
         )
+        out += _speed_counts(where, dynamic(segments), q.step)
     return out
+
+
+def _speed_counts(where: str, segments: Sequence[Segment], step: float) -> list[Finding]:
+    """A speed in whole encoder counts per sample without a position column: the counts
+    since the last sample, i.e. the mean over the interval, not the speed at the sample."""
+    if not segments or any(s.position is not None for s in segments):
+        return []
+    dt = float(np.median([s.dt_s for s in segments]))
+    counts = _TWO_PI / (step * dt)
+    n = round(counts)
+    if not (1 <= n <= 10000 and abs(counts - n) <= max(0.02, 2e-4 * n)):
+        return []
+    return [
+        Finding(
+            "speed-counts",
+            Severity.ERROR,
+            where,
+            f"speed moves in whole counts per sample ({step:.4g} rad/s x {dt * 1e3:.4g} ms = "
+            f"one count of a {n}-count encoder): a speed made of the counts since the last "
+            "sample is their mean over the interval, half a sample behind the speed the fit "
+            "compares it with (a 50 Hz PRBS read so: R +55 %, L x50, J -12 %)",
+            "--speed-averaged (the fit then takes the counts' running sum as the "
+            "encoder's position), or --ignore speed-counts if the sensor samples the speed",
+            value=float(n),
+            unit="counts/rev",
+        )
+    ]
 
 
 def _position_quantum(where: str, step: float, declared: bool) -> list[Finding]:
