@@ -179,7 +179,9 @@ class ResistanceDrift(Effect):
         "winding heats, R rises: first-order heating by i^2 with a thermal time constant"
     )
     SPECS: ClassVar[dict[str, ParamSpec]] = {
-        "coeff_per_a2s": ParamSpec("1/(A^2*s)", 0.0, 10.0, "k in R(t) = R (1 + k q)"),
+        # k = alpha R / C_th: 0.004 1/K x R over the winding's heat capacity; a coreless
+        # micro-motor (20-100 ohm, 0.01-0.05 J/K) reaches 10-40, a milliamp one more
+        "coeff_per_a2s": ParamSpec("1/(A^2*s)", 0.0, 1e4, "k in R(t) = R (1 + k q)"),
         "time_constant_s": ParamSpec(
             "s", 0.1, NO_COOLING_S, "winding thermal time constant (dq/dt = i^2 - q/tau)"
         ),

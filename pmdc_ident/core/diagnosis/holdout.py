@@ -9,7 +9,8 @@ never saw:
   fitted, ``step_down`` held out);
 * a single segment of a kind (the sweep, the coast-down): cut it in time, the
   sweep into quarters (1st and 3rd fitted, 2nd and 4th held out, so both sets
-  span low and high frequencies), any other into halves (first fitted).
+  span low and high frequencies), any other into halves (first fitted); a segment
+  that opens the armature is cut in the middle of its open part (both halves coast).
 
 A piece cut in time keeps the samples before it as history (``Segment.slice``), so
 a delay line and a resistance drift continue into it as they did in the motor.
@@ -21,6 +22,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+
+import numpy as np
 
 from pmdc_ident.core.data import Segment, TestKind
 from pmdc_ident.core.errors import DataError
@@ -54,6 +57,25 @@ def _pieces(seg: Segment, count: int) -> list[Segment]:
     return [
         seg.slice(edges[k], edges[k + 1], label=f"{seg.label}[{k + 1}/{count}]")
         for k in range(count)
+    ]
+
+
+def _halves(seg: Segment) -> list[Segment]:
+    """The segment in two halves, each with half of its open-armature samples when it
+    has both driven and open ones: a coast-down shows B/J and the friction only while
+    the armature is open, and a plain cut in time puts all of that on one side when
+    the drive before it is as long (the fit then cannot know what it is scored on)."""
+    v = seg.voltage
+    idx = None
+    if v is not None:
+        open_k = np.flatnonzero(np.isnan(v))
+        if 0 < open_k.size < seg.n:
+            idx = int(open_k[open_k.size // 2])
+    if idx is None or not MIN_PIECE_SAMPLES <= idx <= seg.n - MIN_PIECE_SAMPLES:
+        return _pieces(seg, 2)
+    return [
+        seg.slice(0, idx, label=f"{seg.label}[1/2]"),
+        seg.slice(idx, seg.n, label=f"{seg.label}[2/2]"),
     ]
 
 
@@ -105,7 +127,7 @@ def split_segments(
             fit.append(seg)
             notes.append(f"{kind.value}: {seg.label} too short to split, fitted only")
             continue
-        pieces = _pieces(seg, count)
+        pieces = _pieces(seg, count) if count == 4 else _halves(seg)
         fit += pieces[0::2]
         held += pieces[1::2]
         how = (

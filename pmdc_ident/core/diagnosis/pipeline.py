@@ -81,7 +81,7 @@ def diagnose(
     scoring = Scoring.for_baseline(base, cfg.thresholds)
     untestable, singles = _single_candidates(search, base, loc, scoring)
     choice = choose(search, scoring, base, singles)
-    verdict = _verdict(choice, scoring)
+    verdict = _verdict(choice, scoring, float(np.median([s.dt_s for s in segments])))
     final = choice.chosen if verdict.status is VerdictStatus.EXPLAINED else base
     return DiagnosisResult(
         verdict=verdict,
@@ -292,9 +292,31 @@ def _penalized(f: Fitted, scoring: Scoring) -> float:
 # ---------------------------------------------------------------------------
 # 6. verdict, regimes, assumptions
 # ---------------------------------------------------------------------------
-def _verdict(choice: Choice, scoring: Scoring) -> Verdict:
+def _chain_lag_s(f: Fitted, dt_s: float) -> float | None:
+    """The delay of a delay-only choice when it is shorter than the lag of a first-order
+    anti-alias filter at the Nyquist frequency (1/pi sample): every driver's signal
+    chain lags that much (the filter, the ADC's conversion instant), so it is no
+    effect of the motor or the drive."""
+    if f.effects != ("delay",):
+        return None
+    e = f.fit.model.effect("delay")
+    lag = float(getattr(e, "delay_s", math.inf))
+    return lag if lag < dt_s / math.pi else None
+
+
+def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
     g0, chosen = scoring.g0, choice.chosen
     shrink = (g0 - chosen.gap) / g0 if g0 > 0 else 0.0
+    lag = _chain_lag_s(chosen, dt_s)
+    if lag is not None:
+        return Verdict(
+            VerdictStatus.NO_GAP,
+            (),
+            (),
+            f"the linear model matches held-out data to the noise once the signals are read "
+            f"{lag * 1e6:.3g} us ({lag / dt_s:.2f} sample) late: the lag of the signal chain "
+            "(anti-alias filter, ADC timing), not an effect of the motor; no effect is needed",
+        )
     if not chosen.effects:
         if choice.gap_significant and g0 > 0:
             status = VerdictStatus.UNEXPLAINED

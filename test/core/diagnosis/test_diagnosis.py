@@ -46,6 +46,20 @@ def test_default_split_keeps_every_test_type_on_both_sides():
     assert sum(s.n for s in split.fit) + sum(s.n for s in split.held_out) == sum(s.n for s in segs)
 
 
+def test_a_coast_down_is_cut_in_its_open_part_so_both_halves_coast():
+    # held at speed for 800 samples, then the armature opens for 200: a cut at half the
+    # samples would leave the fit without a single coasting sample
+    n = 1000
+    t = np.arange(n) * 1e-3
+    v = np.where(np.arange(n) < 800, 12.0, np.nan)
+    coast = Segment("coast", t, v, np.where(np.isnan(v), 0.0, 1.0), speed=np.full(n, 50.0))
+    split = split_segments([coast])
+    (fit,), (held,) = split.fit, split.held_out
+    assert np.isnan(fit.voltage).sum() == 100
+    assert np.isnan(held.voltage).sum() == 100
+    assert fit.n + held.n == n
+
+
 def test_user_holdout_overrides_and_unknown_label_is_one_clear_error():
     segs = [_seg("step_up"), _seg("step_down"), _seg("coast")]
     split = split_segments(segs, ["coast"])

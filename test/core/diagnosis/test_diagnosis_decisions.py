@@ -1,7 +1,9 @@
-"""Decision rules of the diagnosis: evidence ties, first-order winding heating."""
+"""Decision rules of the diagnosis: evidence ties, first-order winding heating, the
+signal chain's lag."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -10,7 +12,7 @@ import pytest
 from pmdc_ident.core.data import heat_state
 from pmdc_ident.core.diagnosis import VerdictStatus, diagnose
 from pmdc_ident.core.diagnosis.choice import separated
-from pmdc_ident.core.effects import ResistanceDrift
+from pmdc_ident.core.effects import Delay, ResistanceDrift
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model, Plant, simulate
 from pmdc_ident.core.motors import load_motor
@@ -85,3 +87,28 @@ def test_first_order_heating_is_named_with_its_time_constant():
     got = {p.name: p.value for p in r.augmented}
     assert got["resistance_drift.time_constant_s"] == pytest.approx(6.0, rel=0.3)
     assert got["resistance_drift.coeff_per_a2s"] == pytest.approx(0.02, rel=0.3)
+
+
+@pytest.mark.parametrize(("delay_s", "named"), [(0.1e-3, False), (0.6e-3, True)])
+def test_a_lag_below_the_anti_alias_filters_is_the_signal_chain_not_a_delay(delay_s, named):
+    # at 1 kHz a first-order anti-alias filter at Nyquist lags by 1/pi sample (0.32 ms):
+    # a 0.1 ms lag is every driver's signal chain; 0.6 ms is a delay of the drive
+    spec = load_motor("seed001_110v")
+    plan = plan_for_motor(spec, 1e-3, SequenceConfig(sweep_duration_tau=20.0))
+    quiet = replace(spec.sensors, current_noise_a=1e-3)  # the 0.1 ms lag shows (gap ~20)
+    run = synthesize_run(Model(spec.model.params, (Delay(delay_s),)), plan, quiet, seed=3)
+    r = diagnose(run)
+    if named:
+        assert r.verdict.status is VerdictStatus.EXPLAINED
+        assert r.verdict.effects == ("delay",)
+    else:
+        assert r.to_json()["holdout"]["gap_before"] > 1.0  # visible, yet not the motor's
+        assert r.verdict.status is VerdictStatus.NO_GAP
+        assert "signal chain" in r.verdict.message
+
+
+def test_a_micro_motor_heats_faster_than_a_large_one_and_is_still_fitted():
+    # k = alpha R / C_th: a 20-ohm coreless winding of 0.02 J/K has k ~ 4 /(A^2 s); with
+    # 0.1 A that is 4 % in 100 s, so a 30 % rise within a 1 s test needs k in the hundreds
+    assert ResistanceDrift.SPECS["coeff_per_a2s"].upper >= 1e3
+    ResistanceDrift(150.0)  # a valid effect, not a range error
