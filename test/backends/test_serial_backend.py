@@ -97,7 +97,9 @@ def test_serial_backend_implements_the_backend_protocol(board: VirtualBoard) -> 
 def test_samples_are_stamped_on_the_board_grid_and_match_the_model(
     board: VirtualBoard, motor: MotorSpec
 ) -> None:
-    be = _backend(board, max_catch_up_s=5.0)  # the data, not the catch-up policy (below)
+    # the data, not the host's catch-up policy or its telemetry watchdog (tests below): a
+    # loaded host stalled this process 0.66 s once (both threads SCHED_RR), tripping both
+    be = _backend(board, max_catch_up_s=5.0, telemetry_timeout_s=5.0)
     c = Collector(be)
     try:  # 0.1 s idle, 0.4 s at 12 V, 0.2 s open, counted in the board's samples
         assert c.until(lambda: len(c.samples) >= 50, 10.0)
@@ -210,7 +212,7 @@ def test_garbage_bad_crc_and_truncated_frames_are_counted_and_the_stream_survive
     board: VirtualBoard,
 ) -> None:
     lines: list[str] = []
-    be = _backend(board, lines)
+    be = _backend(board, lines, telemetry_timeout_s=5.0)  # bad frames, not the watchdog
     c = Collector(be)
     try:
         be.command_voltage(6.0)
