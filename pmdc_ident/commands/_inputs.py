@@ -8,8 +8,10 @@ the functions.
 from __future__ import annotations
 
 import argparse
+import sys
+import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TextIO
 
 if TYPE_CHECKING:
     from pmdc_ident.core.quality import QualityReport
@@ -24,6 +26,7 @@ __all__ = [
     "load_inputs",
     "load_side",
     "quality",
+    "prepare_inputs",
     "segment_inputs",
     "show_quality",
     "stop_on_errors",
@@ -203,6 +206,30 @@ def gate(
     show_quality(report, show=show, info=info)
     stop_on_errors(report)
     return report
+
+
+def prepare_inputs(
+    args: argparse.Namespace, text_out: TextIO, fixed: dict[str, float]
+) -> tuple[list[LoadedInput], QualityReport, Callable[[str], None]]:
+    """What ``identify`` and ``diagnose`` do first: read the DATA (their notes as
+    progress), run the :func:`gate`, cut the automatic segments. Returns the inputs,
+    the gate's report and the progress callback (timed lines on stderr unless
+    ``--quiet``)."""
+    t0 = time.perf_counter()
+
+    def progress(msg: str) -> None:
+        if not args.quiet:
+            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    def show(line: str) -> None:
+        print(line, file=text_out)
+
+    inputs = load_inputs(args)
+    for x in inputs:
+        for note in x.notes:
+            progress(f"{x.path}: {note}")
+    report = gate(args, inputs, show=show, fixed=fixed)
+    return segment_inputs(args, inputs, show=show), report, progress
 
 
 # load-side value = motor-side value * gear_ratio ** power (N motor turns per load turn)

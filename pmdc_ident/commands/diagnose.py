@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -20,10 +19,8 @@ from pmdc_ident.commands._inputs import (
     add_gate_arguments,
     add_unit_arguments,
     check_ignore,
-    gate,
     input_json,
-    load_inputs,
-    segment_inputs,
+    prepare_inputs,
 )
 from pmdc_ident.commands.batch import add_batch_arguments, format_table
 from pmdc_ident.commands.outputs import (
@@ -112,21 +109,7 @@ def run(args: argparse.Namespace) -> int:
         fixed=parse_fix(args.fix, known=PARAMETER_NAMES),
         max_effects=args.max_effects,
     )
-    t0 = time.perf_counter()
-
-    def progress(msg: str) -> None:
-        if not args.quiet:
-            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
-
-    inputs = load_inputs(args)
-    runs = [x.run for x in inputs]
-    for x in inputs:
-        for note in x.notes:
-            progress(f"{x.path}: {note}")
-    report = gate(
-        args, inputs, show=lambda line: print(line, file=text_out), fixed=dict(config.fixed)
-    )
-    inputs = segment_inputs(args, inputs, show=lambda line: print(line, file=text_out))
+    inputs, report, progress = prepare_inputs(args, text_out, dict(config.fixed))
     runs = [x.run for x in inputs]
     result = diagnose(runs, config=config, progress=progress)
     print("\n".join(result.summary_lines()), file=text_out)

@@ -12,7 +12,6 @@ import argparse
 import json
 import math
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -20,11 +19,9 @@ from pmdc_ident.commands._inputs import (
     add_gate_arguments,
     add_unit_arguments,
     check_ignore,
-    gate,
     input_json,
-    load_inputs,
     load_side,
-    segment_inputs,
+    prepare_inputs,
 )
 from pmdc_ident.commands.batch import add_batch_arguments, format_table
 from pmdc_ident.commands.outputs import (
@@ -188,19 +185,7 @@ def run(args: argparse.Namespace) -> int:
     from pmdc_ident.core.estimators.identify import identify, merge_runs
     from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
 
-    t0 = time.perf_counter()
-
-    def progress(msg: str) -> None:
-        if not args.quiet:
-            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
-
-    inputs = load_inputs(args)
-    runs = [x.run for x in inputs]
-    for x in inputs:
-        for note in x.notes:
-            progress(f"{x.path}: {note}")
-    report = gate(args, inputs, show=lambda line: print(line, file=text_out), fixed=fixed)
-    inputs = segment_inputs(args, inputs, show=lambda line: print(line, file=text_out))
+    inputs, report, progress = prepare_inputs(args, text_out, fixed)
     runs = [x.run for x in inputs]
     n_boot = args.bootstrap if args.bootstrap is not None else (10 if args.report else 0)
     segments = merge_runs(runs)
