@@ -5,29 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from helpers.paths import FIXTURES
+from helpers.plans import tiny_run
 
 from pmdc_ident.cli import EXIT_USER_ERROR, main
 from pmdc_ident.core.data import Run
-from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
-from pmdc_ident.core.motors import load_motor
 from pmdc_ident.dataio.bagio import read_bag, write_bag
 from pmdc_ident.dataio.csvio import read_csv, write_csv
-
-DT = 1e-3
-CFG = SequenceConfig(
-    staircase_levels=2,
-    staircase_hold_tau=3.0,
-    step_hold_tau=3.0,
-    sweep_duration_tau=6.0,
-    coast_spinup_tau=3.0,
-    coast_open_s=0.1,
-)
 
 
 @pytest.fixture(scope="module")
 def run() -> Run:
-    spec = load_motor("seed001_110v")
-    return synthesize_run(spec.model, plan_for_motor(spec, DT, CFG), spec.sensors, seed=5)
+    return tiny_run(seed=5)
 
 
 def _same(a: Run, b: Run, t_atol: float) -> None:

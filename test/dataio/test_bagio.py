@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.plans import tiny_run
 
 from pmdc_ident.core.data import Run, Segment
 from pmdc_ident.core.errors import DataError
-from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
-from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.session import Marker, MarkerEvent
 from pmdc_ident.dataio import load_data
 from pmdc_ident.dataio.bagio import (
@@ -21,21 +20,11 @@ from pmdc_ident.dataio.bagio import (
 
 DT = 1e-3
 JS = "sensor_msgs/msg/JointState"
-CFG = SequenceConfig(
-    staircase_levels=2,
-    staircase_hold_tau=3.0,
-    step_hold_tau=3.0,
-    sweep_duration_tau=6.0,
-    coast_spinup_tau=3.0,
-    coast_open_s=0.1,
-)
 
 
 @pytest.fixture(scope="module")
 def run() -> Run:
-    spec = load_motor("seed001_110v")
-    plan = plan_for_motor(spec, DT, CFG)
-    return synthesize_run(spec.model, plan, spec.sensors, seed=3)
+    return tiny_run(seed=3)
 
 
 def _assert_same(a: Run, b: Run) -> None:
