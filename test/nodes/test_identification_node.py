@@ -412,35 +412,34 @@ def test_stall_aborts_when_current_flows_and_the_shaft_does_not_turn(tmp_path, r
     _assert_safe_after(probe, marker["t_s"], strict_zero=True, res=res)
 
 
-def _once_running(
+def _act_mid_session(
     tmp_path: Path,
-    state: dict[str, Any],
+    domain: int,
     act: Callable[[dict[str, subprocess.Popen[bytes]]], object],
-    key: str = "sent",
     after_s: float = 1.0,
-) -> Callable[[dict[str, subprocess.Popen[bytes]], float], None]:
-    """A ``during`` callback that runs ``act(procs)`` once, ``after_s`` after the session
-    started, and records it as ``state[key]``."""
+    **session: Any,
+) -> tuple[BringupResult, dict[str, Any]]:
+    """A short session in which ``act(procs)`` runs once, ``after_s`` after the session
+    started (asserted to have happened)."""
+    state: dict[str, float] = {}
 
     def during(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
         log = (tmp_path / "logs" / "identification.log").read_text()
-        if "segments, nominal" in log and key not in state:
+        if "segments, nominal" in log and "acted" not in state:
             state.setdefault("seen", elapsed)
             if elapsed - state["seen"] > after_s:
                 act(procs)
-                state[key] = True
+                state["acted"] = elapsed
 
-    return during
+    res, probe = _session(tmp_path, domain, during=during, **session)
+    assert "acted" in state, _logs(res)
+    return res, probe
 
 
 def test_ctrl_c_aborts_the_session_and_makes_the_motor_safe(tmp_path, ros_domain):
-    state: dict[str, Any] = {}
-
-    interrupt = _once_running(
-        tmp_path, state, lambda procs: procs["identification"].send_signal(signal.SIGINT)
+    res, probe = _act_mid_session(
+        tmp_path, ros_domain, lambda procs: procs["identification"].send_signal(signal.SIGINT)
     )
-    res, probe = _session(tmp_path, ros_domain, during=interrupt)
-    assert state.get("sent"), _logs(res)
     assert res.identification_rc == 130, _logs(res)
     assert probe["status"][-1]["reason"] == "interrupted", probe["status"]
     _assert_safe_after(probe, _abort_marker(probe)["t_s"], strict_zero=True, res=res)
@@ -450,13 +449,11 @@ def test_ctrl_c_aborts_the_session_and_makes_the_motor_safe(tmp_path, ros_domain
 
 
 def test_crashed_recorder_aborts_the_session_and_its_bag_is_readable(tmp_path, ros_domain, caplog):
-    state: dict[str, Any] = {}
-
     # SIGKILL: no goodbye, as in a real crash; samples are held 0.5 s, chunks flushed twice
     # a second, so a bag killed 2 s into the session holds at least 0.5 s of it
-    kill = _once_running(tmp_path, state, lambda p: p["recorder"].kill(), "killed", after_s=2.0)
-    res, probe = _session(tmp_path, ros_domain, during=kill, recorder={"hold_s": 0.5})
-    assert state.get("killed"), _logs(res)
+    res, probe = _act_mid_session(
+        tmp_path, ros_domain, lambda p: p["recorder"].kill(), 2.0, recorder={"hold_s": 0.5}
+    )
     assert res.identification_rc == 3, _logs(res)
     assert probe["status"][-1]["reason"] == "peer_crashed", probe["status"]
     _assert_safe_after(probe, _abort_marker(probe)["t_s"], strict_zero=True, res=res)
@@ -726,13 +723,9 @@ def test_the_session_runs_against_the_virtual_serial_board_as_against_the_sim(
 
 
 def test_sigterm_to_the_recorder_mid_session_closes_a_readable_bag(tmp_path, ros_domain):
-    state: dict[str, Any] = {}
-
-    term = _once_running(
-        tmp_path, state, lambda procs: procs["recorder"].send_signal(signal.SIGTERM)
+    res, probe = _act_mid_session(
+        tmp_path, ros_domain, lambda procs: procs["recorder"].send_signal(signal.SIGTERM)
     )
-    res, probe = _session(tmp_path, ros_domain, during=term)
-    assert state.get("sent"), _logs(res)
     assert res.recorder_rc == 0, _logs(res)
     # the session lost its recorder: aborted, motor safe
     assert probe["status"][-1]["reason"] == "peer_crashed", probe["status"]
