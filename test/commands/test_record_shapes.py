@@ -22,6 +22,13 @@ def _identify(path, capsys, *extra):
     return json.loads(js.read_text()), out
 
 
+def _up_and_down(motor: Motor, **options):
+    """Steps to 6 and 12 V, a coast, -6 V and rest (0.4 s each) at 1 kHz, current noise
+    5 mA; ``options`` go to :func:`simulate`."""
+    steps_v = steps([6, 12, None, -6, 0], 0.4, 1000)
+    return simulate(motor, steps_v, 1000, substeps=10, noise_current=0.005, **options)
+
+
 def _value(doc, name):
     return doc["parameters"][name]["value"]
 
@@ -100,14 +107,7 @@ def test_encoder_counts_from_the_data_enter_the_fit_and_agree_with_the_gate(tmp_
     """A 256-count encoder, position only: the fit's noise model starts from the step the
     gate reports (one rule, core.quantisation), and the result says so."""
     motor = Motor(Tc=0.002)
-    rec = simulate(
-        motor,
-        steps([6, 12, None, -6, 0], 0.4, 1000),
-        1000,
-        substeps=10,
-        noise_current=0.005,
-        counts_per_rev=256,
-    )
+    rec = _up_and_down(motor, counts_per_rev=256)
     doc, _ = _identify(write_csv(tmp_path / "enc.csv", rec, drop=("speed",)), capsys)
     note = [a for a in doc["assumptions"] if a.startswith("position is quantised")]
     assert note and "an encoder of 256 counts/rev" in note[0], doc["assumptions"]
@@ -126,15 +126,7 @@ def test_dropped_samples_split_a_segment_into_pieces_that_are_fitted(tmp_path, c
     as its contiguous pieces (own initial states), the gaps named, not left out."""
     motor = Motor(Tc=0.002)
     labels = ("step_up", "step_up_2", "coast", "step_down", "step_down_2")
-    rec = simulate(
-        motor,
-        steps([6, 12, None, -6, 0], 0.4, 1000),
-        1000,
-        substeps=10,
-        noise_current=0.005,
-        noise_speed=0.05,
-        labels=list(np.repeat(labels, 400)),
-    )
+    rec = _up_and_down(motor, noise_speed=0.05, labels=list(np.repeat(labels, 400)))
     keep = np.ones(rec.t.size, dtype=bool)
     keep[450:490] = False
     keep[1500:1503] = False
@@ -156,14 +148,7 @@ def test_a_guessed_r_ke_or_j_is_exit_2_with_what_to_record_unless_fixed(tmp_path
     fit flags R and J. A motor file holding guesses is no answer: one line (exit 2) with
     what to record, nothing written; --fix R=... (a multimeter) pins what was missing."""
     motor = Motor(Tc=0.002)
-    rec = simulate(
-        motor,
-        steps([6, 12, None, -6, 0], 0.4, 1000),
-        1000,
-        substeps=10,
-        noise_current=0.005,
-        noise_speed=0.05,
-    )
+    rec = _up_and_down(motor, noise_speed=0.05)
     path = write_csv(tmp_path / "nocur.csv", rec, drop=("current", "position"))
     js, yml = tmp_path / "r.json", tmp_path / "r.yaml"
     rc = main(["identify", str(path), "--quiet", "--json", str(js), "--yaml", str(yml)])
