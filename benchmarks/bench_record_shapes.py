@@ -29,9 +29,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 from helpers.motor_records import (  # noqa: E402
     Motor,
     Record,
+    continuous_voltage,
     filtered_current,
     prbs,
     simulate,
+    speed_pi,
     steps,
     write_csv,
 )
@@ -100,31 +102,18 @@ def _cases(out: Path) -> list[tuple[str, Callable[[], tuple[str, str]]]]:
         return identify("step_on_at_first_sample", rec, m, drop=("position",))
 
     def continuous():
-        t = np.arange(3000) / 1000
-        chirp = 6 * np.sin(2 * np.pi * (t + 0.5 * 19 / 3 * t**2))
-        v = np.concatenate(
-            [
-                np.zeros(300),
-                np.full(800, 6.0),
-                np.full(800, 12.0),
-                chirp,
-                prbs(2000, 6.0, 15, seed=2),
-                np.full(800, 10.0),
-                np.full(1500, np.nan),
-                np.zeros(600),
-            ]
+        rec = simulate(
+            BASE,
+            continuous_voltage(1000),
+            1000,
+            substeps=10,
+            noise_current=0.005,
+            noise_speed=0.05,
         )
-        rec = simulate(BASE, v, 1000, substeps=10, noise_current=0.005, noise_speed=0.05)
         return identify("continuous_unlabeled", rec, BASE, names=("R", "L", "Ke", "J"))
 
     def closed_loop():
         ref = np.repeat([100.0, 200.0, -100.0], 1000)
-        state = {"i": 0.0}
-
-        def pi(k: int, w: float) -> float:
-            state["i"] += (ref[k] - w) / 1000
-            return float(np.clip(0.05 * (ref[k] - w) + 2.0 * state["i"], -24, 24))
-
         rec = simulate(
             BASE,
             np.zeros(3000),
@@ -133,7 +122,7 @@ def _cases(out: Path) -> list[tuple[str, Callable[[], tuple[str, str]]]]:
             noise_current=0.005,
             noise_speed=0.2,
             counts_per_rev=1024,
-            controller=pi,
+            controller=speed_pi(ref),
         )
         return identify("closed_loop_pi", rec, BASE, names=("R", "L", "Ke", "J"))
 

@@ -7,7 +7,15 @@ import math
 
 import numpy as np
 import pytest
-from helpers.motor_records import Motor, filtered_current, prbs, simulate, steps, write_csv
+from helpers.motor_records import (
+    Motor,
+    filtered_current,
+    prbs,
+    simulate,
+    speed_pi,
+    steps,
+    write_csv,
+)
 
 from pmdc_ident.cli import main
 
@@ -80,12 +88,6 @@ def test_current_driven_fit_prints_no_transfer_function(tmp_path, capsys):
 
 def test_closed_loop_speed_control_identifies(tmp_path, capsys):
     ref = np.repeat([100.0, 200.0, -100.0], 700)
-    state = {"i": 0.0}
-
-    def pi(k: int, w: float) -> float:
-        state["i"] += (ref[k] - w) / 1000
-        return float(np.clip(0.05 * (ref[k] - w) + 2.0 * state["i"], -24, 24))
-
     m = Motor(Tc=0.002)
     rec = simulate(
         m,
@@ -95,7 +97,7 @@ def test_closed_loop_speed_control_identifies(tmp_path, capsys):
         noise_current=0.005,
         noise_speed=0.2,
         counts_per_rev=1024,
-        controller=pi,
+        controller=speed_pi(ref),
     )
     doc, _ = _identify(write_csv(tmp_path / "pi.csv", rec), capsys)
     for name, truth in (("R", 2.0), ("Ke", 0.05), ("J", 2e-5)):

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers.motor_records import Motor, prbs, simulate, steps, write_csv
+from helpers.motor_records import Motor, continuous_voltage, simulate, steps, write_csv
 
 from pmdc_ident.cli import main
 from pmdc_ident.core.data import TestKind
@@ -19,20 +19,7 @@ RATE = 1000
 @pytest.fixture(scope="module")
 def continuous(tmp_path_factory):
     """Rest, two steps, a chirp, a PRBS, a hold, an open-armature coast, a step to 0 V."""
-    t = np.arange(3000) / RATE
-    chirp = 6 * np.sin(2 * np.pi * (t + 0.5 * 19 / 3 * t**2))
-    v = np.concatenate(
-        [
-            np.zeros(300),
-            np.full(800, 6.0),
-            np.full(800, 12.0),
-            chirp,
-            prbs(2000, 6.0, 15, seed=2),
-            np.full(800, 10.0),
-            np.full(1500, np.nan),
-            np.zeros(600),
-        ]
-    )
+    v = continuous_voltage(RATE)
     rec = simulate(Motor(Tc=0.002), v, RATE, substeps=10, noise_current=0.005, noise_speed=0.05)
     return write_csv(tmp_path_factory.mktemp("seg") / "log.csv", rec)
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -157,6 +158,37 @@ def prbs(n: int, amplitude: float, hold: int, seed: int = 1) -> np.ndarray:
     rng = np.random.default_rng(seed)
     bits = rng.integers(0, 2, size=n // hold + 1) * 2 - 1
     return np.repeat(bits * amplitude, hold)[:n].astype(float)
+
+
+def continuous_voltage(rate_hz: int = 1000) -> np.ndarray:
+    """One unlabeled log's voltage: rest, steps to 6 and 12 V, a chirp, a PRBS, a hold,
+    an open-armature coast (NaN), a step to 0 V."""
+    t = np.arange(3000) / rate_hz
+    chirp = 6 * np.sin(2 * np.pi * (t + 0.5 * 19 / 3 * t**2))
+    return np.concatenate(
+        [
+            np.zeros(300),
+            np.full(800, 6.0),
+            np.full(800, 12.0),
+            chirp,
+            prbs(2000, 6.0, 15, seed=2),
+            np.full(800, 10.0),
+            np.full(1500, np.nan),
+            np.zeros(600),
+        ]
+    )
+
+
+def speed_pi(ref: np.ndarray, rate_hz: float = 1000.0) -> Callable[[int, float], float]:
+    """A PI speed controller (volts out, +-24 V) following ``ref`` (rad/s, one value per
+    sample): the ``controller`` of :func:`simulate` for a closed-loop record."""
+    integral = [0.0]
+
+    def pi(k: int, w: float) -> float:
+        integral[0] += (ref[k] - w) / rate_hz
+        return float(np.clip(0.05 * (ref[k] - w) + 2.0 * integral[0], -24, 24))
+
+    return pi
 
 
 def write_csv(
