@@ -26,11 +26,19 @@ import yaml
 from helpers.paths import REPO
 from helpers.plans import SHORT_SEQUENCE  # noqa: E402
 
+from pmdc_ident.core.errors import DataError
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.dataio.bagio import read_bag, read_driver_arrays
+from pmdc_ident.dataio.mcap_recover import scan_mcap
 from pmdc_ident.exports import EXPORT_FILES
-from pmdc_ident.nodes.bringup import BringupResult, node_env, priority_setter, run_session
+from pmdc_ident.nodes.bringup import (
+    BringupResult,
+    node_env,
+    priority_setter,
+    realtime_thread,
+    run_session,
+)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -130,18 +138,20 @@ def _session(
         raise AssertionError("the probe exited before receiving a driver sample")
 
     try:
-        res = run_session(
-            output_dir=tmp_path / "out",
-            motor=motor,
-            domain_id=domain,
-            before_identification=probe_receiving,
-            identification_params={**(SHORT if short else {}), **(ident or {})},
-            driver_params={"watchdog_s": 1.5, **(driver or {})},
-            recorder_params={"margin_s": 0.0, **(recorder or {})},
-            log_dir=tmp_path / "logs",
-            timeout_s=timeout_s,
-            during=during,
-        )
+        # the test's watch (``during``) reacts at the nodes' priority, as they run
+        with realtime_thread():
+            res = run_session(
+                output_dir=tmp_path / "out",
+                motor=motor,
+                domain_id=domain,
+                before_identification=probe_receiving,
+                identification_params={**(SHORT if short else {}), **(ident or {})},
+                driver_params={"watchdog_s": 1.5, **(driver or {})},
+                recorder_params={"margin_s": 0.0, **(recorder or {})},
+                log_dir=tmp_path / "logs",
+                timeout_s=timeout_s,
+                during=during,
+            )
     finally:
         probe.send_signal(signal.SIGINT)  # it takes what is still queued, then reports
         out, err = probe.communicate(timeout=60)
@@ -449,11 +459,25 @@ def test_ctrl_c_aborts_the_session_and_makes_the_motor_safe(tmp_path, ros_domain
 
 
 def test_crashed_recorder_aborts_the_session_and_its_bag_is_readable(tmp_path, ros_domain, caplog):
-    # SIGKILL: no goodbye, as in a real crash; samples are held 0.5 s, chunks flushed twice
-    # a second, so a bag killed 2 s into the session holds at least 0.5 s of it
-    res, probe = _act_mid_session(
-        tmp_path, ros_domain, lambda p: p["recorder"].kill(), 2.0, recorder={"hold_s": 0.5}
-    )
+    state: dict[str, Any] = {}
+
+    # SIGKILL: no goodbye, as in a real crash, once the recorder has handed 0.5 s of the
+    # session to the file (samples are held 0.5 s, chunks flushed twice a second)
+    def kill(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
+        bags = list((tmp_path / "out").glob("*/*.mcap"))
+        if "killed" in state or not bags or bags[0].stat().st_size == state.get("size"):
+            return
+        state["size"] = bags[0].stat().st_size
+        try:
+            enc = [m for m in scan_mcap(bags[0]).messages if m[0].endswith("/encoder")]
+        except DataError:  # no complete chunk yet
+            return
+        if len(enc) >= 500:
+            procs["recorder"].kill()
+            state["killed"] = True
+
+    res, probe = _session(tmp_path, ros_domain, during=kill, recorder={"hold_s": 0.5})
+    assert state.get("killed"), _logs(res)
     assert res.identification_rc == 3, _logs(res)
     assert probe["status"][-1]["reason"] == "peer_crashed", probe["status"]
     _assert_safe_after(probe, _abort_marker(probe)["t_s"], strict_zero=True, res=res)
