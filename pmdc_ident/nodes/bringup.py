@@ -31,8 +31,10 @@ import yaml
 from pmdc_ident.core.motors import share_file
 from pmdc_ident.nodes.dds_domain import HELD_ENV, DomainBusyError, child_env, lock_domain
 from pmdc_ident.nodes.parameter_tables import DRIVER, IDENTIFICATION, RECORDER
+from pmdc_ident.nodes.priority import RT_PRIORITY, priority_setter, realtime_thread
 
 __all__ = [
+    "RT_PRIORITY",
     "BringupResult",
     "main",
     "node_env",
@@ -87,58 +89,6 @@ class BringupResult:
     wall_s: float
     logs: dict[str, Path] = field(default_factory=dict)
     cpu_s: dict[str, float | None] = field(default_factory=dict)  # per node, user+system
-
-
-# SCHED_RR priority of the session's nodes where the system permits it: low among
-# real-time tasks (the kernel's own threads use 50 and more).
-RT_PRIORITY = 10
-
-
-def priority_setter(nice: int, realtime: bool) -> Callable[[], None]:
-    """A ``preexec_fn`` giving a child node its scheduling before it starts any thread.
-
-    ``realtime``: SCHED_RR at :data:`RT_PRIORITY` where the system permits it (root,
-    CAP_SYS_NICE or an RLIMIT_RTPRIO), so a node closing the loop is never queued
-    behind CPU-bound work (the kernel keeps 5 % of each second for other tasks);
-    otherwise, and for the others, ``nice`` (a negative value raises the priority)
-    where permitted. Nothing is refused: on a plain account the node runs normally.
-    """
-
-    def set_priority() -> None:  # runs in the child before exec
-        if realtime:
-            try:
-                os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(RT_PRIORITY))
-                return
-            except (OSError, AttributeError):
-                pass  # not permitted: nice instead
-        if nice:
-            try:
-                os.setpriority(os.PRIO_PROCESS, 0, nice)
-            except OSError:
-                pass  # not permitted: run at the normal priority
-
-    return set_priority
-
-
-@contextmanager
-def realtime_thread(priority: int = RT_PRIORITY) -> Iterator[bool]:
-    """This thread (and the threads it starts meanwhile) at the nodes' SCHED_RR priority.
-
-    For an in-process ROS client that talks to the nodes (the step demo, a test's
-    client): enter before ``rclpy.init`` so DDS's threads inherit it. Yields whether
-    the system permitted it; the previous scheduling is restored on exit. A higher
-    ``priority`` preempts the nodes (a test's stand-in for a board's microcontroller).
-    """
-    try:
-        old = os.sched_getscheduler(0), os.sched_getparam(0)
-        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
-    except (OSError, AttributeError):
-        yield False
-        return
-    try:
-        yield True
-    finally:
-        os.sched_setscheduler(0, old[0], old[1])
 
 
 class _Proc:

@@ -195,7 +195,7 @@ class DriverNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(NODE_NAME, DriverNode, args, executor=SingleThreadedExecutor)
+    return run_node(NODE_NAME, DriverNode, args, executor=SingleThreadedExecutor, realtime=True)
 
 
 if __name__ == "__main__":

@@ -224,7 +224,7 @@ class IdentificationNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(NODE_NAME, IdentificationNode, args)
+    return run_node(NODE_NAME, IdentificationNode, args, realtime=True)
 
 
 if __name__ == "__main__":

@@ -289,7 +289,7 @@ class RecorderNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(NODE_NAME, RecorderNode, args)
+    return run_node(NODE_NAME, RecorderNode, args, realtime=True)
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.nodes.priority import raise_own_priority
 
 __all__ = ["ManagedNode", "events_executor", "log", "run_node"]
 
@@ -72,12 +73,17 @@ def run_node(
     args: list[str] | None = None,
     *,
     executor: Callable[[], Executor] = events_executor,
+    realtime: bool = False,
 ) -> int:
     """Build the node, spin it until it is finished or stopped, close it; exit status.
 
-    A :class:`PmdcError` while building or running is one line and status 2; any
-    other exception one line and status 1.
+    ``realtime``: a node of the motor loop, raised to the loop's priority before any
+    thread starts where its parent did not choose one (``ros2 run``/``ros2 launch``;
+    see :mod:`pmdc_ident.nodes.priority`). A :class:`PmdcError` while building or
+    running is one line and status 2; any other exception one line and status 1.
     """
+    if realtime:
+        raise_own_priority()
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except RCLError as exc:  # e.g. a malformed --ros-args rule: one line, no traceback
