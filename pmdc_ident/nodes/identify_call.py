@@ -19,8 +19,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -216,8 +215,14 @@ class IdentificationWorker:
         self._process = ctx.Process(
             target=_serve, args=(child, nominal), name="pmdc_ident identification", daemon=True
         )
-        with _spawning_at_normal_priority():
-            self._process.start()
+        # started from the node's executor thread, at its priority: dropping this thread
+        # to the normal scheduler for the spawn (a fork of the node) held every driver
+        # sample and command for >1.5 s at load 15 (lost_driver_data, driver watchdog).
+        # The child is moved to the normal scheduler at once instead (its first
+        # milliseconds of interpreter start-up aside); _serve then sets its nice.
+        self._process.start()
+        if self._process.pid is not None and os.sched_getscheduler(0) != os.SCHED_OTHER:
+            _set_policy(self._process.pid, os.SCHED_OTHER, 0)
         child.close()
         self._busy = False
         self._notes: list[tuple[str, str]] = []
@@ -339,28 +344,6 @@ def _serve(conn: Any, nominal: MotorSpec | None) -> None:
             f"({time.process_time() - cpu0:.2f} s CPU) in the worker",
         )
         conn.send(replace(outcome, notes=(*outcome.notes, took)))
-
-
-@contextmanager
-def _spawning_at_normal_priority() -> Iterator[None]:
-    """This thread at the worker's priority while it starts a child, so the child never
-    runs its start-up (imports) at the node's real-time priority, beside the loop.
-
-    Linux applies scheduling to the calling thread and a child inherits it."""
-    try:
-        old = os.sched_getscheduler(0), os.sched_getparam(0)
-        if old[0] != os.SCHED_OTHER:
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (OSError, AttributeError):
-        old = None
-    try:
-        yield
-    finally:
-        if old is not None and old[0] != os.SCHED_OTHER:
-            try:
-                os.sched_setscheduler(0, old[0], old[1])
-            except OSError:
-                pass
 
 
 def _normal_priority() -> int:
