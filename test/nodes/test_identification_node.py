@@ -676,16 +676,11 @@ def test_a_plan_above_the_driver_limit_is_refused_before_anything_moves(tmp_path
     assert res.bag is None and not probe["markers"]
 
 
-def test_a_bad_parameter_is_one_line_and_exit_status_2(tmp_path, ros_domain):
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pmdc_ident.nodes.identification_node",
-            "--ros-args",
-            "-p",
-            "safe_mode:=banana",
-        ],
+def _node_alone(tmp_path, ros_domain, *params: str) -> subprocess.CompletedProcess[str]:
+    """The identification node run on its own with ``-p`` for each of ``params``."""
+    args = [a for p in params for a in ("-p", p)]
+    return subprocess.run(
+        [sys.executable, "-m", "pmdc_ident.nodes.identification_node", "--ros-args", *args],
         env=node_env(ros_domain),
         cwd=tmp_path,
         capture_output=True,
@@ -693,6 +688,10 @@ def test_a_bad_parameter_is_one_line_and_exit_status_2(tmp_path, ros_domain):
         timeout=60,
         check=False,
     )
+
+
+def test_a_bad_parameter_is_one_line_and_exit_status_2(tmp_path, ros_domain):
+    proc = _node_alone(tmp_path, ros_domain, "safe_mode:=banana")
     assert proc.returncode == 2
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "safe_mode" in lines[0] and "Traceback" not in proc.stderr, lines
@@ -811,24 +810,7 @@ def test_ctrl_c_on_bringup_is_forwarded_and_everything_stops_safe(tmp_path, ros_
 
 
 def test_without_a_driver_the_node_says_so_and_exits_2(tmp_path, ros_domain):
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pmdc_ident.nodes.identification_node",
-            "--ros-args",
-            "-p",
-            "driver_wait_s:=2.0",
-            "-p",
-            "exit_when_done:=true",
-        ],
-        env=node_env(ros_domain),
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    proc = _node_alone(tmp_path, ros_domain, "driver_wait_s:=2.0", "exit_when_done:=true")
     assert proc.returncode == 2, proc.stderr
     assert "session not started, motor untouched: no driver node 'driver_node'" in proc.stderr
     assert "Traceback" not in proc.stderr
