@@ -36,6 +36,12 @@ def _smooth(x: np.ndarray, width: int) -> np.ndarray:
     return np.convolve(x, np.ones(width) / width, mode="same")
 
 
+def _small_b(j: float, dt: float) -> float:
+    """A start for B where the data gave none: a damping time J/B of 10^4 samples
+    (at least 1000 s / 1 s), far slower than any test, that the fit can move either way."""
+    return 1e-3 * j / max(10 * dt, 1e-3)
+
+
 def equation_error_start(segments: Sequence[Segment], fixed: Mapping[str, float]) -> MotorParams:
     """Equation-error starting values (biased by unmodelled effects, refined later)."""
     rows_e, ys_e, rows_m, ys_m = [], [], [], []
@@ -71,9 +77,12 @@ def equation_error_start(segments: Sequence[Segment], fixed: Mapping[str, float]
         j, b = float(sol[0]), float(sol[1])
     if not (math.isfinite(j) and j > 0):
         j = ke * kt * 0.1 / r  # tau_m = 0.1 s
-    if not (math.isfinite(b) and b >= 0):
-        b = 0.0
     dt = float(np.median([s.dt_s for s in segments]))
+    if not (math.isfinite(b) and b > 0):
+        # B is fitted in log scale: a start of 0 would hold it at 0 for good (a noisy
+        # equation-error B below zero then made Ke absorb the viscous torque and the
+        # diagnosis name a friction effect on a clean motor)
+        b = _small_b(j, dt)
     values = {"R": r, "L": r * dt, "Ke": ke, "Kt": kt, "J": j, "B": b}
     values.update({k: float(v) for k, v in fixed.items()})
     return MotorParams(**values)
@@ -112,8 +121,7 @@ def start_values(
     for k in ("R", "L", "Ke", "Kt", "J"):
         if not (vals[k] > 0 and math.isfinite(vals[k])):
             vals[k] = 1.0
-    scale_b = vals["J"] / max(10 * dt, 1e-3)
-    vals["B"] = vals["B"] if vals["B"] > 0 else 1e-3 * scale_b
+    vals["B"] = vals["B"] if vals["B"] > 0 else _small_b(vals["J"], dt)
     vals[COULOMB_TORQUE] = max(vals.get(COULOMB_TORQUE, 0.0), 0.0)
     return vals
 

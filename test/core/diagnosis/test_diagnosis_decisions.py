@@ -112,3 +112,31 @@ def test_a_micro_motor_heats_faster_than_a_large_one_and_is_still_fitted():
     # 0.1 A that is 4 % in 100 s, so a 30 % rise within a 1 s test needs k in the hundreds
     assert ResistanceDrift.SPECS["coeff_per_a2s"].upper >= 1e3
     ResistanceDrift(150.0)  # a valid effect, not a range error
+
+
+def test_a_noisy_negative_start_for_b_does_not_pin_b_at_zero_on_a_clean_motor():
+    # A geared motor whose viscous torque is small beside the speed noise: the
+    # equation-error B comes out below zero. B is fitted in log scale, so a start of
+    # 0 held it there; Ke took the viscous torque and Coulomb friction was "found".
+    from helpers.motor_records import Motor, simulate, steps
+
+    from pmdc_ident.core.data import Segment
+    from pmdc_ident.core.estimators.start import equation_error_start
+
+    m = Motor(R=1.1, L=1.0e-3, Ke=0.03, Kt=0.03, J=2e-5, B=1e-6)
+    rec = simulate(
+        m,
+        steps([3, 6, -3, 0], 0.5, 1000),
+        1000,
+        substeps=10,
+        noise_current=0.002,
+        noise_speed=0.2,
+    )
+    whole = Segment("log", rec.t, rec.voltage, current=rec.current, speed=rec.speed)
+    segs = [whole.slice(a, a + 500, label=f"step_{a}") for a in range(0, 2000, 500)]
+    assert equation_error_start(segs[0::2], {}).B > 0.0  # the fit half: below 0 before
+    r = diagnose(segs)
+    assert r.verdict.status is VerdictStatus.NO_GAP, r.verdict.message
+    got = {p.name: p.value for p in r.baseline}
+    assert got["B"] == pytest.approx(1e-6, rel=0.5)
+    assert got["Ke"] == pytest.approx(0.03, rel=5e-4)
