@@ -525,7 +525,8 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
                 sgn = 1.0 if drive > 0.0 else -1.0
             else:
                 sgn = 1.0 if w > 0.0 else (-1.0 if w < 0.0 else (1.0 if drive > 0.0 else -1.0))
-            fric = sgn * (tc + ts * math.exp(-((w / ws) ** 2)))
+            # (ts = 0: ts * exp(.) is 0 exactly, so the exp is skipped, same numbers)
+            fric = sgn * (tc + ts * math.exp(-((w / ws) ** 2))) if ts > 0.0 else sgn * tc
             t_opp = t_pos + fric + cq * w * abs(w)
             if is_open:
                 w_new, th_new = _coast_step(w, th, t_opp, a_mech, j, h)
