@@ -61,6 +61,7 @@ __all__ = [
     "expm_small",
     "simulate",
     "simulate_linear",
+    "substeps_for",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -302,6 +303,22 @@ def heat_time_constant(model: Model) -> float:
     if isinstance(e, ResistanceDrift) and e.time_constant_s < NO_COOLING_S:
         return float(e.time_constant_s)
     return math.inf
+
+
+# Effects that leave the motor linear with a constant input over each sample: they act
+# on the command (delay, dead zone), add a constant torque or offset the measured current.
+_LINEAR_BETWEEN_SAMPLES = frozenset({"delay", "dead_zone", "load_torque", "current_offset"})
+
+
+def substeps_for(model: Model, substeps: int) -> int:
+    """``substeps``, or 1 when every effect of ``model`` leaves the motor linear between
+    samples (no friction, drag, cogging, brush drop or varying R/L): each sub-step is
+    then an exact zero-order-hold step of one linear system under one input, so one step
+    over the whole sample gives the same states (to rounding) for a fraction of the
+    cost. The fits simulate candidates this way."""
+    if all(e.NAME in _LINEAR_BETWEEN_SAMPLES for e in model.effects):
+        return 1
+    return substeps
 
 
 def apply_dead_zone(voltage: FloatArray, dead_zone_v: float) -> FloatArray:

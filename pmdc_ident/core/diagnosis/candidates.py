@@ -34,7 +34,7 @@ from pmdc_ident.core.effects import (
     StribeckFriction,
 )
 from pmdc_ident.core.estimators.output_error import FitResult, fit_output_error
-from pmdc_ident.core.model import Model, heat_time_constant, simulate
+from pmdc_ident.core.model import Model, heat_time_constant, simulate, substeps_for
 
 __all__ = [
     "BASE_FREE",
@@ -163,7 +163,7 @@ def predict(model: Model, segments: Sequence[Segment], substeps: int = 4) -> lis
             v,
             s.dt_s,
             x0=_x0(s),
-            substeps=substeps,
+            substeps=substeps_for(model, substeps),
             pre_voltage=s.history_voltage,
             heat0_a2s=heat_state(s, tau),
         )

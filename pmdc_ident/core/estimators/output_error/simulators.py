@@ -29,6 +29,7 @@ from pmdc_ident.core.model import (
     expm_small,
     heat_time_constant,
     simulate,
+    substeps_for,
 )
 from pmdc_ident.core.params import MotorParams
 
@@ -284,6 +285,7 @@ def general_sim(model: Model, seg: Segment, x0: FloatArray, dJ: float = 0.0) -> 
         seg.voltage,
         seg.dt_s,
         x0=x0,
+        substeps=substeps_for(model, SUBSTEPS),
         pre_voltage=seg.history_voltage,
         heat0_a2s=heat_state(seg, heat_time_constant(model)),
     )
