@@ -55,6 +55,7 @@ from pmdc_ident.core.progress import ProgressCallback
 __all__ = ["DiagnosisConfig", "diagnose"]
 
 SLOW_SAMPLE_S = 0.01  # median sample period from which data count as steady-state tables
+SETTLED_TAU_M = 5.0  # ... when it is also this many mechanical time constants (e^-5 < 1 %)
 
 
 def diagnose(
@@ -76,6 +77,10 @@ def diagnose(
         f"{len(split.fit)} fit / {len(split.held_out)} held-out segments ({split.rule} split)"
     )
     base = _baseline(search)
+    if slow_note and _speed_shows_dynamics(search, base, segments):
+        del search.fixed["L"]
+        slow_note = ""
+        base = _baseline(search)
     masks = regime_masks(split.held_out, base.fit.model.params.mechanical_time_constant_s)
     loc = localize(split.held_out, base.res, masks)
     scoring = Scoring.for_baseline(base, cfg.thresholds)
@@ -147,17 +152,33 @@ def _flatten(runs_or_segments: object) -> list[Segment]:
 # ---------------------------------------------------------------------------
 def _hold_inductance_for_tables(search: Search, segments: Sequence[Segment]) -> str:
     """Tables of steady states (seconds apart) show no electrical dynamics; a free L
-    would run off to freeze the current at its measured start value: hold it."""
+    would run off to freeze the current at its measured start value: hold it.
+
+    Slow samples are tables only when the speed also settles within a sample: a
+    50 Hz log of a motor with tau_m = 16 ms still shows L through the speed (the
+    armature's lag delays the torque of every voltage change), and holding L there
+    leaves a gap that a voltage-drop effect then "explains"."""
     cfg = search.cfg
     dt_med = float(np.median([s.dt_s for s in segments]))
     if "L" in search.fixed or dt_med < SLOW_SAMPLE_S:
         return ""
     p_tmp = cfg.initial or equation_error_start(search.split.fit, cfg.fixed)
+    if dt_med < SETTLED_TAU_M * p_tmp.mechanical_time_constant_s:
+        return ""
     search.fixed["L"] = p_tmp.R * dt_med * 0.01
     return (
         f"L held at {search.fixed['L']:.3g} H: samples {dt_med:.3g} s apart cannot show "
         "the electrical time constant"
     )
+
+
+def _speed_shows_dynamics(search: Search, base: Fitted, segments: Sequence[Segment]) -> bool:
+    """Whether the baseline fitted with L held finds a mechanical time constant that
+    the samples resolve (the equation-error start misjudges it at a few samples per
+    transient): then L shows through the speed and must be fitted."""
+    dt_med = float(np.median([s.dt_s for s in segments]))
+    tau_m = base.fit.model.params.mechanical_time_constant_s
+    return "L" not in search.cfg.fixed and dt_med < SETTLED_TAU_M * tau_m
 
 
 def _baseline(search: Search) -> Fitted:
