@@ -20,6 +20,9 @@ FloatArray = NDArray[np.float64]
 # Residuals (noise-normalised) beyond this are a diverged simulation: their cost is
 # infinite, and they never reach a product that could overflow.
 RESIDUAL_CAP = 1e100
+# Residuals are noise-normalised: a decrease of the cost below this moves no parameter
+# combination by more than 0.15 of its standard error (the fit has converged).
+CONVERGED_DECREASE = 1e-2
 
 
 def half_squared(r: FloatArray) -> float:
@@ -99,7 +102,7 @@ def levenberg_marquardt(
                 last_ok = True
                 # residuals are noise-normalised: a decrease below 0.01 moves no
                 # parameter combination by more than 0.15 of its standard error
-                if rel < 1e-12 or decrease < 1e-2 or small_step:
+                if rel < 1e-12 or decrease < CONVERGED_DECREASE or small_step:
                     converged = True
                     message = "cost no longer decreases"
                 elif A_new is not None:
@@ -114,6 +117,13 @@ def levenberg_marquardt(
                 break
             last_ok = False
             lam *= 6.0
+            if _promised(step, A, g) < CONVERGED_DECREASE:
+                # even the rejected step promised less than the convergence threshold: the
+                # smaller steps of a larger lambda promise less still, so had one been
+                # accepted the fit would have stopped there (same test, no more trials)
+                converged = True
+                message = "cost no longer decreases"
+                break
             if lam > 1e12:
                 converged = True
                 message = "no further decrease possible (local minimum)"
@@ -123,6 +133,12 @@ def levenberg_marquardt(
         if converged or not improved:
             break
     return z, LMState(cost, nfev, it, converged, message)
+
+
+def _promised(step: FloatArray, A: FloatArray, g: FloatArray) -> float:
+    """The cost decrease the Gauss-Newton model promises for ``step`` (the solver's
+    step before the per-iteration limit and the bounds shorten it)."""
+    return -(float(g @ step) + 0.5 * float(step @ A @ step))
 
 
 def _bounded_step(
