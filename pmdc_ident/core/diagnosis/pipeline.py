@@ -47,6 +47,7 @@ from pmdc_ident.core.effects import NO_COOLING_S, Effect, ResistanceDrift
 from pmdc_ident.core.errors import DataError
 from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit
 from pmdc_ident.core.estimators.output_error import FitResult
+from pmdc_ident.core.estimators.output_error.simulators import FAST_EFFECTS
 from pmdc_ident.core.estimators.start import equation_error_start
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.params import MotorParams
@@ -289,14 +290,31 @@ def _single_candidates(
     def one(n: str) -> Fitted:
         return search.single(base, n, sc, _integral if n == "resistance_drift" else None)
 
+    # the costliest fits start first, so the workers finish together (the last one
+    # started is not a slow one left running alone); the results stay in vocabulary order
+    order = sorted(names, key=_fit_cost_rank)
     with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
-        singles = list(pool.map(one, names))
+        by_name = dict(zip(order, pool.map(one, order), strict=True))
+    singles = [by_name[n] for n in names]
     for k, f in enumerate(singles):
         if f.effects[0] == "resistance_drift" and scoring.score(f).significant:
             first = search.single(base, f.effects[0], sc, lambda e: not _integral(e))
             if _penalized(first, scoring) < _penalized(f, scoring):
                 singles[k] = first
     return untestable, singles
+
+
+# Effects whose R or L changes within a sample (re-discretised every sub-step) or whose
+# torque depends on the angle: the slowest simulations, by far (see core.model).
+_VARYING_EFFECTS = ("inductance_saturation", "resistance_drift", "cogging")
+
+
+def _fit_cost_rank(name: str) -> int:
+    """0 for the slowest candidate fits, 1 for the others the fast kernel lacks (finite-
+    difference Jacobians), 2 for those it fits with analytic sensitivities."""
+    if name in _VARYING_EFFECTS:
+        return 0
+    return 2 if name in FAST_EFFECTS else 1
 
 
 def _integral(e: Effect) -> bool:
