@@ -10,7 +10,8 @@ effect enters the equations::
     J dw/dt    = Kt i - B w - friction(w) - Cq w|w| - T_load - T_cog sin(N th + phi)
     measured current = i + I_offset
 
-with ``friction(w) = (Tc + Ts exp(-(w/ws)^2)) sign(w)`` while turning and a rotor
+with ``friction(w) = (Tc + Ts exp(-(|w|/ws)^d)) sign(w)`` (``d`` = 2 the Gaussian,
+1 the exponential Stribeck curve) while turning and a rotor
 held at rest while ``|drive torque| <= Tc + Ts`` (stiction), ``R(t) = R (1 + k q)``
 with ``dq/dt = i^2 - q/tau`` (first-order winding heating: ``q`` is the
 dissipated ``int i^2 dt`` that has not yet flowed away; ``tau`` -> infinity is the
@@ -113,9 +114,15 @@ class StribeckFriction(Effect):
     SPECS: ClassVar[dict[str, ParamSpec]] = {
         "torque_nm": ParamSpec("N*m", 0.0, 1e4, "extra breakaway torque at rest"),
         "speed_rad_s": ParamSpec("rad/s", 1e-3, 1e4, "Stribeck speed"),
+        # the shape of the fall: 1 Tustin's exponential, 2 the Gaussian (Armstrong);
+        # measured curves lie between (a setting the diagnosis scans, not a fitted value)
+        "shape_exponent": ParamSpec(
+            "1", 0.5, 2.0, "exponent d of the fall exp(-(|w|/ws)^d)", False
+        ),
     }
     torque_nm: float
     speed_rad_s: float
+    shape_exponent: float = 2.0
 
 
 @dataclass(frozen=True)

@@ -264,8 +264,8 @@ def _linear_kernel(v, tl, phi, gam, decay, a_mech, j, dt, x):  # pragma: no cove
 # ---------------------------------------------------------------------------
 # Layout of the coefficient vector handed to the kernel.
 _R, _L, _KE, _KT, _J, _B = 0, 1, 2, 3, 4, 5
-_TC, _TS, _WS, _CQ, _TL, _VB, _TCOG, _NCOG, _PHCOG, _KR, _ISAT, _TAUQ = range(6, 18)
-_NCOEF = 18
+_TC, _TS, _WS, _CQ, _TL, _VB, _TCOG, _NCOG, _PHCOG, _KR, _ISAT, _TAUQ, _DS = range(6, 19)
+_NCOEF = 19
 
 
 def effect_coefficients(model: Model) -> FloatArray:
@@ -275,11 +275,12 @@ def effect_coefficients(model: Model) -> FloatArray:
     c = np.zeros(_NCOEF)
     c[[_R, _L, _KE, _KT, _J, _B]] = p.R, p.L, p.Ke, p.Kt, p.J, p.B
     c[_WS] = 1.0
+    c[_DS] = 2.0
     for e in model.effects:
         if isinstance(e, CoulombFriction):
             c[_TC] = e.torque_nm
         elif isinstance(e, StribeckFriction):
-            c[_TS], c[_WS] = e.torque_nm, e.speed_rad_s
+            c[_TS], c[_WS], c[_DS] = e.torque_nm, e.speed_rad_s, e.shape_exponent
         elif isinstance(e, QuadraticDrag):
             c[_CQ] = e.coeff_nm_s2
         elif isinstance(e, LoadTorque):
@@ -476,6 +477,13 @@ def _from_rest(i, th, v, t_opp, r, ind, ke, kt, j, b, h):  # pragma: no cover - 
 
 
 @njit
+def stribeck_fall(w, ws, ds):  # pragma: no cover - jitted
+    """exp(-(|w|/ws)^ds): the Stribeck curve's fall with speed (ds 2: Gaussian)."""
+    x = abs(w) / ws
+    return math.exp(-(x * x if ds == 2.0 else x**ds))
+
+
+@njit
 def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - jitted
     """Simulate ``v`` (one value per sample) with every effect, ``nsub`` sub-steps of ``h``
     per sample; ``c`` from :func:`effect_coefficients`, ``phi``/``gam`` the sub-step ZOH
@@ -486,6 +494,7 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
     r0, l0, ke, kt, j, b = c[0], c[1], c[2], c[3], c[4], c[5]
     tc, ts, ws, cq, tl, vb = c[6], c[7], c[8], c[9], c[10], c[11]
     tcog, ncog, phcog, kr, isat = c[12], c[13], c[14], c[15], c[16]
+    ds = c[18]  # Stribeck shape exponent
     # winding heat q: dq/dt = i^2 - q/tau (tau = c[17]; 0 = no cooling, the integral)
     cool = math.exp(-h / c[17]) if c[17] > 0.0 else 1.0
     t_static = tc + ts
@@ -543,7 +552,7 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
             else:
                 sgn = 1.0 if w > 0.0 else (-1.0 if w < 0.0 else (1.0 if drive > 0.0 else -1.0))
             # (ts = 0: ts * exp(.) is 0 exactly, so the exp is skipped, same numbers)
-            fric = sgn * (tc + ts * math.exp(-((w / ws) ** 2))) if ts > 0.0 else sgn * tc
+            fric = sgn * (tc + ts * stribeck_fall(w, ws, ds)) if ts > 0.0 else sgn * tc
             t_opp = t_pos + fric + cq * w * abs(w)
             if is_open:
                 w_new, th_new = _coast_step(w, th, t_opp, a_mech, j, h)

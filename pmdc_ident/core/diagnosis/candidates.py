@@ -101,10 +101,13 @@ def starting_effects(name: str, sc: DataScales) -> list[Effect]:
     if name == "coulomb_friction":
         return [_start(CoulombFriction, t * f) for f in (0.03, 0.1, 0.3)]
     if name == "stribeck_friction":
+        # the fall's speed over two decades of the top speed, in both common shapes
+        # (exponential and Gaussian: measured curves lie between); the fit places the
+        # torque, a start need only be of its order
         return [
-            _start(StribeckFriction, t * f, max(w * g, 1e-3))
-            for f in (0.1, 0.4)
-            for g in (0.02, 0.1)
+            _start(StribeckFriction, t * 0.25, max(w * g, 1e-3), shape)
+            for shape in (1.0, 2.0)
+            for g in (0.005, 0.02, 0.08, 0.3)
         ]
     if name == "quadratic_drag":
         return [_start(QuadraticDrag, t * f / w**2) for f in (0.1, 0.3, 1.0)]

@@ -11,6 +11,12 @@ would separate the two (:func:`~pmdc_ident.core.diagnosis.verdict.separating_tes
 gap remains: an effect is added to the chosen model when that beats the chosen
 model on held-out data by the penalty of what it adds (greedy, up to
 ``max_effects``).
+
+**The signal chain's lag** (a delay shorter than a first-order anti-alias filter's lag
+at the Nyquist frequency, 1/pi sample: :func:`chain_lag_s`) is in every driver's
+record, so it is no effect: when it is the best single candidate, every other helping
+effect is tried on top of it and judged against it as a single effect is judged
+against the baseline (its penalty, ties); the lag itself is never named.
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ from pmdc_ident.core.diagnosis.results import CandidateScore, Tie
 from pmdc_ident.core.diagnosis.search import Fitted, Scoring, Search, n_added
 from pmdc_ident.core.diagnosis.verdict import order_tie, separating_test
 
-__all__ = ["Choice", "choose"]
+__all__ = ["Choice", "chain_lag_s", "choose"]
 
 
 @dataclass
@@ -58,8 +64,61 @@ def choose(search: Search, scoring: Scoring, base: Fitted, singles: list[Fitted]
     choice.chosen = break_ties(helping, scoring, choice.ties)
     by_name = {f.effects[0]: f for f in singles}
     ranked_names = [s.effects[0] for s, f in helping if not f.failed]
+    if chain_lag_s(choice.chosen, search.dt_s) is not None:
+        beyond_chain_lag(search, scoring, choice, by_name, ranked_names)
     combine(search, scoring, choice, by_name, ranked_names)
     return choice
+
+
+def chain_lag_s(f: Fitted, dt_s: float) -> float | None:
+    """The delay in ``f``'s effects when it is shorter than the lag of a first-order
+    anti-alias filter at the Nyquist frequency (1/pi sample): every driver's signal
+    chain lags that much (the filter, the ADC's conversion instant), so it is no
+    effect of the motor or the drive."""
+    if "delay" not in f.effects:
+        return None
+    lag = float(getattr(f.fit.model.effect("delay"), "delay_s", math.inf))
+    return lag if lag < dt_s / math.pi else None
+
+
+def beyond_chain_lag(
+    search: Search,
+    scoring: Scoring,
+    choice: Choice,
+    by_name: Mapping[str, Fitted],
+    ranked_names: Sequence[str],
+) -> None:
+    """The chosen candidate is the signal chain's lag: every other helping effect is
+    fitted with it and scored against it as a single effect against the baseline (its
+    penalty, ties); the best that helps is chosen with the lag, which stays unnamed."""
+    lag = choice.chosen
+    names = [n for n in ranked_names if n not in lag.effects][:4]
+    trials = [t for t in _with_each(search, lag, by_name, names) if not t.failed]
+    scored = sorted(
+        ((scoring.score(t, lag), t) for t in trials), key=lambda sf: sf[0].penalized_gap
+    )
+    choice.scores.extend(s for s, _ in scored)
+    helping = [(s, t) for s, t in scored if s.significant]
+    if helping:
+        choice.ties.clear()
+        choice.chosen = break_ties(helping, scoring, choice.ties)
+
+
+def _with_each(
+    search: Search, chosen: Fitted, by_name: Mapping[str, Fitted], names: Sequence[str]
+) -> list[Fitted]:
+    """``chosen`` with each named effect added (as fitted alone), refitted together."""
+
+    def combo(n: str) -> Fitted:
+        e = by_name[n].fit.model.effect(n)
+        assert e is not None
+        m = chosen.fit.model.with_effects(e)
+        out = search.try_evaluate((*chosen.effects, n), m, chosen)
+        search.say(f"combination {'+'.join(out.effects)}: held-out gap {out.gap:.3g}")
+        return out
+
+    with ThreadPoolExecutor(max_workers=search.cfg.workers) as pool:
+        return list(pool.map(combo, names))
 
 
 def separated(
@@ -114,8 +173,10 @@ def break_ties(
     ]
     if not tied:
         return best_f
-    group = order_tie([best_s.effects[0]] + [s.effects[0] for s, _ in tied])
-    lookup = {s.effects[0]: f for s, f in [(best_s, best_f), *tied]}
+    # each candidate by the effect it adds (a single's only one; with the chain's lag,
+    # the effect tried on top of it)
+    group = order_tie([best_s.effects[-1]] + [s.effects[-1] for s, _ in tied])
+    lookup = {s.effects[-1]: f for s, f in [(best_s, best_f), *tied]}
     for other in group[1:]:
         ties.append(Tie((group[0], other), separating_test(group[0], other)))
     return lookup[group[0]]
@@ -141,16 +202,7 @@ def combine(
         if not pool_names:
             break
 
-        def combo(n: str, base_fit: Fitted = chosen) -> Fitted:
-            e = by_name[n].fit.model.effect(n)
-            assert e is not None
-            m = base_fit.fit.model.with_effects(e)
-            out = search.try_evaluate((*base_fit.effects, n), m, base_fit)
-            search.say(f"combination {'+'.join(out.effects)}: held-out gap {out.gap:.3g}")
-            return out
-
-        with ThreadPoolExecutor(max_workers=search.cfg.workers) as pool:
-            trials = [t for t in pool.map(combo, pool_names) if not t.failed]
+        trials = [t for t in _with_each(search, chosen, by_name, pool_names) if not t.failed]
         if not trials:
             break
         best_trial = min(trials, key=lambda f: f.gap + n_added(f.fit.model, f.effects) * penalty)

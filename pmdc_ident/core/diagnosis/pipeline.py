@@ -23,8 +23,8 @@ from dataclasses import replace
 import numpy as np
 
 from pmdc_ident.core.data import Run, Segment, check_excitation, unique_labels
-from pmdc_ident.core.diagnosis.candidates import data_scales, predict
-from pmdc_ident.core.diagnosis.choice import Choice, choose
+from pmdc_ident.core.diagnosis.candidates import DataScales, data_scales, predict
+from pmdc_ident.core.diagnosis.choice import Choice, chain_lag_s, choose
 from pmdc_ident.core.diagnosis.config import DiagnosisConfig
 from pmdc_ident.core.diagnosis.holdout import split_segments
 from pmdc_ident.core.diagnosis.localization import Localization, localize, regime_masks
@@ -288,6 +288,8 @@ def _single_candidates(
     names = [n for n in cfg.effects if n not in untestable]
 
     def one(n: str) -> Fitted:
+        if n == "stribeck_friction":
+            return _stribeck_shapes(search, base, sc)
         return search.single(base, n, sc, _integral if n == "resistance_drift" else None)
 
     # the costliest fits start first, so the workers finish together (the last one
@@ -317,6 +319,23 @@ def _fit_cost_rank(name: str) -> int:
     return 2 if name in FAST_EFFECTS else 1
 
 
+def _stribeck_shapes(search: Search, base: Fitted, sc: DataScales) -> Fitted:
+    """The Stribeck candidate fitted once per shape of its fall with speed (exponential
+    and Gaussian, the two common laws; measured curves lie between): the coarse scan
+    cannot tell the shape apart from a misplaced Stribeck speed, the fits can. The one
+    closer to the fit segments stands (the held-out data never choose a shape)."""
+    fits = [
+        search.single(base, "stribeck_friction", sc, lambda e, d=d: _shape(e) == d)
+        for d in (1.0, 2.0)
+    ]
+    ok = [f for f in fits if not f.failed] or fits
+    return min(ok, key=lambda f: _fit_gap(f, search.split.fit, search.noise))
+
+
+def _shape(e: Effect) -> float:
+    return float(getattr(e, "shape_exponent", 2.0))
+
+
 def _integral(e: Effect) -> bool:
     return isinstance(e, ResistanceDrift) and e.time_constant_s >= NO_COOLING_S
 
@@ -331,23 +350,13 @@ def _penalized(f: Fitted, scoring: Scoring) -> float:
 # ---------------------------------------------------------------------------
 # 6. verdict, regimes, assumptions
 # ---------------------------------------------------------------------------
-def _chain_lag_s(f: Fitted, dt_s: float) -> float | None:
-    """The delay of a delay-only choice when it is shorter than the lag of a first-order
-    anti-alias filter at the Nyquist frequency (1/pi sample): every driver's signal
-    chain lags that much (the filter, the ADC's conversion instant), so it is no
-    effect of the motor or the drive."""
-    if f.effects != ("delay",):
-        return None
-    e = f.fit.model.effect("delay")
-    lag = float(getattr(e, "delay_s", math.inf))
-    return lag if lag < dt_s / math.pi else None
-
-
 def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
     g0, chosen = scoring.g0, choice.chosen
     shrink = (g0 - chosen.gap) / g0 if g0 > 0 else 0.0
-    lag = _chain_lag_s(chosen, dt_s)
-    if lag is not None:
+    lag = chain_lag_s(chosen, dt_s)
+    named = tuple(n for n in chosen.effects if lag is None or n != "delay")
+    lag_note = "" if lag is None else f", the signals read {lag * 1e6:.3g} us late (chain lag)"
+    if lag is not None and not named:
         return Verdict(
             VerdictStatus.NO_GAP,
             (),
@@ -356,7 +365,7 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
             f"{lag * 1e6:.3g} us ({lag / dt_s:.2f} sample) late: the lag of the signal chain "
             "(anti-alias filter, ADC timing), not an effect of the motor; no effect is needed",
         )
-    if not chosen.effects:
+    if not named:
         if choice.gap_significant and g0 > 0:
             status = VerdictStatus.UNEXPLAINED
             message = (
@@ -372,18 +381,18 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
     elif shrink >= scoring.thresholds.explained_shrink:
         status = VerdictStatus.EXPLAINED
         message = (
-            f"{' + '.join(chosen.effects)} closes {shrink:.0%} of the held-out gap "
-            f"({g0:.3g} -> {chosen.gap:.3g})"
+            f"{' + '.join(named)} closes {shrink:.0%} of the held-out gap "
+            f"({g0:.3g} -> {chosen.gap:.3g}{lag_note})"
         )
     else:
         status = VerdictStatus.UNEXPLAINED
         message = (
-            f"best candidate {' + '.join(chosen.effects)} closes only {shrink:.0%} of the "
+            f"best candidate {' + '.join(named)} closes only {shrink:.0%} of the "
             "held-out gap; the rest has no name in the vocabulary"
         )
     if status is not VerdictStatus.EXPLAINED:
         return Verdict(status, (), (), message)
-    return Verdict(status, chosen.effects, tuple(choice.ties), message)
+    return Verdict(status, named, tuple(choice.ties), message)
 
 
 def _regimes(

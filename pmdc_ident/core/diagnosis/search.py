@@ -61,6 +61,8 @@ class Search:
         self.progress = progress
         self.fixed = dict(cfg.fixed)
         self.leads = [LeadIn(seg, 0) for seg in split.held_out]
+        # the records' sample period (the scale of the signal chain's lag)
+        self.dt_s = float(np.median([s.dt_s for s in (*split.fit, *split.held_out)]))
 
     def set_lead_ins(self, tau_s: float) -> None:
         """Predict held-out segments from lead-ins of ``LEAD_IN_TAU`` x ``tau_s``."""

@@ -4,9 +4,9 @@ matrices it is given and :mod:`.problem` for how its normal equations are used).
 
 Its compiled form embeds :func:`pmdc_ident.core.model.effects_kernel`, but numba's
 on-disk cache checks only this file's time stamp: a change to ``effects_kernel`` must
-touch this file too (this note was last touched when effects_kernel stopped
-evaluating the Stribeck exponential without a Stribeck torque), or processes keep
-running the old kernel here.
+touch this file too (this note was last touched for the Stribeck shape exponent in
+effects_kernel, after it stopped evaluating the Stribeck fall without a Stribeck
+torque), or processes keep running the old kernel here.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from pmdc_ident.core._jit import njit
-from pmdc_ident.core.model import effects_kernel
+from pmdc_ident.core.model import effects_kernel, stribeck_fall
 
 __all__ = [
     "COL",
@@ -88,15 +88,15 @@ def fast_kernel(
     sensitivities there keep the one-step approximation.
 
     Torques opposing +w are held over each sample at their value for w[k]:
-    ``T = T_load + sign(w) (Tc + Ts exp(-(w/ws)^2)) + Cq w|w|`` (``fx`` = [Ts, ws,
-    Cq]); their dependence on w enters the sensitivity recursion.
+    ``T = T_load + sign(w) (Tc + Ts exp(-(|w|/ws)^d)) + Cq w|w|`` (``fx`` = [Ts, ws,
+    Cq, d]); their dependence on w enters the sensitivity recursion.
 
     ``cmode``: current-driven (mechanical only; ``imeas`` is the input).
     ``el``: rotor-held electrical step [a, b, da/dR, da/dL, db/dR, db/dL].
     """
     n = v.shape[0]
     X = np.empty((n, 3))
-    ts, ws, cq = fx[0], fx[1], fx[2]
+    ts, ws, cq, ds = fx[0], fx[1], fx[2], fx[3]
     t_static = tc + ts
     m = mx.shape[1]
     no = oidx.shape[0]
@@ -221,9 +221,13 @@ def fast_kernel(
                 drive = kt * x[0] - tl
             sg = 1.0 if drive > 0.0 else -1.0
         w = x[1]
-        ex = math.exp(-((w / ws) ** 2)) if ts > 0.0 else 0.0
+        ex = stribeck_fall(w, ws, ds) if ts > 0.0 else 0.0
+        # d/dw and ws d/dws of x^d, x = |w|/ws (d = 2: 2 w / ws^2 and 2 x^2)
+        xr = abs(w) / ws
+        xd = xr * xr if ds == 2.0 else xr**ds
+        dxd_dw = 0.0 if w == 0.0 else ds * xd / w
         torque = tl + sg * (tc + ts * ex) + cq * w * abs(w)
-        dt_dw = -2.0 * sg * ts * ex * w / (ws * ws) + 2.0 * cq * abs(w)
+        dt_dw = -sg * ts * ex * dxd_dw + 2.0 * cq * abs(w)
         i_in = 0.5 * (imeas[k] + imeas[k + 1]) if cmode else 0.0
         if is_open:
             ph, ga, dph, dga = pho, gao, dpho, dgao
@@ -254,7 +258,7 @@ def fast_kernel(
                 sn[a, 7] += ga[a, 1]
                 if ts > 0.0:
                     sn[a, 11] += ga[a, 1] * sg * ex
-                    sn[a, 12] += ga[a, 1] * sg * ts * ex * 2.0 * w * w / (ws * ws * ws)
+                    sn[a, 12] += ga[a, 1] * sg * ts * ex * ds * xd / ws
                 sn[a, 13] += ga[a, 1] * w * abs(w)
                 if dt_dw != 0.0:
                     for c in nc:

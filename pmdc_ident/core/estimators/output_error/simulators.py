@@ -133,6 +133,7 @@ class FastSim:
                 float(getattr(st, "torque_nm", 0.0)) if st is not None else 0.0,
                 float(getattr(st, "speed_rad_s", 1.0)) if st is not None else 1.0,
                 float(getattr(qd, "coeff_nm_s2", 0.0)) if qd is not None else 0.0,
+                float(getattr(st, "shape_exponent", 2.0)) if st is not None else 2.0,
             ]
         )
         self.tc = float(getattr(tc, "torque_nm", 0.0)) if tc is not None else 0.0
