@@ -220,11 +220,16 @@ def _bristles(x: FloatArray, h: float, p: FloatArray) -> float:
     w = x[S_W]
     z0 = x[S_Z]
     g = p[P_TC] + _stribeck(w, p)
-    if w != 0.0 and g > 0.0:
+    if w == 0.0:
+        z1 = z0
+    elif g > 0.0:
         zss = g * _sgn(w) / p[P_SIG0]
         z1 = zss + (z0 - zss) * math.exp(-p[P_SIG0] * abs(w) * h / g)
     else:
-        z1 = z0 + w * h
+        # no friction level left at this speed (a Stribeck torque alone, far beyond its
+        # speed: the exponential underflows to 0): the bristles relax at once, the limit
+        # g -> 0 of the line above (z0 + w h, an ever-stretching spring, is not LuGre)
+        z1 = 0.0
     x[S_Z] = z1
     return p[P_SIG0] * 0.5 * (z0 + z1) + p[P_SIG1] * (z1 - z0) / h
 

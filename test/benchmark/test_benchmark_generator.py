@@ -85,6 +85,20 @@ def test_karnopp_rotor_sticks_below_breakaway_and_turns_above_it():
     assert pl.simulate_plant(v * 1.3, 1e-3, p).speed[-1] > 0.0
 
 
+def test_lugre_stribeck_torque_alone_vanishes_far_beyond_its_speed():
+    # bristles with no friction level left (a Stribeck torque alone, 50 Stribeck speeds
+    # past it) carry no force: the rotor runs up as the linear motor does, not into a
+    # spring that stretches with every turn
+    m = MOTORS["industrial_180v"]
+    p = _linear(m)
+    w0 = m.speed_no_load_rad_s
+    p[pl.P_TS], p[pl.P_WS], p[pl.P_STRIB] = 0.05 * m.torque_rated_nm, 0.02 * w0, 2.0
+    p[pl.P_FRIC], p[pl.P_SIG0], p[pl.P_SIG1] = 3.0, 1e4, 2.0 * np.sqrt(1e4 * m.params.J)
+    v = np.full(3000, m.voltage_rated_v)
+    lin = pl.simulate_plant(v, 1e-3, _linear(m)).speed
+    assert pl.simulate_plant(v, 1e-3, p).speed[-1] == pytest.approx(lin[-1], rel=1e-3)
+
+
 @pytest.mark.parametrize("eq", EQUATIONS["inductance_saturation"])
 def test_inductance_falls_by_the_graded_size_at_the_peak_current(eq):
     ctx = context(MOTORS["industrial_180v"], 500.0, False)
