@@ -154,32 +154,49 @@ def break_ties(
     Another helping candidate is tied with the best when it too closes most of the
     gap and either closes nearly as much (within ``tie_fraction``) or the held-out
     evidence cannot separate the two (:func:`separated`), whatever their parameter
-    counts. The group is ordered by :func:`order_tie` and every pair with the first
-    goes into ``ties`` with its separating test.
+    counts. The group is ordered by :func:`order_tie`; when that names another member
+    than the best, what the evidence cannot separate from the named one joins the
+    group too (a Coulomb friction named over a closer Stribeck curve keeps its tie with
+    a load torque). Every pair with the first goes into ``ties`` with its separating
+    test.
     """
+    tied = _tied_with(helping[0], helping[1:], scoring)
+    if not tied:
+        return helping[0][1]
+    # each candidate by the effect it adds (a single's only one; with the chain's lag,
+    # the effect tried on top of it)
+    members = [helping[0], *tied]
+    group = order_tie([s.effects[-1] for s, _ in members])
+    lookup = {s.effects[-1]: (s, f) for s, f in helping}
+    if group[0] != helping[0][0].effects[-1]:
+        rest = [sf for sf in helping if sf[0].effects[-1] not in group]
+        more = [s.effects[-1] for s, _ in _tied_with(lookup[group[0]], rest, scoring)]
+        group = group[:1] + order_tie(group[1:] + more)
+    for other in group[1:]:
+        ties.append(Tie((group[0], other), separating_test(group[0], other)))
+    return lookup[group[0]][1]
+
+
+def _tied_with(
+    ref: tuple[CandidateScore, Fitted],
+    others: Sequence[tuple[CandidateScore, Fitted]],
+    scoring: Scoring,
+) -> list[tuple[CandidateScore, Fitted]]:
+    """The candidates of ``others`` the held-out evidence leaves tied with ``ref``."""
     th, g0, penalty = scoring.thresholds, scoring.g0, scoring.penalty
-    best_s, best_f = helping[0]
-    gain_best = g0 - best_s.gap
-    tied = [
+    ref_s, ref_f = ref
+    gain_ref = g0 - ref_s.gap
+    return [
         (s, f)
-        for s, f in helping[1:]
+        for s, f in others
         if (g0 - s.gap) >= th.explained_shrink * g0
         and (
-            (g0 - s.gap) >= (1.0 - th.tie_fraction) * gain_best
+            (g0 - s.gap) >= (1.0 - th.tie_fraction) * gain_ref
             or not separated(
-                best_f, f, s.added_parameters - best_s.added_parameters, penalty, th.no_gap_noise
+                ref_f, f, s.added_parameters - ref_s.added_parameters, penalty, th.no_gap_noise
             )
         )
     ]
-    if not tied:
-        return best_f
-    # each candidate by the effect it adds (a single's only one; with the chain's lag,
-    # the effect tried on top of it)
-    group = order_tie([best_s.effects[-1]] + [s.effects[-1] for s, _ in tied])
-    lookup = {s.effects[-1]: f for s, f in [(best_s, best_f), *tied]}
-    for other in group[1:]:
-        ties.append(Tie((group[0], other), separating_test(group[0], other)))
-    return lookup[group[0]]
 
 
 def combine(
