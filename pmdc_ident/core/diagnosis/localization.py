@@ -28,6 +28,7 @@ __all__ = [
     "angle_harmonics",
     "localize",
     "regime_masks",
+    "shaft_angle",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -100,7 +101,8 @@ def _sweep_frequency(seg: Segment) -> FloatArray | None:
     return np.interp(seg.t, tm, f)
 
 
-def _angle(seg: Segment) -> FloatArray:
+def shaft_angle(seg: Segment) -> FloatArray:
+    """The measured shaft angle (the encoder's, else the integrated speed)."""
     if seg.position is not None:
         return seg.position
     w = seg.speed_or_derivative()
@@ -194,7 +196,7 @@ def angle_harmonics(
     total excess energy. Only samples while turning are used. Also returns the
     three strongest N (the starts of a cogging candidate), however weak.
     """
-    theta = np.concatenate([_angle(s) for s in segments])
+    theta = np.concatenate([shaft_angle(s) for s in segments])
     w = np.concatenate([s.speed_or_derivative() for s in segments])
     # cogging shows most where the rotor crawls through its detents: keep slow samples
     moving = np.abs(w) > 0.002 * (float(np.max(np.abs(w))) or 1.0)

@@ -25,6 +25,7 @@ import numpy as np
 from pmdc_ident.core.data import Run, Segment, check_excitation, unique_labels
 from pmdc_ident.core.diagnosis.candidates import DataScales, data_scales, predict
 from pmdc_ident.core.diagnosis.choice import Choice, chain_lag_s, choose
+from pmdc_ident.core.diagnosis.cogging import angle_cogging
 from pmdc_ident.core.diagnosis.config import DiagnosisConfig
 from pmdc_ident.core.diagnosis.holdout import split_segments
 from pmdc_ident.core.diagnosis.localization import Localization, localize, regime_masks
@@ -37,6 +38,7 @@ from pmdc_ident.core.diagnosis.results import (
 from pmdc_ident.core.diagnosis.scoring import NoiseModel, estimate_noise, residuals
 from pmdc_ident.core.diagnosis.search import (
     FIT_ERRORS,
+    L_FLOOR_SAMPLE,
     Fitted,
     Scoring,
     Search,
@@ -166,7 +168,7 @@ def _hold_inductance_for_tables(search: Search, segments: Sequence[Segment]) -> 
     p_tmp = cfg.initial or equation_error_start(search.split.fit, cfg.fixed)
     if dt_med < SETTLED_TAU_M * p_tmp.mechanical_time_constant_s:
         return ""
-    search.fixed["L"] = p_tmp.R * dt_med * 0.01
+    search.fixed["L"] = p_tmp.R * dt_med * L_FLOOR_SAMPLE
     return (
         f"L held at {search.fixed['L']:.3g} H: samples {dt_med:.3g} s apart cannot show "
         "the electrical time constant"
@@ -204,8 +206,9 @@ def _baseline(search: Search) -> Fitted:
             if _fit_gap(again, split.fit, noise) < _fit_gap(base, split.fit, noise):
                 base = again
     if "L" not in search.fixed and not base.fit.identifiable.get("L", True):
-        # L/R below the sample period: hold L for the candidates (one fit, not two)
-        search.fixed["L"] = float(base.fit.model.params.L)
+        # L/R below the sample period: hold L for the candidates (one fit, not two),
+        # where the data can still tell it (Search.resolvable)
+        search.fixed["L"] = float(search.resolvable(base.fit.model).params.L)
     # lead-ins sized by the fitted motor from here on (the start's tau_m is rough)
     search.set_lead_ins(base.fit.model.params.mechanical_time_constant_s)
     base.res = search.held_out_residuals(base.fit)
@@ -270,19 +273,20 @@ def _single_candidates(
 ) -> tuple[dict[str, str], list[Fitted]]:
     """Every testable effect fitted alone; also what could not be tried, and why.
 
-    Cogging is tried when the residuals are periodic in the shaft angle (it is the
-    costliest fit, and the output error of a rotor caught in detents is multimodal).
+    Cogging is fitted in the measured shaft angle (:mod:`.cogging`) for the strongest
+    periods of the residuals' angle spectrum, wherever the shaft turned enough to
+    have one.
     A resistance drift is fitted as the heat integral (one parameter); where that
     beats its penalty on held-out data (the winding heats), it is fitted again as
     first-order heating with its time constant (two), and the one with the smaller
     penalized held-out gap stands for the name.
     """
     cfg = search.cfg
-    periods = list(loc.angle_candidates) if loc.angle_periods_per_rev else []
+    periods = list(loc.angle_candidates)
     sc = data_scales(search.split.fit, base.fit.model.params.Kt, periods)
     untestable: dict[str, str] = {}
     if not periods:
-        untestable["cogging"] = "no periodicity in shaft angle in the residuals"
+        untestable["cogging"] = "the shaft turned too little to show a period in its angle"
     if "L" in search.fixed:
         untestable["inductance_saturation"] = "L is held (the data do not resolve L/R)"
     names = [n for n in cfg.effects if n not in untestable]
@@ -290,6 +294,8 @@ def _single_candidates(
     def one(n: str) -> Fitted:
         if n == "stribeck_friction":
             return _stribeck_shapes(search, base, sc)
+        if n == "cogging":
+            return _cogging(search, base, sc, loc.angle_periods_per_rev is not None)
         return search.single(base, n, sc, _integral if n == "resistance_drift" else None)
 
     # the costliest fits start first, so the workers finish together (the last one
@@ -308,7 +314,7 @@ def _single_candidates(
 
 # Effects whose R or L changes within a sample (re-discretised every sub-step) or whose
 # torque depends on the angle: the slowest simulations, by far (see core.model).
-_VARYING_EFFECTS = ("inductance_saturation", "resistance_drift", "cogging")
+_VARYING_EFFECTS = ("inductance_saturation", "resistance_drift")
 
 
 def _fit_cost_rank(name: str) -> int:
@@ -330,6 +336,26 @@ def _stribeck_shapes(search: Search, base: Fitted, sc: DataScales) -> Fitted:
     ]
     ok = [f for f in fits if not f.failed] or fits
     return min(ok, key=lambda f: _fit_gap(f, search.split.fit, search.noise))
+
+
+def _cogging(search: Search, base: Fitted, sc: DataScales, periodic: bool) -> Fitted:
+    """Cogging fitted in the measured shaft angle (:mod:`.cogging`); where one period
+    stands out of the residuals' angle spectrum, also by output error in time from that
+    fit (a rotor caught in a detent moves less than an encoder count: there the angle
+    read from the encoder cannot give the torque, a simulated angle can). The one
+    closer to the fit segments stands."""
+    in_angle, angle_gap = angle_cogging(search, base, sc.periods_per_rev)
+    if in_angle.failed or not periodic:
+        return in_angle
+    in_time = search.single(
+        base,
+        "cogging",
+        sc,
+        start=(base.fit.model.with_effects(*in_angle.fit.model.effects)),
+    )
+    if in_time.failed or _fit_gap(in_time, search.split.fit, search.noise) >= angle_gap:
+        return in_angle
+    return in_time
 
 
 def _shape(e: Effect) -> float:

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.quality.noise import signal_noise
 
-__all__ = ["SIGNALS", "NoiseModel", "Residuals", "estimate_noise", "residuals"]
+__all__ = ["SIGNALS", "NoiseModel", "Residuals", "estimate_noise", "residuals", "simulated"]
 
 FloatArray = NDArray[np.float64]
 SIGNALS: tuple[str, ...] = ("current", "speed")
@@ -132,7 +132,7 @@ class Residuals:
         }
 
 
-def _simulated(seg: Segment, pred: object, signal: str) -> FloatArray:
+def simulated(seg: Segment, pred: object, signal: str) -> FloatArray:
     """The prediction of a measured signal, made the way the measurement was: a speed
     the log lacks is the central difference of the encoder's position, which damps
     fast motion (to 64 % at a quarter of the sample rate), so the simulated position
@@ -156,7 +156,7 @@ def residuals(
             if meas is None:
                 err[sig].append(np.full(seg.n, np.nan))
                 continue
-            e = _simulated(seg, pred, sig) - meas
+            e = simulated(seg, pred, sig) - meas
             err[sig].append(np.where(np.isfinite(e), e, 1e6 * noise.scale[sig]))
         idx.append(np.full(seg.n, k, dtype=np.int64))
     return Residuals(

@@ -26,9 +26,11 @@ from pmdc_ident.core.estimators.output_error import FitResult, Prediction
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.progress import ProgressCallback
 
-__all__ = ["FIT_ERRORS", "Fitted", "Scoring", "Search", "n_added", "predictions"]
+__all__ = ["FIT_ERRORS", "L_FLOOR_SAMPLE", "Fitted", "Scoring", "Search", "n_added", "predictions"]
 
 FIT_ERRORS = (ValueError, ArithmeticError, np.linalg.LinAlgError)
+# the smallest L/R a fit starts from or holds, as a fraction of the sample period
+L_FLOOR_SAMPLE = 0.01
 
 
 def predictions(fit: FitResult, segments: Sequence[Segment]) -> list[Prediction]:
@@ -80,12 +82,24 @@ class Search:
 
     def evaluate(self, effects: tuple[str, ...], model: Model) -> Fitted:
         t0 = time.perf_counter()
+        model = self.resolvable(model)
         fixed = dict(self.fixed)
         if "L" in fixed and "L" not in self.cfg.fixed:
             fixed["L"] = float(model.params.L)  # held where the candidate's scan put it
         fit = fit_model(self.split.fit, model, max_nfev=self.cfg.max_nfev, fixed=fixed or None)
         res = self.held_out_residuals(fit)
         return Fitted(effects, fit, res, res.gap(), time.perf_counter() - t0)
+
+    def resolvable(self, model: Model) -> Model:
+        """``model`` with L/R at least :data:`L_FLOOR_SAMPLE` of a sample: the current
+        settles within the sample either way, so the data cannot tell a smaller L, and
+        an L run towards 0 (exp(-R dt / L) at 1e-6 of a sample) leaves a friction
+        candidate's first step undifferentiable ("the fit cannot start")."""
+        p = model.params
+        floor = L_FLOOR_SAMPLE * p.R * self.dt_s
+        if "L" in self.cfg.fixed or p.L >= floor:
+            return model
+        return Model(p.replace(L=floor), model.effects)
 
     def try_evaluate(self, effects: tuple[str, ...], model: Model, fallback: Fitted) -> Fitted:
         """Like :meth:`evaluate`, but a fit that fails numerically scores as no better

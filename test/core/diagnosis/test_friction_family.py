@@ -1,5 +1,6 @@
 """The friction family: Stribeck curves of either common shape, fitted and named;
-friction seen through the signal chain's lag named without the lag."""
+friction seen through the signal chain's lag named without the lag; friction fitted
+where the samples cannot resolve L."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from pmdc_ident.core.data import Segment
 from pmdc_ident.core.diagnosis import DiagnosisConfig, VerdictStatus, diagnose
 from pmdc_ident.core.diagnosis.candidates import data_scales, fit_model
 from pmdc_ident.core.diagnosis.holdout import split_segments
-from pmdc_ident.core.diagnosis.pipeline import _stribeck_shapes
+from pmdc_ident.core.diagnosis.pipeline import _baseline, _stribeck_shapes
 from pmdc_ident.core.diagnosis.scoring import estimate_noise
 from pmdc_ident.core.diagnosis.search import Fitted, Search
 from pmdc_ident.core.effects import CoulombFriction, Delay, StribeckFriction
@@ -22,7 +23,8 @@ from pmdc_ident.core.estimators.output_error.problem import Problem
 from pmdc_ident.core.estimators.output_error.segments import initial_noise, prepare_segments
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model, simulate
-from pmdc_ident.core.motors import load_motor
+from pmdc_ident.core.motors import Limits, load_motor
+from pmdc_ident.core.params import MotorParams
 
 
 def test_an_exponential_stribeck_fall_is_simulated_as_its_equation():
@@ -116,3 +118,28 @@ def test_friction_seen_through_the_signal_chains_lag_is_named_without_the_lag():
     assert r.verdict.effects[:1] == ("coulomb_friction",)
     assert "delay" not in r.verdict.effects
     assert "chain lag" in r.verdict.message
+
+
+def test_an_inductance_the_samples_cannot_resolve_is_held_where_friction_fits_can_start():
+    # a 12 V gearmotor at 250 Hz: L/R = 31 us, 1/128 of a sample. An L run towards 0
+    # (1e-6 of a sample's L/R) made every friction candidate's first step
+    # undifferentiable ("the fit cannot start"); a fit starts or holds L at >= 1/100
+    p = MotorParams(R=16.0, L=5e-4, Ke=0.34, Kt=0.34, J=1.2e-4, B=3.1e-4)
+    seed = load_motor("seed001_110v")
+    spec = replace(
+        seed,
+        model=Model(p),
+        sensors=replace(seed.sensors, current_noise_a=8e-3, encoder_counts_per_rev=4800.0),
+        limits=Limits(voltage_max_v=12.0, current_max_a=1.0, speed_max_rad_s=80.0),
+    )
+    dt, tc = 1 / 250, 0.004
+    plan = plan_for_motor(spec, dt, SequenceConfig())
+    run = synthesize_run(Model(p, (CoulombFriction(tc),)), plan, spec.sensors, seed=1)
+    segs = list(run.segments)
+    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
+    base = _baseline(search)
+    if "L" in search.fixed:  # held: where the data can tell it
+        assert search.fixed["L"] >= 0.01 * base.fit.model.params.R * dt
+    tiny = Model(base.fit.model.params.replace(L=1e-6 * p.R * dt), (CoulombFriction(tc),))
+    f = search.evaluate(("coulomb_friction",), tiny)
+    assert f.gap < 0.1 * base.gap
