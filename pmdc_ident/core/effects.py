@@ -62,6 +62,9 @@ class ParamSpec:
     upper: float
     description: str
     fitted: bool = True
+    # the value at which the effect is its one-parameter limit (the heat integral, the
+    # hard brush drop): a fit holds the field there unless asked to free it
+    limit: float | None = None
 
 
 @dataclass(frozen=True)
@@ -95,6 +98,15 @@ class Effect:
     @classmethod
     def fitted_names(cls) -> tuple[str, ...]:
         return tuple(n for n, s in cls.SPECS.items() if s.fitted)
+
+    def free_names(self) -> tuple[str, ...]:
+        """The fields a fit estimates by default: the fitted ones but those held at
+        their one-parameter limit (:attr:`ParamSpec.limit`)."""
+        return tuple(
+            n
+            for n in self.fitted_names()
+            if self.SPECS[n].limit is None or getattr(self, n) != self.SPECS[n].limit
+        )
 
 
 @dataclass(frozen=True)
@@ -148,11 +160,20 @@ class LoadTorque(Effect):
 @dataclass(frozen=True)
 class BrushDrop(Effect):
     NAME: ClassVar[str] = "brush_drop"
-    DESCRIPTION: ClassVar[str] = "voltage drop across the brushes with the sign of current"
+    DESCRIPTION: ClassVar[str] = (
+        "voltage drop across the brushes with the sign of current: Vb tanh(i/i_knee), "
+        "the hard sign at i_knee = 0"
+    )
     SPECS: ClassVar[dict[str, ParamSpec]] = {
         "voltage_v": ParamSpec("V", 0.0, 100.0, "total brush voltage drop"),
+        # a contact film conducts like a resistor at small current (slope Vb/i_knee)
+        # and saturates at Vb above a few i_knee; 0 is the limit of a hard sign
+        "knee_current_a": ParamSpec(
+            "A", 0.0, 1e4, "current where the drop reaches 76 % of Vb", limit=0.0
+        ),
     }
     voltage_v: float
+    knee_current_a: float = 0.0  # the hard sign: a dead band on the driving voltage
 
 
 @dataclass(frozen=True)
@@ -190,7 +211,11 @@ class ResistanceDrift(Effect):
         # micro-motor (20-100 ohm, 0.01-0.05 J/K) reaches 10-40, a milliamp one more
         "coeff_per_a2s": ParamSpec("1/(A^2*s)", 0.0, 1e4, "k in R(t) = R (1 + k q)"),
         "time_constant_s": ParamSpec(
-            "s", 0.1, NO_COOLING_S, "winding thermal time constant (dq/dt = i^2 - q/tau)"
+            "s",
+            0.1,
+            NO_COOLING_S,
+            "winding thermal time constant (dq/dt = i^2 - q/tau)",
+            limit=NO_COOLING_S,
         ),
     }
     coeff_per_a2s: float
@@ -200,11 +225,17 @@ class ResistanceDrift(Effect):
 @dataclass(frozen=True)
 class Delay(Effect):
     NAME: ClassVar[str] = "delay"
-    DESCRIPTION: ClassVar[str] = "command reaches the motor late"
+    DESCRIPTION: ClassVar[str] = (
+        "command reaches the motor late: a transport delay, then a first-order lag"
+    )
     SPECS: ClassVar[dict[str, ParamSpec]] = {
         "delay_s": ParamSpec("s", 0.0, 1.0, "transport delay"),
+        # a drive's output filter or current loop: tau dVa/dt = V - Va; 0 is the limit of
+        # a pure transport delay
+        "lag_s": ParamSpec("s", 0.0, 1.0, "first-order lag time constant", limit=0.0),
     }
     delay_s: float
+    lag_s: float = 0.0
 
 
 @dataclass(frozen=True)

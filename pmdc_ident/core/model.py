@@ -53,6 +53,7 @@ __all__ = [
     "SimResult",
     "apply_dead_zone",
     "apply_delay",
+    "apply_lag",
     "continuous_state_space",
     "discretize_zoh",
     "heat_time_constant",
@@ -264,8 +265,8 @@ def _linear_kernel(v, tl, phi, gam, decay, a_mech, j, dt, x):  # pragma: no cove
 # ---------------------------------------------------------------------------
 # Layout of the coefficient vector handed to the kernel.
 _R, _L, _KE, _KT, _J, _B = 0, 1, 2, 3, 4, 5
-_TC, _TS, _WS, _CQ, _TL, _VB, _TCOG, _NCOG, _PHCOG, _KR, _ISAT, _TAUQ, _DS = range(6, 19)
-_NCOEF = 19
+_TC, _TS, _WS, _CQ, _TL, _VB, _TCOG, _NCOG, _PHCOG, _KR, _ISAT, _TAUQ, _DS, _IB = range(6, 20)
+_NCOEF = 20
 
 
 def effect_coefficients(model: Model) -> FloatArray:
@@ -286,7 +287,7 @@ def effect_coefficients(model: Model) -> FloatArray:
         elif isinstance(e, LoadTorque):
             c[_TL] = e.torque_nm
         elif isinstance(e, BrushDrop):
-            c[_VB] = e.voltage_v
+            c[_VB], c[_IB] = e.voltage_v, e.knee_current_a
         elif isinstance(e, Cogging):
             c[_TCOG], c[_NCOG], c[_PHCOG] = e.torque_nm, e.periods_per_rev, e.phase_rad
         elif isinstance(e, ResistanceDrift):
@@ -355,6 +356,34 @@ def apply_delay(
     return np.where(np.isnan(out), near, out)
 
 
+def apply_lag(
+    voltage: FloatArray, lag_s: float, dt_s: float, initial_v: float = 0.0
+) -> FloatArray:
+    """A first-order lag ``tau dVa/dt = V - Va`` of a sampled (ZOH) voltage, as the mean
+    of ``Va`` over each sample (the value the motor's step holds). ``initial_v`` is
+    ``Va`` before the first sample; an open armature (NaN) passes through and the lag
+    restarts from 0 V after it."""
+    if lag_s <= 0.0:
+        return voltage
+    a = math.exp(-dt_s / lag_s)
+    return _lag_kernel(voltage, a, lag_s / dt_s * (1.0 - a), float(initial_v))
+
+
+@njit
+def _lag_kernel(v, a, g, x0):  # pragma: no cover - jitted
+    out = np.empty_like(v)
+    x = x0
+    for k in range(v.size):
+        vk = v[k]
+        if math.isnan(vk):
+            out[k] = vk
+            x = 0.0
+            continue
+        out[k] = vk + (x - vk) * g
+        x = vk + (x - vk) * a
+    return out
+
+
 def simulate(
     model: Model,
     voltage: ArrayLike,
@@ -391,16 +420,15 @@ def simulate(
     # spurious 0 V interval at every segment start. From rest (x0 None) it is 0 V.
     pre_v = float(v_app[0]) if x0 is not None and v_app.size else 0.0
     delay_s = dl.delay_s if isinstance(dl, Delay) else 0.0
-    if pre_voltage is not None and delay_s > 0.0:
-        pre = _as_voltage(pre_voltage)
-        if pre.size:
-            pre = apply_dead_zone(pre, dz.voltage_v if isinstance(dz, DeadZone) else 0.0)
-            both = apply_delay(np.concatenate([pre, v_app]), delay_s, dt_s, float(pre[0]))
-            v_app = both[pre.size :]
-        else:
-            v_app = apply_delay(v_app, delay_s, dt_s, pre_v)
+    lag_s = dl.lag_s if isinstance(dl, Delay) else 0.0
+    pre = _as_voltage(pre_voltage) if pre_voltage is not None else np.zeros(0)
+    if pre.size and (delay_s > 0.0 or lag_s > 0.0):
+        pre = apply_dead_zone(pre, dz.voltage_v if isinstance(dz, DeadZone) else 0.0)
+        both = apply_delay(np.concatenate([pre, v_app]), delay_s, dt_s, float(pre[0]))
+        p0 = float(pre[0]) if math.isfinite(pre[0]) else 0.0
+        v_app = apply_lag(both, lag_s, dt_s, p0)[pre.size :]
     else:
-        v_app = apply_delay(v_app, delay_s, dt_s, pre_v)
+        v_app = apply_lag(apply_delay(v_app, delay_s, dt_s, pre_v), lag_s, dt_s, pre_v)
     if not (math.isfinite(heat0_a2s) and heat0_a2s >= 0.0):
         msg = f"initial heat integral must be >= 0 A^2*s, got {heat0_a2s}"
         raise ParameterError(msg)
@@ -420,12 +448,18 @@ def simulate(
     )
 
 
+def _varying(c: FloatArray) -> bool:
+    """Whether the electrical step changes within a sample (R heats, L saturates, a
+    smooth brush drop's slope), so the kernel re-discretises every sub-step."""
+    return bool(c[_KR] > 0.0 or c[_ISAT] > 0.0 or (c[_VB] > 0.0 and c[_IB] > 0.0))
+
+
 def _run_effects(
     model: Model, v_app: FloatArray, dt_s: float, state: FloatArray, substeps: int
 ) -> FloatArray:
     c = effect_coefficients(model)
     h = dt_s / substeps
-    varying = c[_KR] > 0.0 or c[_ISAT] > 0.0
+    varying = _varying(c)
     phi, gam = discretize_zoh(model.params, h)
     if state[4] == 0.0 and state[1] == 0.0 and c[_TC] + c[_TS] > 0.0:
         state[4] = 1.0  # starts at rest: held by static friction until it breaks away
@@ -439,7 +473,13 @@ def _zoh2(a11, a12, a21, a22, h):  # pragma: no cover - jitted
     d = 0.5 * (a11 - a22)
     q2 = d * d + a12 * a21
     es = math.exp(s * h)
-    if q2 > 1e-300:
+    if q2 > 1e-300 and math.sqrt(q2) * h > 20.0:
+        # stiff (a knee's slope, a hot winding at a long step): e^(sh) cosh(qh) as the
+        # sum of the two modes' decays, not 0 * inf
+        q = math.sqrt(q2)
+        fast, slow = math.exp((s - q) * h), math.exp((s + q) * h)
+        es, ch, sh = 1.0, 0.5 * (slow + fast), 0.5 * (slow - fast) / q
+    elif q2 > 1e-300:
         q = math.sqrt(q2)
         ch = math.cosh(q * h)
         sh = math.sinh(q * h) / q
@@ -495,6 +535,7 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
     tc, ts, ws, cq, tl, vb = c[6], c[7], c[8], c[9], c[10], c[11]
     tcog, ncog, phcog, kr, isat = c[12], c[13], c[14], c[15], c[16]
     ds = c[18]  # Stribeck shape exponent
+    ib = c[19]  # brush drop knee current (0: the hard sign)
     # winding heat q: dq/dt = i^2 - q/tau (tau = c[17]; 0 = no cooling, the integral)
     cool = math.exp(-h / c[17]) if c[17] > 0.0 else 1.0
     t_static = tc + ts
@@ -519,9 +560,16 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
                 i = 0.0
                 drive = -t_pos
             else:
-                # Brush drop: a dead band on the voltage that drives current.
+                # Brush drop: a dead band on the voltage that drives current (hard), or
+                # vb tanh(i/ib) (smooth contact film), linearised about the sub-step's
+                # start current: its slope is a resistance in the exact step (stable).
                 e_drive = vk - ke * w
-                if vb > 0.0:
+                r_brush = 0.0
+                if vb > 0.0 and ib > 0.0:
+                    tb = math.tanh(i / ib)
+                    r_brush = vb / ib * (1.0 - tb * tb)
+                    v_eff = vk - vb * tb + r_brush * i
+                elif vb > 0.0:
                     if e_drive > vb:
                         v_eff = vk - vb
                     elif e_drive < -vb:
@@ -530,7 +578,7 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
                         v_eff = ke * w  # no net voltage to drive current through brushes
                 else:
                     v_eff = vk
-                r = r0 * (1.0 + kr * q) if kr > 0.0 else r0
+                r = (r0 * (1.0 + kr * q) if kr > 0.0 else r0) + r_brush
                 lcur = l0 / (1.0 + (i / isat) ** 2) if isat > 0.0 else l0
                 drive = kt * i - t_pos
             if stuck:
@@ -629,10 +677,12 @@ class Plant:
         off = model.effect("current_offset")
         self._dead_zone_v = dz.voltage_v if isinstance(dz, DeadZone) else 0.0
         self._delay_s = dl.delay_s if isinstance(dl, Delay) else 0.0
+        self._lag_s = dl.lag_s if isinstance(dl, Delay) else 0.0
+        self._lag_v = 0.0  # the lag's output before the next sample (from rest: 0 V)
         self._offset_a = off.offset_a if isinstance(off, CurrentOffset) else 0.0
         self._history = np.zeros(int(math.floor(self._delay_s / self.dt_s)) + 2)
         self._coef = effect_coefficients(model)
-        self._varying = bool(self._coef[_KR] > 0.0 or self._coef[_ISAT] > 0.0)
+        self._varying = _varying(self._coef)
         self._phi, self._gam = discretize_zoh(model.params, self.dt_s / self.substeps)
         self._state = np.zeros(5)
         self._state[4] = 1.0 if self._coef[_TC] + self._coef[_TS] > 0.0 else 0.0
@@ -672,6 +722,11 @@ class Plant:
             self._history[-1] = v_arr[0]
             delayed = apply_delay(self._history, self._delay_s, self.dt_s)
             v_arr = delayed[-1:]
+        if self._lag_s > 0.0:
+            vk = float(v_arr[0])
+            v_arr = apply_lag(v_arr, self._lag_s, self.dt_s, self._lag_v)
+            a = math.exp(-self.dt_s / self._lag_s)
+            self._lag_v = 0.0 if math.isnan(vk) else vk + (self._lag_v - vk) * a
         self._run(v_arr, self._state)
         self.samples += 1
 

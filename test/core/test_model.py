@@ -271,6 +271,43 @@ def test_effect_brush_drop_lowers_steady_speed_by_drop_over_ke():
     assert BASE.speed[-1] - res.speed[-1] == pytest.approx(vb / P0.Ke, rel=0.05)
 
 
+def test_smooth_brush_drop_settles_where_its_tanh_law_balances_the_voltage():
+    # a contact film: the drop is vb tanh(i / i_knee), so at a no-load current near the
+    # knee only part of vb is lost (the hard sign would take all of it)
+    from scipy.optimize import brentq
+
+    vb = 1.0
+    knee, _ = P0.steady_state(V_EFF - vb)  # the hard sign's no-load current
+
+    def settled(*effects: BrushDrop) -> float:  # the knee's slope slows the settling
+        return float(simulate(Model(P0, effects), np.full(12_000, V_EFF), DT_S).speed[-1])
+
+    # steady state: V = i (R + Ke Kt / B) + vb tanh(i / knee), w = Kt i / B
+    i_ss = brentq(
+        lambda i: i * (P0.R + P0.Ke * P0.Kt / P0.B) + vb * math.tanh(i / knee) - V_EFF,
+        0.0,
+        V_EFF / P0.R,
+    )
+    assert settled(BrushDrop(vb, knee)) == pytest.approx(P0.Kt * i_ss / P0.B, rel=1e-4)
+    assert settled(BrushDrop(vb, knee)) > settled(BrushDrop(vb)) + 0.1 * vb / P0.Ke
+    # a knee far below the current is the hard sign
+    assert settled(BrushDrop(vb, 1e-4 * knee)) == pytest.approx(settled(BrushDrop(vb)), rel=1e-4)
+
+
+def test_a_lag_holds_each_samples_mean_of_the_first_order_response():
+    from pmdc_ident.core.model import apply_lag
+
+    tau, dt = 4e-3, 1e-3
+    v = np.r_[np.full(20, 2.0), np.nan, np.full(3, 2.0)]
+    got = apply_lag(v, tau, dt)
+    k = np.arange(20)
+    # the mean of 2 (1 - exp(-t/tau)) over [k dt, (k+1) dt)
+    mean = 2.0 * (1.0 - tau / dt * (np.exp(-k * dt / tau) - np.exp(-(k + 1) * dt / tau)))
+    np.testing.assert_allclose(got[:20], mean, rtol=1e-12)
+    assert math.isnan(got[20]) and got[21] == pytest.approx(mean[0])  # open: restarts
+    assert apply_lag(v, 0.0, dt) is v
+
+
 def test_effect_dead_zone_gives_no_motion_below_threshold_and_shifts_above():
     dz = DeadZone(1.0)
     below = simulate(Model(P0, (dz,)), np.full(500, 0.95), DT_S)
@@ -367,12 +404,9 @@ def test_every_vocabulary_effect_has_a_direction_test():
 # ---------------------------------------------------------------------------
 # Plant (streaming) = simulate
 # ---------------------------------------------------------------------------
-def test_plant_stepped_sample_by_sample_equals_simulate():
-    rng = np.random.default_rng(3)
-    v = np.repeat(rng.uniform(-20.0, 20.0, 40), 25)
-    v[400:600] = np.nan  # an open-armature stretch
-    model = Model(
-        P0,
+@pytest.mark.parametrize(
+    "effects",
+    [
         (
             CoulombFriction(0.02),
             DeadZone(0.5),
@@ -382,7 +416,15 @@ def test_plant_stepped_sample_by_sample_equals_simulate():
             QuadraticDrag(1e-6),
             ResistanceDrift(1e-3),
         ),
-    )
+        (BrushDrop(0.8, 0.3), Delay(0.0025)),  # the knee's slope alone varies R
+        (Delay(0.001, 0.004), CurrentOffset(0.05)),  # a lag's state carried across steps
+    ],
+)
+def test_plant_stepped_sample_by_sample_equals_simulate(effects):
+    rng = np.random.default_rng(3)
+    v = np.repeat(rng.uniform(-20.0, 20.0, 40), 25)
+    v[400:600] = np.nan  # an open-armature stretch
+    model = Model(P0, effects)
     ref = simulate(model, v, DT_S)
     plant = Plant(model, DT_S)
     got = np.empty((v.size, 3))

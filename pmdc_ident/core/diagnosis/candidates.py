@@ -42,6 +42,7 @@ __all__ = [
     "data_scales",
     "fit_model",
     "free_fields",
+    "in_limit",
     "predict",
     "starting_effects",
 ]
@@ -114,7 +115,13 @@ def starting_effects(name: str, sc: DataScales) -> list[Effect]:
     if name == "load_torque":
         return [_start(LoadTorque, t * f) for f in (-0.2, -0.05, 0.05, 0.2)]
     if name == "brush_drop":
-        return [_start(BrushDrop, v * f) for f in (0.01, 0.02, 0.035, 0.05, 0.075, 0.1)]
+        # the hard sign (knee 0), then a contact film's knee at a share of the current
+        hard = [_start(BrushDrop, v * f, 0.0) for f in (0.01, 0.02, 0.035, 0.05, 0.075, 0.1)]
+        return hard + [
+            _start(BrushDrop, v * f, sc.current_a * g)
+            for f in (0.02, 0.05, 0.1)
+            for g in (0.03, 0.1, 0.3)
+        ]
     if name == "dead_zone":
         return [_start(DeadZone, v * f) for f in (0.01, 0.02, 0.035, 0.05, 0.075, 0.1)]
     if name == "cogging":
@@ -132,8 +139,14 @@ def starting_effects(name: str, sc: DataScales) -> list[Effect]:
             for tau in (0.25 * sc.span_s, sc.span_s, NO_COOLING_S)
         ]
     if name == "delay":
-        # every whole sample: at high sweep frequencies the cost wraps with the phase
-        return [_start(Delay, min(k * sc.dt_s, 1.0)) for k in (*range(1, 25), 30, 40)]
+        # every whole sample: at high sweep frequencies the cost wraps with the phase;
+        # then a first-order lag behind a short transport delay (a drive's output filter)
+        transport = [_start(Delay, min(k * sc.dt_s, 1.0), 0.0) for k in (*range(1, 25), 30, 40)]
+        return transport + [
+            _start(Delay, d * sc.dt_s, min(k * sc.dt_s, 1.0))
+            for d in (0.0, 1.0)
+            for k in (0.5, 1, 2, 4, 8, 16)
+        ]
     if name == "current_offset":
         return [_start(CurrentOffset, sc.current_a * f) for f in (-0.05, -0.01, 0.01, 0.05)]
     if name == "inductance_saturation":
@@ -175,13 +188,17 @@ def predict(model: Model, segments: Sequence[Segment], substeps: int = 4) -> lis
 
 
 def free_fields(e: Effect) -> tuple[str, ...]:
-    """The fields a candidate fit estimates: a resistance drift without cooling (the
-    integral, ``time_constant_s`` at :data:`NO_COOLING_S`) holds its time constant, so
-    it costs one parameter; first-order heating costs two."""
-    names = e.fitted_names()
-    if isinstance(e, ResistanceDrift) and e.time_constant_s >= NO_COOLING_S:
-        return tuple(n for n in names if n != "time_constant_s")
-    return names
+    """The fields a candidate fit estimates: an effect in its one-parameter limit holds
+    the second field there (:meth:`~pmdc_ident.core.effects.Effect.free_names`). A
+    resistance drift without cooling (the integral, ``time_constant_s`` at
+    :data:`NO_COOLING_S`) costs one parameter, first-order heating two; a hard brush
+    drop (``knee_current_a`` 0) one, a contact film's smooth drop two."""
+    return e.free_names()
+
+
+def in_limit(e: Effect) -> bool:
+    """Whether ``e`` is its effect's one-parameter limit (see :func:`free_fields`)."""
+    return len(free_fields(e)) < len(e.fitted_names())
 
 
 def scan_start(

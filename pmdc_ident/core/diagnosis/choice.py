@@ -77,7 +77,9 @@ def chain_lag_s(f: Fitted, dt_s: float) -> float | None:
     effect of the motor or the drive."""
     if "delay" not in f.effects:
         return None
-    lag = float(getattr(f.fit.model.effect("delay"), "delay_s", math.inf))
+    e = f.fit.model.effect("delay")
+    # a first-order lag delays slow signals by its time constant
+    lag = float(getattr(e, "delay_s", math.inf)) + float(getattr(e, "lag_s", 0.0))
     return lag if lag < dt_s / math.pi else None
 
 

@@ -23,7 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from pmdc_ident.core.data import Run, Segment, check_excitation, unique_labels
-from pmdc_ident.core.diagnosis.candidates import DataScales, data_scales, predict
+from pmdc_ident.core.diagnosis.candidates import DataScales, data_scales, in_limit, predict
 from pmdc_ident.core.diagnosis.choice import Choice, chain_lag_s, choose
 from pmdc_ident.core.diagnosis.cogging import angle_cogging
 from pmdc_ident.core.diagnosis.config import DiagnosisConfig
@@ -45,7 +45,7 @@ from pmdc_ident.core.diagnosis.search import (
     n_added,
     predictions,
 )
-from pmdc_ident.core.effects import NO_COOLING_S, Effect, ResistanceDrift
+from pmdc_ident.core.effects import Effect
 from pmdc_ident.core.errors import DataError
 from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit
 from pmdc_ident.core.estimators.output_error import FitResult
@@ -296,7 +296,7 @@ def _single_candidates(
             return _stribeck_shapes(search, base, sc)
         if n == "cogging":
             return _cogging(search, base, sc, loc.angle_periods_per_rev is not None)
-        return search.single(base, n, sc, _integral if n == "resistance_drift" else None)
+        return search.single(base, n, sc, in_limit if n in TWO_FORMS else None)
 
     # the costliest fits start first, so the workers finish together (the last one
     # started is not a slow one left running alone); the results stay in vocabulary order
@@ -305,11 +305,18 @@ def _single_candidates(
         by_name = dict(zip(order, pool.map(one, order), strict=True))
     singles = [by_name[n] for n in names]
     for k, f in enumerate(singles):
-        if f.effects[0] == "resistance_drift" and scoring.score(f).significant:
-            first = search.single(base, f.effects[0], sc, lambda e: not _integral(e))
-            if _penalized(first, scoring) < _penalized(f, scoring):
-                singles[k] = first
+        if f.effects[0] in TWO_FORMS and scoring.score(f).significant:
+            full = search.single(base, f.effects[0], sc, lambda e: not in_limit(e))
+            if _penalized(full, scoring) < _penalized(f, scoring):
+                singles[k] = full
     return untestable, singles
+
+
+# Effects fitted first in their one-parameter limit, then (when that limit helps) with
+# their second parameter free: the heat integral / first-order heating with its time
+# constant; the hard brush drop / a contact film's smooth drop with its knee current;
+# a transport delay / one followed by a first-order lag (a drive's output filter).
+TWO_FORMS = ("resistance_drift", "brush_drop", "delay")
 
 
 # Effects whose R or L changes within a sample (re-discretised every sub-step) or whose
@@ -360,10 +367,6 @@ def _cogging(search: Search, base: Fitted, sc: DataScales, periodic: bool) -> Fi
 
 def _shape(e: Effect) -> float:
     return float(getattr(e, "shape_exponent", 2.0))
-
-
-def _integral(e: Effect) -> bool:
-    return isinstance(e, ResistanceDrift) and e.time_constant_s >= NO_COOLING_S
 
 
 def _penalized(f: Fitted, scoring: Scoring) -> float:

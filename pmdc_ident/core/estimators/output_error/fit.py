@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.estimators.output_error.parameters import (
+    at_limit,
     build_model,
     is_fitted_field,
     model_values,
@@ -160,7 +161,7 @@ def _free_names(
             if n not in fixed
             and not (current_mode and n in unseen)
             and not (tie_kt and n == "Kt")
-            and (n in PARAMETER_NAMES or is_fitted_field(n))
+            and (n in PARAMETER_NAMES or (is_fitted_field(n) and not at_limit(n, values[n])))
         ]
     names = []
     for n in free:

@@ -4,9 +4,9 @@ matrices it is given and :mod:`.problem` for how its normal equations are used).
 
 Its compiled form embeds :func:`pmdc_ident.core.model.effects_kernel`, but numba's
 on-disk cache checks only this file's time stamp: a change to ``effects_kernel`` must
-touch this file too (this note was last touched for the Stribeck shape exponent in
-effects_kernel, after it stopped evaluating the Stribeck fall without a Stribeck
-torque), or processes keep running the old kernel here.
+touch this file too (this note was last touched for the smooth brush drop in
+effects_kernel, after the Stribeck shape exponent), or processes keep running the old
+kernel here.
 """
 
 from __future__ import annotations

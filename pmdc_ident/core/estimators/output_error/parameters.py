@@ -11,7 +11,14 @@ from pmdc_ident.core.effects import EFFECT_TYPES, Effect
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
 
-__all__ = ["FitParameter", "build_model", "is_fitted_field", "model_values", "parameter_info"]
+__all__ = [
+    "FitParameter",
+    "at_limit",
+    "build_model",
+    "is_fitted_field",
+    "model_values",
+    "parameter_info",
+]
 
 
 @dataclass(frozen=True)
@@ -39,7 +46,9 @@ def parameter_info(name: str) -> FitParameter:
         return FitParameter(name, 0.0, math.inf, True)
     eff, _, fld = name.partition(".")
     spec = EFFECT_TYPES[eff].SPECS[fld]
-    return FitParameter(name, spec.lower, spec.upper, spec.lower > 0.0)
+    # a positive scale, or one whose limit is its lower bound (freed only when above it)
+    log = spec.lower > 0.0 or spec.limit == spec.lower
+    return FitParameter(name, spec.lower, spec.upper, log)
 
 
 def build_model(base: Model, values: Mapping[str, float]) -> Model:
@@ -57,3 +66,10 @@ def is_fitted_field(name: str) -> bool:
     eff, _, fld = name.partition(".")
     cls = EFFECT_TYPES.get(eff)
     return cls is not None and cls.SPECS[fld].fitted
+
+
+def at_limit(name: str, value: float) -> bool:
+    """An ``"<effect>.<field>"`` at its effect's one-parameter limit (held by default)."""
+    eff, _, fld = name.partition(".")
+    cls = EFFECT_TYPES.get(eff)
+    return cls is not None and cls.SPECS[fld].limit == value
