@@ -27,11 +27,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
-from scipy.special import stdtrit  # = stats.t.ppf(q, dof), without scipy.stats' import
 
 from pmdc_ident.core.data import Segment, TestKind
 from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.estimators.small_fit import levenberg_marquardt, t_quantile
 
 __all__ = [
     "ClassicalResult",
@@ -108,7 +107,7 @@ def _ols(X: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray, float]:
 
 
 def _ci(value: float, var: float, dof: int) -> tuple[float, float]:
-    q = float(stdtrit(max(dof, 1), 0.975))
+    q = t_quantile(0.975, max(dof, 1))
     half = q * math.sqrt(max(var, 0.0))
     return (value - half, value + half)
 
@@ -207,6 +206,24 @@ def _coast_data(seg: Segment) -> tuple[FloatArray, FloatArray]:
     return t, w
 
 
+def coast_speed_jacobian(t: FloatArray, w0: float, a: float, c: float) -> FloatArray:
+    """d :func:`coast_speed` / d (w0, a, c), one row per time (0 where it is held at 0)."""
+    t = np.asarray(t, dtype=float)
+    jac = np.empty((t.size, 3))
+    if a > 1e-12:
+        e = np.exp(-a * t)
+        jac[:, 0] = e
+        jac[:, 1] = -t * (w0 + c / a) * e - (c / a**2) * np.expm1(-a * t)
+        jac[:, 2] = np.expm1(-a * t) / a
+    else:
+        jac[:, 0] = 1.0
+        jac[:, 1] = 0.0
+        jac[:, 2] = -t
+    if w0 >= 0:
+        jac[coast_speed(t, w0, a, c) <= 0.0] = 0.0
+    return jac
+
+
 def _fit_j(t: FloatArray, w: FloatArray, Tc: float, B: float) -> tuple[float, float, float, float]:
     """(J, w0, stderr of J from the fit, rms) with Tc, B given."""
     j_guess = max(Tc + B * abs(w[0]), 1e-12) / max(abs(w[0] - w[-1]) / max(t[-1], 1e-9), 1e-9)
@@ -215,13 +232,40 @@ def _fit_j(t: FloatArray, w: FloatArray, Tc: float, B: float) -> tuple[float, fl
         J = math.exp(z[0])
         return coast_speed(t, z[1], B / J, Tc / J) - w
 
-    sol = least_squares(resid, [math.log(j_guess), float(w[0])], method="lm", x_scale="jac")
+    def jac(z: FloatArray) -> FloatArray:
+        J = math.exp(z[0])
+        d = coast_speed_jacobian(t, z[1], B / J, Tc / J)
+        # a = B/J and c = Tc/J: d/d(log J) = -a d/da - c d/dc
+        return np.column_stack([-(B / J) * d[:, 1] - (Tc / J) * d[:, 2], d[:, 0]])
+
+    sol = levenberg_marquardt(resid, jac, [math.log(j_guess), float(w[0])])
     r = sol.fun
     dof = max(t.size - 2, 1)
     s2 = float(r @ r) / dof
     cov = s2 * np.linalg.pinv(sol.jac.T @ sol.jac)
     J = math.exp(sol.x[0])
     return J, float(sol.x[1]), J * math.sqrt(max(cov[0, 0], 0.0)), math.sqrt(float(r @ r) / t.size)
+
+
+def _free_shape(t: FloatArray, w: FloatArray, a0: float, c0: float) -> tuple[float, float]:
+    """(a, c) of ``dw/dt = -c - a w`` fitted to the coast curve alone."""
+
+    def unpack(z: FloatArray) -> tuple[float, float, float]:
+        zz = np.clip(z[1:], -50.0, 50.0)
+        return float(z[0]), math.exp(zz[0]), math.exp(zz[1])
+
+    def resid(z: FloatArray) -> FloatArray:
+        return coast_speed(t, *unpack(z)) - w
+
+    def jac(z: FloatArray) -> FloatArray:
+        w0, a, c = unpack(z)
+        d = coast_speed_jacobian(t, w0, a, c)
+        inside = np.abs(z[1:]) < 50.0  # the clip holds the log-rates at +-50
+        return np.column_stack([d[:, 0], a * d[:, 1] * inside[0], c * d[:, 2] * inside[1]])
+
+    sol = levenberg_marquardt(resid, jac, [w[0], math.log(a0), math.log(c0)])
+    _, a, c = unpack(sol.x)
+    return a, c
 
 
 def fit_coastdown(
@@ -245,22 +289,12 @@ def fit_coastdown(
         var += float(g @ friction_cov @ g)
     se = math.sqrt(var)
     dof = max(t.size - 2, 1)
-    q = float(stdtrit(dof, 0.975))
+    q = t_quantile(0.975, dof)
     # free shape (needs enough moving points)
     moving = w > 0.02 * abs(w[0])
     c = a = jtc = jb = None
     if moving.sum() >= 4:
-
-        def resid2(z: FloatArray) -> FloatArray:
-            zz = np.clip(z[1:], -50.0, 50.0)
-            return coast_speed(t, z[0], math.exp(zz[0]), math.exp(zz[1])) - w
-
-        a0 = max(B, 1e-12) / J
-        c0 = max(Tc, 1e-12) / J
-        sol = least_squares(resid2, [w[0], math.log(a0), math.log(c0)], method="lm")
-        zz = np.clip(sol.x[1:], -50.0, 50.0)
-        a = math.exp(zz[0])
-        c = math.exp(zz[1])
+        a, c = _free_shape(t, w, max(B, 1e-12) / J, max(Tc, 1e-12) / J)
         jtc = Tc / c if Tc > 0 else None
         jb = B / a if B > 0 else None
     stop = int(np.argmax(w <= 0)) if (w <= 0).any() else t.size - 1
@@ -372,7 +406,7 @@ def classical_chain(
         notes.append("classical: a coast-down without a staircase gives J only up to friction")
     stderr: dict[str, float | None] = {}
     if stair is not None:
-        q = float(stdtrit(max(stair.n_points - 2, 1), 0.975))
+        q = t_quantile(0.975, max(stair.n_points - 2, 1))
         for name, ci in ci95.items():
             if ci is not None and name != "J":
                 stderr[name] = (ci[1] - ci[0]) / (2.0 * q)

@@ -18,12 +18,12 @@ that is why it only starts the output-error fit and is reported for comparison.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import logm
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.errors import DataError
@@ -174,15 +174,47 @@ def _scale(values: dict[str, float], Kt: float | None, J: float | None, kt_over_
     values["J"] = kt / kt_over_j
 
 
-def _from_zoh(phi, gv, gs, g1, dt, Kt, J) -> dict[str, float] | None:
-    try:
-        A = logm(phi) / dt
-    except (ValueError, np.linalg.LinAlgError):
+def logm_2x2(phi: FloatArray) -> FloatArray | None:
+    """The principal logarithm of a real 2x2 matrix, ``None`` when it is not real (an
+    eigenvalue on the negative real axis or zero).
+
+    With eigenvalues s +- d: log(phi) = log sqrt(s^2 - d^2) I + f (phi - s I), f the
+    divided difference of log, atanh(d/s)/d for real d and atan(|d|/s)/|d| for
+    imaginary d (a pair of complex eigenvalues), 1/s at d = 0. Closed form, so no
+    scipy.linalg import for the 2x2 state matrix of the discretised motor.
+    """
+    e = phi - np.eye(2)
+    if float(np.max(np.abs(e))) < 0.5:
+        # near the identity (phi = exp(A dt), dt small) in terms of E = phi - I: the
+        # logarithm is small and log det = log1p(tr E + det E) keeps its digits
+        half_tr = 0.5 * float(e[0, 0] + e[1, 1])
+        det_e = float(e[0, 0] * e[1, 1] - e[0, 1] * e[1, 0])
+        s, d2 = 1.0 + half_tr, half_tr * half_tr - det_e
+        log_det = math.log1p(2.0 * half_tr + det_e) if 2.0 * half_tr + det_e > -1.0 else None
+    else:
+        s = 0.5 * float(phi[0, 0] + phi[1, 1])
+        det = float(phi[0, 0] * phi[1, 1] - phi[0, 1] * phi[1, 0])
+        d2 = s * s - det
+        log_det = math.log(det) if det > 0.0 else None
+    # s +- sqrt(d2) are the eigenvalues
+    if log_det is None or not (math.isfinite(s) and math.isfinite(d2)):
         return None
-    if np.iscomplexobj(A):
-        if np.max(np.abs(A.imag)) > 1e-6 * np.max(np.abs(A.real)):
+    if d2 >= 0.0:
+        d = math.sqrt(d2)
+        if s - d <= 0.0:  # an eigenvalue on the closed negative real axis
             return None
-        A = A.real
+        f = math.atanh(d / s) / d if d > 1e-8 * s else (1.0 + d2 / (3.0 * s * s)) / s
+    else:
+        im = math.sqrt(-d2)
+        f = math.atan2(im, s) / im
+    return 0.5 * log_det * np.eye(2) + f * (phi - s * np.eye(2))
+
+
+def _from_zoh(phi, gv, gs, g1, dt, Kt, J) -> dict[str, float] | None:
+    log_phi = logm_2x2(np.asarray(phi, dtype=float))
+    if log_phi is None:
+        return None
+    A = log_phi / dt
     try:
         M = A @ np.linalg.inv(phi - np.eye(2))
     except np.linalg.LinAlgError:
