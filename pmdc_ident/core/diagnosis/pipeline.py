@@ -385,7 +385,12 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
     lag = chain_lag_s(chosen, dt_s)
     named = tuple(n for n in chosen.effects if lag is None or n != "delay")
     lag_note = "" if lag is None else f", the signals read {lag * 1e6:.3g} us late (chain lag)"
-    if lag is not None and not named:
+    # a lag-only choice means no gap when the lag closes the gap (most of it, or down to
+    # the noise): the lag is a nuisance, so a gap it leaves is judged as the baseline's
+    lag_closes = shrink >= scoring.thresholds.explained_shrink or (
+        chosen.gap <= scoring.thresholds.no_gap_noise
+    )
+    if lag is not None and not named and lag_closes:
         return Verdict(
             VerdictStatus.NO_GAP,
             (),
@@ -401,6 +406,11 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
                 f"the linear model leaves a held-out gap of {g0:.3g} noise variances and no "
                 "candidate effect closes it beyond its penalty"
             )
+            if lag is not None:
+                message += (
+                    f" ({chosen.gap:.3g} left with the signals read {lag * 1e6:.3g} us late: "
+                    "the lag of the signal chain)"
+                )
         else:
             status = VerdictStatus.NO_GAP
             message = (

@@ -11,7 +11,10 @@ import pytest
 
 from pmdc_ident.core.data import heat_state
 from pmdc_ident.core.diagnosis import VerdictStatus, diagnose
-from pmdc_ident.core.diagnosis.choice import separated
+from pmdc_ident.core.diagnosis.choice import Choice, separated
+from pmdc_ident.core.diagnosis.pipeline import _verdict
+from pmdc_ident.core.diagnosis.search import Scoring
+from pmdc_ident.core.diagnosis.verdict import Thresholds
 from pmdc_ident.core.effects import Delay, ResistanceDrift
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model, Plant, simulate
@@ -105,6 +108,24 @@ def test_a_lag_below_the_anti_alias_filters_is_the_signal_chain_not_a_delay(dela
         assert r.to_json()["holdout"]["gap_before"] > 1.0  # visible, yet not the motor's
         assert r.verdict.status is VerdictStatus.NO_GAP
         assert "signal chain" in r.verdict.message
+
+
+@pytest.mark.parametrize(("gap_after", "status"), [(0.4, "no_gap"), (5.3, "unexplained")])
+def test_the_signal_chains_lag_explains_no_gap_it_leaves(gap_after, status):
+    # a 14 us lag at 1 kHz (the chain's, not a delay of the drive) chosen alone: it
+    # means "no gap" only when it closes the gap; leaving 5.3 of 5.6 noise variances
+    # (a torque ripple no candidate names), the gap is unexplained, as without the lag
+    lag = SimpleNamespace(
+        effects=("delay",),
+        gap=gap_after,
+        fit=SimpleNamespace(model=Model(load_motor("seed001_110v").model.params, (Delay(14e-6),))),
+    )
+    scoring = Scoring(5.63, 0.3, Thresholds())
+    v = _verdict(Choice(lag, gap_significant=True), scoring, 1e-3)  # type: ignore[arg-type]
+    assert v.status.value == status
+    assert v.effects == ()
+    assert "signal chain" in v.message  # the lag is said either way
+    assert ("no effect is needed" in v.message) == (status == "no_gap")
 
 
 def test_a_micro_motor_heats_faster_than_a_large_one_and_is_still_fitted():
