@@ -19,9 +19,12 @@ per process, never an import error.
 from __future__ import annotations
 
 import hashlib
+import importlib.machinery
+import importlib.util
 import os
 import shutil
 import stat
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -50,6 +53,37 @@ try:
 except ImportError:  # pragma: no cover - exercised only without numba
     _numba = None
     HAVE_NUMBA = False
+
+
+def _register_cython_blas() -> None:
+    """Load ``scipy.linalg.cython_blas`` without the rest of ``scipy.linalg``.
+
+    numba's first compilation or cache load imports ``numba.np.arraymath``, which tests
+    for BLAS with ``import scipy.linalg.cython_blas``: that runs ``scipy.linalg``'s
+    ``__init__`` (~0.14 s of CPU in every process; our kernels call no BLAS). The
+    extension module alone loads in ~2 ms and is all numba uses of it (its function
+    pointers). Registered under its own name, a later ``import scipy.linalg`` runs as
+    usual and picks it up. Anything unexpected: nothing is registered, numba imports
+    it its own way.
+    """
+    name = "scipy.linalg.cython_blas"
+    scipy = sys.modules.get("scipy")  # numba imports scipy to check its version
+    if scipy is None or "scipy.linalg" in sys.modules or name in sys.modules:
+        return
+    try:
+        paths = [os.path.join(p, "linalg") for p in scipy.__path__]
+        spec = importlib.machinery.PathFinder.find_spec(name, paths)
+        if spec is None or spec.loader is None:
+            return
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    except Exception:  # noqa: BLE001 - any failure: numba imports it itself
+        sys.modules.pop(name, None)
+
+
+if _numba is not None:
+    _register_cython_blas()
 
 
 def kernel_fingerprint(root: Path | None = None) -> str:
