@@ -14,6 +14,15 @@ every kernel source (:data:`KERNEL_SOURCES`): ``$XDG_CACHE_HOME/pmdc_ident`` (or
 a private directory under the system's temporary directory
 (:func:`_private_cache_dir`). If even that is impossible the kernels are compiled
 per process, never an import error.
+
+numba itself is imported at the first call of a kernel, not when a module defining
+one is imported (``import numba`` is ~0.2 s of CPU): a node that only reads a motor
+file, or a command that never simulates, does not pay for it. Until then
+:func:`njit` hands out a :class:`_LazyKernel`; the first call of any of them makes
+every one a numba dispatcher and puts the dispatchers in place of the lazy kernels
+in every loaded module's namespace, so a kernel calling another finds a dispatcher
+there when numba compiles or loads it (kernels call each other only through module
+globals).
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ import shutil
 import stat
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -44,15 +54,12 @@ KERNEL_SOURCES = (
 )
 _STALE_AFTER_S = 7 * 24 * 3600.0  # caches of other source versions unused this long go
 
-try:
-    if os.environ.get("PMDC_IDENT_NO_JIT"):
-        raise ImportError
-    import numba as _numba
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover - exercised only without numba
-    _numba = None
-    HAVE_NUMBA = False
+#: numba is importable (and not switched off): kernels are compiled. numba itself is
+#: imported at the first kernel call (:func:`numba_module`).
+HAVE_NUMBA = (
+    not os.environ.get("PMDC_IDENT_NO_JIT") and importlib.util.find_spec("numba") is not None
+)
+_numba: Any = None  # the numba module once imported
 
 
 def _register_cython_blas() -> None:
@@ -80,10 +87,6 @@ def _register_cython_blas() -> None:
         spec.loader.exec_module(module)
     except Exception:  # noqa: BLE001 - any failure: numba imports it itself
         sys.modules.pop(name, None)
-
-
-if _numba is not None:
-    _register_cython_blas()
 
 
 def kernel_fingerprint(root: Path | None = None) -> str:
@@ -154,15 +157,92 @@ def _prune(base: Path, keep: Path) -> None:
             pass
 
 
-if _numba is not None and not _numba.config.CACHE_DIR:
-    _numba.config.CACHE_DIR = _versioned_cache_dir() or ""
+def numba_module() -> Any:
+    """numba, imported and configured (cache folder, BLAS probe) on first use; ``None``
+    when it is not available."""
+    global _numba, HAVE_NUMBA  # noqa: PLW0603 - the module's one-time import state
+    if _numba is not None or not HAVE_NUMBA:
+        return _numba
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - a broken numba install: plain Python
+        HAVE_NUMBA = False
+        return None
+    _register_cython_blas()
+    if not numba.config.CACHE_DIR:
+        numba.config.CACHE_DIR = _versioned_cache_dir() or ""
+    _numba = numba
+    return numba
+
+
+def _compile(func: Callable[..., Any]) -> Callable[..., Any]:
+    numba = numba_module()
+    if numba is None:
+        return func
+    try:
+        return numba.njit(cache=True, nogil=True)(func)
+    except RuntimeError:  # "cannot cache function ...: no locator available"
+        return numba.njit(nogil=True)(func)
+
+
+class _LazyKernel:
+    """A kernel before numba is imported: its first call compiles every kernel."""
+
+    def __init__(self, func: Callable[..., Any]) -> None:
+        self.func = func
+        self.target: Callable[..., Any] | None = None
+        self.__name__ = func.__name__
+        self.__qualname__ = func.__qualname__
+        self.__module__ = func.__module__
+        self.__doc__ = func.__doc__
+        self.__wrapped__ = func
+
+    def __call__(self, *args: Any) -> Any:
+        target = self.target or _materialize(self)
+        return target(*args)
+
+    def __getattr__(self, name: str) -> Any:  # py_func, signatures...: the dispatcher's
+        if name in ("func", "target") or name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.target or _materialize(self), name)
+
+    def __repr__(self) -> str:
+        return f"<lazy kernel {self.__module__}.{self.__qualname__}>"
+
+
+_pending: list[_LazyKernel] = []
+_materializing = threading.Lock()
+
+
+def _materialize(kernel: _LazyKernel) -> Callable[..., Any]:
+    """Compile every pending kernel and replace the lazy kernels in every loaded
+    module's namespace by them; ``kernel``'s compiled form."""
+    with _materializing:
+        if kernel.target is None:
+            for k in _pending:
+                k.target = _compile(k.func)
+            for module in list(sys.modules.values()):
+                space = getattr(module, "__dict__", None)
+                if not isinstance(space, dict):
+                    continue
+                for name, value in list(space.items()):
+                    if isinstance(value, _LazyKernel) and value.target is not None:
+                        space[name] = value.target
+            _pending.clear()
+    assert kernel.target is not None
+    return kernel.target
 
 
 def njit(func: Callable[..., Any]) -> Callable[..., Any]:
-    """``numba.njit(cache=True, nogil=True)`` when numba is available, else the function."""
-    if _numba is None:
+    """``numba.njit(cache=True, nogil=True)`` when numba is available, else the function;
+    before numba is imported, a :class:`_LazyKernel` (see the module docs)."""
+    if not HAVE_NUMBA:
         return func
-    try:
-        return _numba.njit(cache=True, nogil=True)(func)
-    except RuntimeError:  # "cannot cache function ...: no locator available"
-        return _numba.njit(nogil=True)(func)
+    if _numba is not None:
+        return _compile(func)
+    with _materializing:
+        if _numba is None:
+            kernel = _LazyKernel(func)
+            _pending.append(kernel)
+            return kernel
+    return _compile(func)

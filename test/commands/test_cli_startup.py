@@ -109,8 +109,9 @@ _KERNEL_PROBE = """
 import json, os
 from pmdc_ident.core import _jit
 import kernel_module
+value = kernel_module.add_one(1.0)  # numba is imported and configured at the first call
 cache = _jit._numba.config.CACHE_DIR
-print(json.dumps({"value": kernel_module.add_one(1.0), "cache_dir": cache,
+print(json.dumps({"value": value, "cache_dir": cache,
                   "files": sorted(os.listdir(cache)) if cache else []}))
 """
 

@@ -1,5 +1,8 @@
-"""numba's first kernel call does not import all of scipy.linalg, and BLAS still works.
+"""numba is imported at the first kernel call, without all of scipy.linalg; BLAS works.
 
+A module defining kernels (``core.model``, imported by ``core.motors``) does not import
+numba: the identification node reads its motor file without paying ~0.2 s of CPU for
+it.
 numba tests for BLAS with ``import scipy.linalg.cython_blas`` when it loads its
 implementations (first compilation or cache load); ``pmdc_ident.core._jit`` registers
 that extension module alone (2 ms instead of scipy.linalg's ~0.14 s CPU). Checked in a
@@ -51,4 +54,37 @@ def test_first_kernel_call_skips_scipy_linalg_and_blas_still_works() -> None:
         "expm_ok": True,
         "blas_ok": True,
         "same_module": True,
+    }, out.stderr
+
+
+LAZY_PROBE = """
+import json, sys
+from pmdc_ident.core.motors import load_motor
+import pmdc_ident.core.estimators.output_error.kernel as kernel
+spec = load_motor("seed000_ebike")
+before = "numba" in sys.modules
+from pmdc_ident.core.model import simulate_linear
+import numpy as np
+sim = simulate_linear(spec.model.params, np.full(50, 12.0), 1e-3)
+print(json.dumps({
+    "numba_before": before,
+    "numba_after": "numba" in sys.modules,
+    "moved": float(sim.speed[-1]) > 0.0,
+    # the lazy kernels in every module were replaced by numba's dispatchers
+    "dispatchers": [type(kernel.fast_kernel).__name__, type(kernel.effects_kernel).__name__],
+}))
+"""
+
+
+@pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed")
+def test_reading_a_motor_imports_no_numba_and_the_first_kernel_call_compiles_all() -> None:
+    out = subprocess.run(
+        [sys.executable, "-c", LAZY_PROBE], capture_output=True, text=True, timeout=300, check=True
+    )
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    assert res == {
+        "numba_before": False,
+        "numba_after": True,
+        "moved": True,
+        "dispatchers": ["CPUDispatcher", "CPUDispatcher"],
     }, out.stderr
