@@ -221,3 +221,15 @@ def test_our_processes_ask_for_one_blas_thread(setup: str, preset: str | None, w
         check=False,
     )
     assert json.loads(out.stdout.strip().splitlines()[-1])["OPENBLAS_NUM_THREADS"] == want
+
+
+def test_in_process_calls_keep_a_collectable_heap() -> None:
+    """Only the program itself (``main()`` without argv) freezes its heap before exit;
+    tests and batch workers call ``main(argv)`` and must not accumulate frozen objects."""
+    import gc
+
+    from pmdc_ident import cli
+
+    before = gc.get_freeze_count()
+    assert cli.main(["identify", "run.csv", "--bootstrap", "-1"]) == 2  # in-process
+    assert gc.get_freeze_count() == before
