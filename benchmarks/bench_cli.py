@@ -1,6 +1,7 @@
 """What a user waits for: cold and warm wall + CPU time of whole ``pmdc-ident`` commands.
 
-    .venv/bin/python benchmarks/bench_cli.py [--repeat 3] [--skip-diagnose] [--bag PATH]
+    .venv/bin/python benchmarks/bench_cli.py [--repeat 3] [--skip-diagnose] [--skip-node]
+        [--bag PATH] [--no-bytecode-cache]
 
 Each figure is a fresh ``pmdc-ident`` process (start-up, imports, reading the data,
 the fit, the report), timed from outside: wall time and the child's user + system
@@ -14,9 +15,20 @@ motor (``make demo``'s; ``--bag PATH`` times a recorded bag instead, e.g.
 (min-max in brackets); the load average is printed before and after, since the
 machine is shared and wall time depends on it while CPU time much less so.
 
+Python's own bytecode cache (``__pycache__``) is part of a warm start too: the children
+run without ``PYTHONDONTWRITEBYTECODE`` (a user's default; some sandboxes set it, and
+then every module of the package is compiled from source in every process, ~0.08 s),
+unless ``--no-bytecode-cache``.
+
+The identification node's start: ``identification_node`` launched (``autostart`` off, a
+DDS domain of its own), seconds until its log says it is ready (its status published)
+and until another node receives that status (DDS discovery included).
+
 Naive references in the same run: ``--help`` against a process importing every command
 module and the estimators up front (the pre-lazy-import start-up), ``identify`` and
-``diagnose`` warm against cold (every kernel compiled, as without the on-disk cache).
+``diagnose`` warm against cold (every kernel compiled, as without the on-disk cache),
+the node against the same node importing numba before it starts (as before numba was
+imported at the first kernel call). The last lines are issue 14's goals.
 """
 
 from __future__ import annotations
@@ -72,6 +84,16 @@ EAGER_HELP = (
 )
 
 
+def _child_env(**extra: str) -> dict[str, str]:
+    env = {**os.environ, **extra}
+    if not _child_env.no_bytecode_cache:  # type: ignore[attr-defined]
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+    return env
+
+
+_child_env.no_bytecode_cache = False  # type: ignore[attr-defined]
+
+
 def measure(
     name: str, args: list[str], repeat: int, scratch: Path, fits: bool = False
 ) -> dict[str, tuple[list[float], list[float]]]:
@@ -85,7 +107,7 @@ def measure(
     fit_s: list[float] = []
     for _ in range(repeat):
         cache = Path(tempfile.mkdtemp(prefix="numba_cache_", dir=scratch))
-        env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+        env = _child_env(NUMBA_CACHE_DIR=str(cache))
         for mode in ("cold", "warm"):
             wall, cpu, _rc = _timed([str(EXE), *args], env)
             rows[mode][0].append(wall)
@@ -119,7 +141,7 @@ def measure_eager_help(repeat: int) -> list[float]:
     """Wall times of the eager-import reference of ``--help``."""
     walls, cpus = [], []
     for _ in range(repeat):
-        wall, cpu, _rc = _timed([sys.executable, "-c", EAGER_HELP], dict(os.environ))
+        wall, cpu, _rc = _timed([sys.executable, "-c", EAGER_HELP], _child_env())
         walls.append(wall)
         cpus.append(cpu)
     print(
@@ -154,10 +176,20 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=3, help="runs per figure (median reported)")
     ap.add_argument("--skip-diagnose", action="store_true", help="skip the slow diagnose runs")
+    ap.add_argument("--skip-node", action="store_true", help="skip the node start-up runs")
     ap.add_argument("--bag", action="append", default=[], help="also time this recorded bag")
+    ap.add_argument(
+        "--no-bytecode-cache",
+        action="store_true",
+        help="keep PYTHONDONTWRITEBYTECODE from the environment (modules compiled each run)",
+    )
     args = ap.parse_args(argv)
+    _child_env.no_bytecode_cache = args.no_bytecode_cache  # type: ignore[attr-defined]
     print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(f"{os.cpu_count()} CPUs; {args.repeat} runs per figure, median [min-max]")
+    cached = "off (--no-bytecode-cache)" if args.no_bytecode_cache else "on"
+    print(f"Python bytecode cache in the children: {cached}")
+    goals: list[str] = []
     with tempfile.TemporaryDirectory(prefix="bench_cli_") as tmp:
         scratch = Path(tmp)
         runs = make_runs(scratch)
@@ -166,17 +198,39 @@ def main(argv: list[str] | None = None) -> int:
         helps = measure("--help", ["--help"], args.repeat, scratch)
         eager = measure_eager_help(args.repeat)
         _ratio("--help", eager, helps["warm"][0], "eager-import reference / ours, wall")
+        goals.append(_goal("pmdc-ident --help", helps["warm"], 0.3))
         measure("identify (argument error)", ["identify", "--bootstrap"], args.repeat, scratch)
         for label, path in runs.items():
             print(f"== {label}: {path.name}")
             cmd = ["identify", str(path), "--json", str(scratch / "identify.json")]
             rows = measure("identify", cmd, args.repeat, scratch, fits=True)
             _ratio("identify", rows["cold"][0], rows["warm"][0], "cold cache / warm, wall")
+            if label.startswith("60 s"):
+                goals.append(_goal("identify, 60 s at 1 kHz, warm", rows["warm"], 1.0))
             if not args.skip_diagnose:
                 rows = measure("diagnose", ["diagnose", str(path)], args.repeat, scratch)
                 _ratio("diagnose", rows["cold"][0], rows["warm"][0], "cold cache / warm, wall")
+                if label.startswith("60 s"):
+                    goals.append(_goal("diagnose, 60 s at 1 kHz, warm", rows["warm"], 5.0))
+    if not args.skip_node:
+        from bench_node_start import measure_node_start
+
+        print("== identification node: launch to ready (status published)")
+        ready, eager_ready = measure_node_start(args.repeat, _child_env())
+        _ratio("node start", eager_ready, ready, "numba imported up front / ours, to ready")
+        goals.append(_goal("identification node, launch to ready", (ready, []), 1.0))
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    print("== issue 14 goals (warm, median of the runs above)")
+    for line in goals:
+        print(line)
     return 0
+
+
+def _goal(name: str, row: tuple[list[float], list[float]], goal_s: float) -> str:
+    wall = statistics.median(row[0])
+    cpu = f", CPU {statistics.median(row[1]):.2f} s" if row[1] else ""
+    verdict = "met" if wall <= goal_s else "MISSED"
+    return f"  {name:<40} wall {wall:5.2f} s{cpu}  (goal <= {goal_s:g} s: {verdict})"
 
 
 if __name__ == "__main__":
