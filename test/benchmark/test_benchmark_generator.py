@@ -191,3 +191,14 @@ def test_quick_benchmark_command_prints_the_table_and_draws_the_report(tmp_path,
     assert (tmp_path / "confusion.png").stat().st_size > 1000
     assert (tmp_path / "detection_limits.png").stat().st_size > 1000
     assert main(["benchmark", "--effects", "nope"]) == 2
+
+
+def test_visibility_is_what_the_best_linear_motor_leaves_a_lag_another_l_absorbs():
+    # delay_03 of seed 1: a lag on the coreless motor at 5 kHz that a linear motor with
+    # a larger L predicts to 0.02 noise RMS; the refit started at the true L alone
+    # stopped at 1.9 and counted the run visible
+    case = next(c for c in build_cases(4, 0, 0, 0, 1, effects=("delay",)) if c.name == "delay_03")
+    _, vis = record(case)
+    assert vis is not None
+    assert vis.raw > 1.5
+    assert vis.residual < 0.1
