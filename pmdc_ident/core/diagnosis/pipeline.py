@@ -423,6 +423,15 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
             f"{' + '.join(named)} closes {shrink:.0%} of the held-out gap "
             f"({g0:.3g} -> {chosen.gap:.3g}{lag_note})"
         )
+    elif chosen.gap <= scoring.thresholds.no_gap_noise:
+        # what is left is within the noise: a small effect on a record whose noise the
+        # data's own estimate puts a little low (a coarse encoder's differentiated
+        # angle) closes less than half of the gap, yet leaves nothing to explain
+        status = VerdictStatus.EXPLAINED
+        message = (
+            f"{' + '.join(named)} closes {shrink:.0%} of the held-out gap "
+            f"({g0:.3g} -> {chosen.gap:.3g}{lag_note}): what is left is within the noise"
+        )
     else:
         status = VerdictStatus.UNEXPLAINED
         message = (

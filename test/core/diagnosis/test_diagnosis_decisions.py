@@ -227,3 +227,26 @@ def test_a_drive_that_lags_its_command_is_a_delay_with_its_lag_fitted(tmp_path):
     assert r.to_json()["holdout"]["shrink"] > 0.97
     # (the lag and L/R are two poles in series: the data bound their product better)
     assert {p.name: p.value for p in r.augmented}["delay.lag_s"] > 0.0
+
+
+@pytest.mark.parametrize(
+    ("g0", "left", "status"),
+    [
+        (1.5, 0.9, VerdictStatus.EXPLAINED),  # 40 % closed, the rest within the noise
+        (4.0, 1.9, VerdictStatus.EXPLAINED),  # more than half closed
+        (4.0, 2.5, VerdictStatus.UNEXPLAINED),  # most of a real gap left
+    ],
+)
+def test_an_effect_that_leaves_only_noise_explains_the_gap_whatever_its_share(g0, left, status):
+    # a coarse encoder's differentiated angle makes the data's noise estimate a little
+    # low: a small effect then closes less than half of a gap of 1.5 noise variances,
+    # yet what it leaves is within the noise, so nothing is left to name
+    from pmdc_ident.core.diagnosis.pipeline import _verdict
+    from pmdc_ident.core.diagnosis.verdict import Thresholds
+
+    chosen = SimpleNamespace(effects=("inductance_saturation",), gap=left)
+    choice = SimpleNamespace(chosen=chosen, gap_significant=True, ties=[])
+    scoring = SimpleNamespace(g0=g0, thresholds=Thresholds())
+    v = _verdict(choice, scoring, 1e-3)  # type: ignore[arg-type]
+    assert v.status is status
+    assert v.effects == (("inductance_saturation",) if status is VerdictStatus.EXPLAINED else ())
