@@ -33,6 +33,9 @@ time.sleep(60)
 def lock_dir(tmp_path, monkeypatch) -> Path:
     monkeypatch.setenv("PMDC_DDS_LOCK_DIR", str(tmp_path))
     monkeypatch.delenv(HELD_ENV, raising=False)
+    # the suite's own domains (the session default may be any id of the pool, 30 too)
+    # are held in this process: the tests here start from none
+    monkeypatch.setattr(dds_domain, "_held", {})
     return tmp_path
 
 
