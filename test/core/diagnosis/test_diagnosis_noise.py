@@ -47,3 +47,27 @@ def test_the_prbs_record_matches_the_linear_model_to_the_noise(prbs_50hz_quantis
     assert r.verdict.status is VerdictStatus.NO_GAP
     assert 0.0 <= h["gap_before"] < 1.0  # in noise variances, not a negative gap
     assert h["rms_error_before"]["current"] < 2.0 * TRUE_NOISE_A
+
+
+def test_a_speed_differentiated_from_encoder_counts_has_their_noise():
+    # a shaft turning at 40 rad/s, 52 counts per turn, 2 kHz: the central difference of
+    # the counts has the rounding noise q / (dt sqrt(24)), which the diagnosis must
+    # not read as a model gap (the generic floor of its own levels is sqrt(2) lower)
+    rate, q = 2000.0, 2 * math.pi / 52
+    t = np.arange(4000) / rate
+    w = 40.0 + 5.0 * np.sin(2 * np.pi * 0.5 * t)
+    theta = np.cumsum(w) / rate
+    seg = Segment(
+        "run",
+        t,
+        np.full(t.size, 6.0),
+        current=np.full(t.size, 0.2) + 0.001 * np.sin(t),
+        position=np.floor(theta / q) * q,
+    )
+    expected = q * rate / math.sqrt(24.0)
+    got = estimate_noise([seg]).sigma["speed"]
+    rounding = np.gradient(seg.position, t) - w
+    # at a sixth of a count per sample the rounding is no white noise (its sd is
+    # q/(2 dt) sqrt(p (1 - p)), p the share of differences that see a count): the
+    # floor holds the estimate at least at the white-noise value and never above it
+    assert expected * 0.99 <= got <= float(np.std(rounding)) * 1.05
