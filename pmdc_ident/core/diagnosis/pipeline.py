@@ -75,12 +75,12 @@ def diagnose(
     split = split_segments(segments, cfg.holdout or None)
     noise = estimate_noise(segments)
     search = Search(split, noise, cfg, progress)
-    slow_note = _hold_inductance_for_tables(search, segments)
+    slow_note = _hold_inductance_for_tables(search)
     search.say(
         f"{len(split.fit)} fit / {len(split.held_out)} held-out segments ({split.rule} split)"
     )
     base = _baseline(search)
-    if slow_note and _speed_shows_dynamics(search, base, segments):
+    if slow_note and _speed_shows_dynamics(search, base):
         del search.fixed["L"]
         slow_note = ""
         base = _baseline(search)
@@ -89,7 +89,7 @@ def diagnose(
     scoring = Scoring.for_baseline(base, cfg.thresholds)
     untestable, singles = _single_candidates(search, base, loc, scoring)
     choice = choose(search, scoring, base, singles)
-    verdict = _verdict(choice, scoring, float(np.median([s.dt_s for s in segments])))
+    verdict = _verdict(choice, scoring, search.dt_s)
     final = choice.chosen if verdict.status is VerdictStatus.EXPLAINED else base
     return DiagnosisResult(
         verdict=verdict,
@@ -153,7 +153,7 @@ def _flatten(runs_or_segments: object) -> list[Segment]:
 # ---------------------------------------------------------------------------
 # 2. the baseline
 # ---------------------------------------------------------------------------
-def _hold_inductance_for_tables(search: Search, segments: Sequence[Segment]) -> str:
+def _hold_inductance_for_tables(search: Search) -> str:
     """Tables of steady states (seconds apart) show no electrical dynamics; a free L
     would run off to freeze the current at its measured start value: hold it.
 
@@ -161,8 +161,7 @@ def _hold_inductance_for_tables(search: Search, segments: Sequence[Segment]) -> 
     50 Hz log of a motor with tau_m = 16 ms still shows L through the speed (the
     armature's lag delays the torque of every voltage change), and holding L there
     leaves a gap that a voltage-drop effect then "explains"."""
-    cfg = search.cfg
-    dt_med = float(np.median([s.dt_s for s in segments]))
+    cfg, dt_med = search.cfg, search.dt_s
     if "L" in search.fixed or dt_med < SLOW_SAMPLE_S:
         return ""
     p_tmp = cfg.initial or equation_error_start(search.split.fit, cfg.fixed)
@@ -175,13 +174,11 @@ def _hold_inductance_for_tables(search: Search, segments: Sequence[Segment]) -> 
     )
 
 
-def _speed_shows_dynamics(search: Search, base: Fitted, segments: Sequence[Segment]) -> bool:
+def _speed_shows_dynamics(search: Search, base: Fitted) -> bool:
     """Whether the baseline fitted with L held finds a mechanical time constant that
     the samples resolve (the equation-error start misjudges it at a few samples per
     transient): then L shows through the speed and must be fitted."""
-    dt_med = float(np.median([s.dt_s for s in segments]))
-    tau_m = base.fit.model.params.mechanical_time_constant_s
-    return "L" not in search.cfg.fixed and dt_med < SETTLED_TAU_M * tau_m
+    return search.dt_s < SETTLED_TAU_M * base.fit.model.params.mechanical_time_constant_s
 
 
 def _baseline(search: Search) -> Fitted:
@@ -387,10 +384,10 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
     lag_note = "" if lag is None else f", the signals read {lag * 1e6:.3g} us late (chain lag)"
     # a lag-only choice means no gap when the lag closes the gap (most of it, or down to
     # the noise): the lag is a nuisance, so a gap it leaves is judged as the baseline's
-    lag_closes = shrink >= scoring.thresholds.explained_shrink or (
+    closes = shrink >= scoring.thresholds.explained_shrink or (
         chosen.gap <= scoring.thresholds.no_gap_noise
     )
-    if lag is not None and not named and lag_closes:
+    if lag is not None and not named and closes:
         return Verdict(
             VerdictStatus.NO_GAP,
             (),
@@ -417,21 +414,17 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
                 f"the linear model matches held-out data to the noise (gap {g0:.3g} noise "
                 "variances); no effect is needed"
             )
-    elif shrink >= scoring.thresholds.explained_shrink:
+    elif closes:
+        # most of the gap, or what is left is within the noise: a small effect on a
+        # record whose noise the data's own estimate puts a little low (a coarse
+        # encoder's differentiated angle) closes less than half, yet leaves nothing
         status = VerdictStatus.EXPLAINED
         message = (
             f"{' + '.join(named)} closes {shrink:.0%} of the held-out gap "
             f"({g0:.3g} -> {chosen.gap:.3g}{lag_note})"
         )
-    elif chosen.gap <= scoring.thresholds.no_gap_noise:
-        # what is left is within the noise: a small effect on a record whose noise the
-        # data's own estimate puts a little low (a coarse encoder's differentiated
-        # angle) closes less than half of the gap, yet leaves nothing to explain
-        status = VerdictStatus.EXPLAINED
-        message = (
-            f"{' + '.join(named)} closes {shrink:.0%} of the held-out gap "
-            f"({g0:.3g} -> {chosen.gap:.3g}{lag_note}): what is left is within the noise"
-        )
+        if shrink < scoring.thresholds.explained_shrink:
+            message += ": what is left is within the noise"
     else:
         status = VerdictStatus.UNEXPLAINED
         message = (
