@@ -376,13 +376,17 @@ def _job_rt_priority() -> int:
         return 0
 
 
+def _thread_ids(pid: int) -> list[int]:
+    """The threads of process ``pid`` (itself where /proc cannot be read)."""
+    try:
+        return [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+    except OSError:
+        return [pid]
+
+
 def _set_policy(pid: int, policy: int, priority: int) -> None:
     """Every thread of process ``pid`` at ``policy``/``priority`` where permitted."""
-    try:
-        tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
-    except OSError:
-        tids = [pid]
-    for tid in tids:
+    for tid in _thread_ids(pid):
         try:
             os.sched_setscheduler(tid, policy, os.sched_param(priority))
         except (OSError, AttributeError):
@@ -392,12 +396,7 @@ def _set_policy(pid: int, policy: int, priority: int) -> None:
 def _set_nice(value: int, pid: int = 0) -> None:
     """Every thread of process ``pid`` (0: this one) at nice ``value`` where permitted
     (Linux keeps a nice value per thread; the fit's thread pool outlives the warm-up)."""
-    pid = pid or os.getpid()
-    try:
-        tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
-    except OSError:
-        tids = [pid]
-    for tid in tids:
+    for tid in _thread_ids(pid or os.getpid()):
         try:
             os.setpriority(os.PRIO_PROCESS, tid, value)
         except OSError:
