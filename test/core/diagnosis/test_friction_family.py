@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers.gradients import assert_gradient_matches_fd
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.diagnosis import DiagnosisConfig, VerdictStatus, diagnose
@@ -66,17 +67,7 @@ def test_the_fast_path_gradient_of_an_exponential_stribeck_fall_is_exact():
     free = ["R", "Ke", "B", "stribeck_friction.torque_nm", "stribeck_friction.speed_rad_s"]
     ps = prepare_segments([seg], [])
     prob = Problem(ps, m, model_values(m), free, True, True, initial_noise(ps), {})
-    z = prob.z0()
-    _r, _a, g = prob.evaluate(z, True)
-    for j in range(len(free)):
-        h = 1e-6 * max(1.0, abs(z[j]))
-        zp, zm = z.copy(), z.copy()
-        zp[j] += h
-        zm[j] -= h
-        rp, _, _ = prob.evaluate(zp, False)
-        rm, _, _ = prob.evaluate(zm, False)
-        fd = (0.5 * rp @ rp - 0.5 * rm @ rm) / (2 * h)
-        assert g[j] == pytest.approx(fd, rel=1e-4), free[j]
+    assert_gradient_matches_fd(prob, range(len(free)), free)
 
 
 @pytest.mark.parametrize("shape", [1.0, 2.0])

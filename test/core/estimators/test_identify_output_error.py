@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.gradients import assert_gradient_matches_fd
 
 from pmdc_ident.core.data import Run, Segment
 from pmdc_ident.core.effects import (
@@ -189,17 +190,8 @@ def test_analytic_gradient_matches_finite_differences_without_friction_events(cu
     m = Model(p.replace(R=p.R * 1.05, Kt=p.Ke), effects)
     ps = prepare_segments(segs, [])
     prob = Problem(ps, m, model_values(m), free, not current_driven, True, initial_noise(ps), {})
-    z = prob.z0()
-    _r, _A, g = prob.evaluate(z, True)
-    for j in [*range(len(free)), len(free)]:  # every parameter and one initial state
-        h = 1e-6 * max(1.0, abs(z[j]))
-        zp, zm = z.copy(), z.copy()
-        zp[j] += h
-        zm[j] -= h
-        rp, _, _ = prob.evaluate(zp, False)
-        rm, _, _ = prob.evaluate(zm, False)
-        fd = (0.5 * rp @ rp - 0.5 * rm @ rm) / (2 * h)
-        assert g[j] == pytest.approx(fd, rel=1e-4), j
+    # every parameter and one initial state
+    assert_gradient_matches_fd(prob, [*range(len(free)), len(free)])
 
 
 def test_without_closure_kt_j_b_are_reported_as_one_scale_ambiguity():
