@@ -16,7 +16,9 @@ model on held-out data by the penalty of what it adds (greedy, up to
 at the Nyquist frequency, 1/pi sample: :func:`chain_lag_s`) is in every driver's
 record, so it is no effect: when it is the best single candidate, every other helping
 effect is tried on top of it and judged against it as a single effect is judged
-against the baseline (its penalty, ties); the lag itself is never named.
+against the baseline (its penalty, ties); when an effect is chosen that leaves most of
+the gap, the lag is tried on top of it the same way (:func:`with_chain_lag`); the lag
+itself is never named.
 """
 
 from __future__ import annotations
@@ -66,6 +68,8 @@ def choose(search: Search, scoring: Scoring, base: Fitted, singles: list[Fitted]
     ranked_names = [s.effects[0] for s, f in helping if not f.failed]
     if chain_lag_s(choice.chosen, search.dt_s) is not None:
         beyond_chain_lag(search, scoring, choice, by_name, ranked_names)
+    else:
+        with_chain_lag(search, scoring, choice, by_name)
     combine(search, scoring, choice, by_name, ranked_names)
     return choice
 
@@ -104,6 +108,35 @@ def beyond_chain_lag(
     if helping:
         choice.ties.clear()
         choice.chosen = break_ties(helping, scoring, choice.ties)
+
+
+def with_chain_lag(
+    search: Search, scoring: Scoring, choice: Choice, by_name: Mapping[str, Fitted]
+) -> None:
+    """The chosen effect leaves most of the gap and the delay did not help alone: the
+    signal chain's lag is tried on top of it, judged against it as a single effect
+    against the baseline (its penalty), and kept only where its delay stays a chain lag
+    (:func:`chain_lag_s`, so it names nothing). The linear model's L absorbs much of a
+    chain lag (alone it barely helps), a model whose current response is otherwise
+    bound no longer can: an inductance that saturates leaves the lag of the current
+    sensor's filter in its high-frequency residuals."""
+    chosen, lag = choice.chosen, by_name.get("delay")
+    th = scoring.thresholds
+    if (
+        lag is None
+        or lag.failed
+        or "delay" in chosen.effects
+        or scoring.score(lag).significant  # a helping delay is combined as an effect
+        or scoring.g0 - chosen.gap >= th.explained_shrink * scoring.g0
+    ):
+        return
+    (trial,) = _with_each(search, chosen, by_name, ["delay"])
+    if trial.failed or chain_lag_s(trial, search.dt_s) is None:
+        return
+    s = scoring.score(trial, chosen)
+    choice.scores.append(s)
+    if s.significant:
+        choice.chosen = trial
 
 
 def _with_each(
