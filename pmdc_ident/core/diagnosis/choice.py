@@ -33,6 +33,7 @@ import numpy as np
 from pmdc_ident.core.diagnosis.results import CandidateScore, Tie
 from pmdc_ident.core.diagnosis.search import Fitted, Scoring, Search, n_added
 from pmdc_ident.core.diagnosis.verdict import order_tie, separating_test
+from pmdc_ident.core.model import Model
 
 __all__ = ["Choice", "chain_lag_s", "choose"]
 
@@ -116,7 +117,8 @@ def with_chain_lag(
     """The chosen effect leaves most of the gap and the delay did not help alone: the
     signal chain's lag is tried on top of it, judged against it as a single effect
     against the baseline (its penalty), and kept only where its delay stays a chain lag
-    (:func:`chain_lag_s`, so it names nothing). The linear model's L absorbs much of a
+    (:func:`chain_lag_s`, so it names nothing) and the effect still beats its penalty
+    over the lag refitted alone (a lag that closes the gap by itself needs no effect). The linear model's L absorbs much of a
     chain lag (alone it barely helps), a model whose current response is otherwise
     bound no longer can: an inductance that saturates leaves the lag of the current
     sensor's filter in its high-frequency residuals."""
@@ -135,7 +137,15 @@ def with_chain_lag(
         return
     s = scoring.score(trial, chosen)
     choice.scores.append(s)
-    if s.significant:
+    if not s.significant:
+        return
+    # the effect must earn its place on top of the lag too: the lag refitted alone from
+    # where the trial put it (its own single fit may have stopped short of it), judged
+    # as the effect on top of the lag would be against the baseline
+    delay = trial.fit.model.effect("delay")
+    assert delay is not None
+    alone = search.try_evaluate(("delay",), Model(trial.fit.model.params, (delay,)), trial)
+    if not alone.failed and scoring.score(trial, alone).significant:
         choice.chosen = trial
 
 
