@@ -118,10 +118,11 @@ def with_chain_lag(
     signal chain's lag is tried on top of it, judged against it as a single effect
     against the baseline (its penalty), and kept only where its delay stays a chain lag
     (:func:`chain_lag_s`, so it names nothing) and the effect still beats its penalty
-    over the lag refitted alone (a lag that closes the gap by itself needs no effect). The linear model's L absorbs much of a
-    chain lag (alone it barely helps), a model whose current response is otherwise
-    bound no longer can: an inductance that saturates leaves the lag of the current
-    sensor's filter in its high-frequency residuals."""
+    over the lag refitted alone (a lag that closes the gap by itself needs no effect).
+    The linear model's L absorbs much of a chain lag (alone it barely helps), a model
+    whose current response is otherwise bound no longer can: an inductance that
+    saturates leaves the lag of the current sensor's filter in its high-frequency
+    residuals."""
     chosen, lag = choice.chosen, by_name.get("delay")
     th = scoring.thresholds
     if (

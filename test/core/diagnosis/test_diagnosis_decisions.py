@@ -11,11 +11,11 @@ import pytest
 
 from pmdc_ident.core.data import heat_state
 from pmdc_ident.core.diagnosis import VerdictStatus, diagnose
-from pmdc_ident.core.diagnosis.choice import Choice, separated
+from pmdc_ident.core.diagnosis.choice import Choice, separated, with_chain_lag
 from pmdc_ident.core.diagnosis.pipeline import _verdict
 from pmdc_ident.core.diagnosis.search import Scoring
 from pmdc_ident.core.diagnosis.verdict import Thresholds
-from pmdc_ident.core.effects import Delay, ResistanceDrift
+from pmdc_ident.core.effects import Delay, InductanceSaturation, ResistanceDrift
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.model import Model, Plant, simulate
 from pmdc_ident.core.motors import load_motor
@@ -250,3 +250,43 @@ def test_an_effect_that_leaves_only_noise_explains_the_gap_whatever_its_share(g0
     v = _verdict(choice, scoring, 1e-3)  # type: ignore[arg-type]
     assert v.status is status
     assert v.effects == (("inductance_saturation",) if status is VerdictStatus.EXPLAINED else ())
+
+
+def _fitted(effects, gap, *eff):  # type: ignore[no-untyped-def]
+    """What the choice reads of a fitted candidate: names, model, held-out gap."""
+    p = load_motor("seed001_110v").model.params
+    fit = SimpleNamespace(model=Model(p, eff))
+    return SimpleNamespace(effects=effects, gap=gap, failed=False, seconds=0.0, fit=fit)
+
+
+@pytest.mark.parametrize(
+    ("lag_s", "alone_gap", "chosen"),
+    [
+        (27e-6, 1.5, True),  # the lag alone barely helps: the saturation needs it on top
+        (27e-6, 0.2, False),  # the lag refitted alone closes the gap: no effect is needed
+        (0.5e-3, 1.5, False),  # half a sample at 1 kHz is a delay of the drive, no chain lag
+    ],
+)
+def test_the_signal_chains_lag_is_tried_on_top_of_an_effect_that_leaves_most_of_the_gap(
+    lag_s, alone_gap, chosen
+):
+    # a saturating L cannot absorb the current sensor filter's lag the way the linear
+    # model's L does: alone it leaves 1.05 of 1.78 noise variances, with the lag 0.1
+    sat = InductanceSaturation(110.0)
+    single = _fitted(("inductance_saturation",), 1.05, sat)
+    delay = _fitted(("delay",), 1.55, Delay(30e-6))
+    trial = _fitted(("inductance_saturation", "delay"), 0.1, sat, Delay(lag_s))
+    alone = _fitted(("delay",), alone_gap, Delay(lag_s))
+    search = SimpleNamespace(
+        dt_s=1e-3,
+        cfg=SimpleNamespace(workers=1),
+        say=lambda text: None,
+        try_evaluate=lambda effects, model, fallback: trial if len(effects) == 2 else alone,
+    )
+    choice = Choice(single, gap_significant=True)  # type: ignore[arg-type]
+    scoring = Scoring(1.78, 0.3, Thresholds())
+    with_chain_lag(search, scoring, choice, {"delay": delay})  # type: ignore[arg-type]
+    assert (choice.chosen is trial) == chosen
+    v = _verdict(choice, scoring, 1e-3)
+    assert v.status is (VerdictStatus.EXPLAINED if chosen else VerdictStatus.UNEXPLAINED)
+    assert v.effects == (("inductance_saturation",) if chosen else ())
