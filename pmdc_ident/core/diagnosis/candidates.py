@@ -192,7 +192,8 @@ def free_fields(e: Effect) -> tuple[str, ...]:
     the second field there (:meth:`~pmdc_ident.core.effects.Effect.free_names`). A
     resistance drift without cooling (the integral, ``time_constant_s`` at
     :data:`NO_COOLING_S`) costs one parameter, first-order heating two; a hard brush
-    drop (``knee_current_a`` 0) one, a contact film's smooth drop two."""
+    drop (``knee_current_a`` 0) one, a contact film's smooth drop two; a transport
+    delay (``lag_s`` 0) one, one followed by a first-order lag two."""
     return e.free_names()
 
 

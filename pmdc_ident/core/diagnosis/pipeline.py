@@ -273,10 +273,12 @@ def _single_candidates(
     Cogging is fitted in the measured shaft angle (:mod:`.cogging`) for the strongest
     periods of the residuals' angle spectrum, wherever the shaft turned enough to
     have one.
-    A resistance drift is fitted as the heat integral (one parameter); where that
-    beats its penalty on held-out data (the winding heats), it is fitted again as
-    first-order heating with its time constant (two), and the one with the smaller
-    penalized held-out gap stands for the name.
+    The effects of :data:`TWO_FORMS` are fitted in their one-parameter limit (the heat
+    integral, a hard brush drop, a transport delay); wherever the second parameter
+    could pay its penalty (:func:`_second_form_can_pay`), whether or not the limit
+    helps, they are fitted again with it free (first-order heating, a contact film's
+    smooth drop, a first-order lag), and the form
+    with the smaller penalized held-out gap stands for the name.
     """
     cfg = search.cfg
     periods = list(loc.angle_candidates)
@@ -301,18 +303,39 @@ def _single_candidates(
     with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
         by_name = dict(zip(order, pool.map(one, order), strict=True))
     singles = [by_name[n] for n in names]
-    for k, f in enumerate(singles):
-        if f.effects[0] in TWO_FORMS and scoring.score(f).significant:
-            full = search.single(base, f.effects[0], sc, lambda e: not in_limit(e))
-            if _penalized(full, scoring) < _penalized(f, scoring):
-                singles[k] = full
+    seconds = [k for k, f in enumerate(singles) if _second_form_can_pay(f, scoring)]
+
+    def second(k: int) -> Fitted:
+        return search.single(base, singles[k].effects[0], sc, lambda e: not in_limit(e))
+
+    with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
+        fulls = list(pool.map(second, seconds))
+    for k, full in zip(seconds, fulls, strict=True):
+        if _penalized(full, scoring) < _penalized(singles[k], scoring):
+            singles[k] = full
     return untestable, singles
 
 
-# Effects fitted first in their one-parameter limit, then (when that limit helps) with
-# their second parameter free: the heat integral / first-order heating with its time
-# constant; the hard brush drop / a contact film's smooth drop with its knee current;
-# a transport delay / one followed by a first-order lag (a drive's output filter).
+def _second_form_can_pay(limit: Fitted, scoring: Scoring) -> bool:
+    """Whether the second form of a :data:`TWO_FORMS` effect could change the choice:
+    it costs one parameter more than its limit, so it stands for the name only where
+    the limit leaves more than that penalty, and it helps at all only where the
+    baseline's gap exceeds the penalty of its parameters. Whether the limit itself
+    helps says nothing: a contact film's soft drop or a drive's first-order lag is far
+    from a hard drop or a transport delay, so the limit may fit worse than the
+    baseline on held-out data where the second form closes the gap."""
+    if limit.effects[0] not in TWO_FORMS:
+        return False
+    e = limit.fit.model.effect(limit.effects[0])
+    n_full = len(e.fitted_names()) if e is not None else 2
+    return limit.gap > scoring.penalty and scoring.g0 > n_full * scoring.penalty
+
+
+# Effects fitted first in their one-parameter limit, then (where the second parameter
+# could pay its penalty: _second_form_can_pay) with it free: the heat integral /
+# first-order heating with its time constant; the hard brush drop / a contact film's
+# smooth drop with its knee current; a transport delay / one followed by a first-order
+# lag (a drive's output filter).
 TWO_FORMS = ("resistance_drift", "brush_drop", "delay")
 
 

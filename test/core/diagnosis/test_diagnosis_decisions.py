@@ -185,8 +185,17 @@ def test_a_50_hz_log_of_a_clean_motor_shows_l_through_the_speed_and_has_no_gap(s
     assert not any("L held" in a for a in r.assumptions)
 
 
-def _benchmark_run(tmp_path, effect: str, equation: str, motor: str, rate_hz: float):  # type: ignore[no-untyped-def]
-    """A run of the benchmark's own plant (not the candidates' equations), largest size."""
+def _benchmark_run(  # type: ignore[no-untyped-def]
+    tmp_path,
+    effect: str,
+    equation: str,
+    motor: str,
+    rate_hz: float,
+    level: int = 3,
+    one_direction: bool = False,
+):
+    """A run of the benchmark's own plant (not the candidates' equations), of the
+    benchmark's size ``level`` (3 the largest)."""
     from pmdc_ident.benchmark.cases import Case, context, draw_sensors, record
     from pmdc_ident.benchmark.motors import MOTORS
     from pmdc_ident.benchmark.runner import write_recording
@@ -195,9 +204,9 @@ def _benchmark_run(tmp_path, effect: str, equation: str, motor: str, rate_hz: fl
 
     rng = np.random.default_rng(0)
     m = MOTORS[motor]
-    eff = draw_effect(effect, 3, context(m, rate_hz, False), rng, equation)
+    eff = draw_effect(effect, level, context(m, rate_hz, one_direction), rng, equation)
     sensors = draw_sensors(m, rate_hz, rng)
-    case = Case("t", "effect", motor, rate_hz, False, (eff,), sensors, 1)
+    case = Case("t", "effect", motor, rate_hz, one_direction, (eff,), sensors, 1)
     rec, _ = record(case, with_visibility=False)
     return load_data(write_recording(rec, tmp_path / "run.csv"))
 
@@ -290,3 +299,48 @@ def test_the_signal_chains_lag_is_tried_on_top_of_an_effect_that_leaves_most_of_
     v = _verdict(choice, scoring, 1e-3)
     assert v.status is (VerdictStatus.EXPLAINED if chosen else VerdictStatus.UNEXPLAINED)
     assert v.effects == (("inductance_saturation",) if chosen else ())
+
+
+@pytest.mark.parametrize(
+    ("effect", "equation", "motor", "rate_hz", "level", "one_direction"),
+    [
+        # a small drop saturating as vb (1 - exp(-|i|/i0)) on a 180 V motor, driven one
+        # way: the hard sign fits worse than the baseline on held-out data, the knee
+        # closes the gap
+        ("brush_drop", "saturating", "industrial_180v", 2000.0, 0, True),
+        # a one-sample lag at 250 Hz: a transport delay shifts whole steps and fits
+        # worse than none, the lag closes the gap
+        ("delay", "lag", "scooter_24v", 250.0, 1, False),
+    ],
+)
+def test_the_second_form_is_fitted_where_its_limit_does_not_help(
+    tmp_path, effect, equation, motor, rate_hz, level, one_direction
+):
+    from pmdc_ident.core.diagnosis import DiagnosisConfig
+
+    run = _benchmark_run(tmp_path, effect, equation, motor, rate_hz, level, one_direction)
+    r = diagnose(run, config=DiagnosisConfig(effects=(effect, "inductance_saturation")))
+    assert r.verdict.effects == (effect,)
+    assert r.to_json()["holdout"]["shrink"] > 0.9
+
+
+def test_the_second_form_is_tried_only_where_its_parameter_could_pay():
+    from pmdc_ident.core.diagnosis.pipeline import _second_form_can_pay
+    from pmdc_ident.core.effects import BrushDrop, CoulombFriction
+
+    params = load_motor("seed000_ebike").model.params
+    scoring = Scoring(g0=3.0, penalty=0.3, thresholds=Thresholds())
+
+    def limit(effect, gap):  # type: ignore[no-untyped-def]
+        model = Model(params, (effect,))
+        return SimpleNamespace(effects=(effect.NAME,), gap=gap, fit=SimpleNamespace(model=model))
+
+    # the hard drop fitted worse than the baseline: its knee may still close the gap
+    assert _second_form_can_pay(limit(BrushDrop(1.0), 3.5), scoring)
+    # the limit leaves less than one parameter's penalty: a knee cannot pay for itself
+    assert not _second_form_can_pay(limit(BrushDrop(1.0), 0.2), scoring)
+    # a baseline gap below two penalties: no two-parameter form can be significant
+    small = Scoring(g0=0.5, penalty=0.3, thresholds=Thresholds())
+    assert not _second_form_can_pay(limit(BrushDrop(1.0), 0.5), small)
+    # an effect of one form only
+    assert not _second_form_can_pay(limit(CoulombFriction(0.1), 3.0), scoring)
