@@ -274,11 +274,11 @@ def _single_candidates(
     periods of the residuals' angle spectrum, wherever the shaft turned enough to
     have one.
     The effects of :data:`TWO_FORMS` are fitted in their one-parameter limit (the heat
-    integral, a hard brush drop, a transport delay); wherever the second parameter
-    could pay its penalty (:func:`_second_form_can_pay`), whether or not the limit
-    helps, they are fitted again with it free (first-order heating, a contact film's
-    smooth drop, a first-order lag), and the form
-    with the smaller penalized held-out gap stands for the name.
+    integral, a hard brush drop, a transport delay); where the limit helps, or where
+    no candidate closes the gap and the second parameter could pay its penalty
+    (:func:`_second_form_can_pay`), they are fitted again with it free (first-order
+    heating, a contact film's smooth drop, a first-order lag), and the form with the
+    smaller penalized held-out gap stands for the name.
     """
     cfg = search.cfg
     periods = list(loc.angle_candidates)
@@ -303,7 +303,16 @@ def _single_candidates(
     with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
         by_name = dict(zip(order, pool.map(one, order), strict=True))
     singles = [by_name[n] for n in names]
-    seconds = [k for k, f in enumerate(singles) if _second_form_can_pay(f, scoring)]
+    # a limit that helps is refined; one that does not, only while no candidate closes
+    # the gap (then the second form is what may name the effect, see
+    # _second_form_can_pay)
+    open_gap = not any(_closes(f, scoring) for f in singles)
+    seconds = [
+        k
+        for k, f in enumerate(singles)
+        if f.effects[0] in TWO_FORMS
+        and (scoring.score(f).significant or (open_gap and _second_form_can_pay(f, scoring)))
+    ]
 
     def second(k: int) -> Fitted:
         return search.single(base, singles[k].effects[0], sc, lambda e: not in_limit(e))
@@ -316,14 +325,25 @@ def _single_candidates(
     return untestable, singles
 
 
+def _closes(f: Fitted, scoring: Scoring) -> bool:
+    """Whether ``f`` helps and closes the gap as an explained verdict requires (most
+    of it, or down to the noise)."""
+    th = scoring.thresholds
+    return scoring.score(f).significant and (
+        scoring.g0 - f.gap >= th.explained_shrink * scoring.g0 or f.gap <= th.no_gap_noise
+    )
+
+
 def _second_form_can_pay(limit: Fitted, scoring: Scoring) -> bool:
-    """Whether the second form of a :data:`TWO_FORMS` effect could change the choice:
-    it costs one parameter more than its limit, so it stands for the name only where
-    the limit leaves more than that penalty, and it helps at all only where the
-    baseline's gap exceeds the penalty of its parameters. Whether the limit itself
-    helps says nothing: a contact film's soft drop or a drive's first-order lag is far
-    from a hard drop or a transport delay, so the limit may fit worse than the
-    baseline on held-out data where the second form closes the gap."""
+    """Whether the second form of a :data:`TWO_FORMS` effect could change the choice
+    where its limit does not help: it costs one parameter more than its limit, so it
+    stands for the name only where the limit leaves more than that penalty, and it
+    helps at all only where the baseline's gap exceeds the penalty of its parameters.
+    That the limit does not help says nothing: a contact film's soft drop or a drive's
+    first-order lag can be so far from a hard drop or a transport delay that the limit
+    fits worse than the baseline on held-out data where the second form closes the
+    gap. (Where another candidate already closes the gap, such a form could at most
+    tie with it; it is not fitted then, which keeps an explained run's cost.)"""
     if limit.effects[0] not in TWO_FORMS:
         return False
     e = limit.fit.model.effect(limit.effects[0])
@@ -331,11 +351,11 @@ def _second_form_can_pay(limit: Fitted, scoring: Scoring) -> bool:
     return limit.gap > scoring.penalty and scoring.g0 > n_full * scoring.penalty
 
 
-# Effects fitted first in their one-parameter limit, then (where the second parameter
-# could pay its penalty: _second_form_can_pay) with it free: the heat integral /
-# first-order heating with its time constant; the hard brush drop / a contact film's
-# smooth drop with its knee current; a transport delay / one followed by a first-order
-# lag (a drive's output filter).
+# Effects fitted first in their one-parameter limit, then (where it helps, or where no
+# candidate closes the gap and the second parameter could pay its penalty) with it
+# free: the heat integral / first-order heating with its time constant; the hard brush
+# drop / a contact film's smooth drop with its knee current; a transport delay / one
+# followed by a first-order lag (a drive's output filter).
 TWO_FORMS = ("resistance_drift", "brush_drop", "delay")
 
 
