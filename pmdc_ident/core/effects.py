@@ -15,7 +15,9 @@ with ``friction(w) = (Tc + Ts exp(-(|w|/ws)^d)) sign(w)`` (``d`` = 2 the Gaussia
 held at rest while ``|drive torque| <= Tc + Ts`` (stiction), ``R(t) = R (1 + k q)``
 with ``dq/dt = i^2 - q/tau`` (first-order winding heating: ``q`` is the
 dissipated ``int i^2 dt`` that has not yet flowed away; ``tau`` -> infinity is the
-plain integral) and ``L(i) = L / (1 + (i/I_sat)^2)``.
+plain integral), ``Ke(t) = Ke (1 - r k q)`` and ``Kt`` likewise with the same heat
+(magnets losing flux as they warm; ``r`` = 0, none, unless fitted) and
+``L(i) = L / (1 + (i/I_sat)^2)``.
 """
 
 from __future__ import annotations
@@ -205,6 +207,7 @@ class ResistanceDrift(Effect):
     NAME: ClassVar[str] = "resistance_drift"
     DESCRIPTION: ClassVar[str] = (
         "winding heats, R rises: first-order heating by i^2 with a thermal time constant"
+        " (the magnets' flux may fall with it)"
     )
     SPECS: ClassVar[dict[str, ParamSpec]] = {
         # k = alpha R / C_th: 0.004 1/K x R over the winding's heat capacity; a coreless
@@ -217,9 +220,22 @@ class ResistanceDrift(Effect):
             "winding thermal time constant (dq/dt = i^2 - q/tau)",
             limit=NO_COOLING_S,
         ),
+        # the magnets heat with the winding and lose flux: Ke(t) = Ke (1 - r k q), Kt
+        # likewise. r is the relative fall of the flux per relative rise of R: a
+        # magnet's coefficient over copper's (+0.39 %/K) times the magnets' temperature
+        # rise over the winding's. NdFeB (-0.12 %/K) gives 0.31, ferrite (-0.2 %/K,
+        # the steepest common magnet) 0.51, SmCo 0.09, each when the magnets get as hot
+        # as the winding; they heat less and later (heated through the air gap, more
+        # mass), so a physical r stays below ~0.5. The bound 1 (the flux never falls
+        # faster than R rises) leaves room for the one heat state standing in for the
+        # magnets' own. 0 is the limit: no weakening.
+        "flux_loss_ratio": ParamSpec(
+            "1", 0.0, 1.0, "r in Ke(t) = Ke (1 - r k q), Kt likewise", limit=0.0
+        ),
     }
     coeff_per_a2s: float
     time_constant_s: float = NO_COOLING_S  # the plain integral within any run
+    flux_loss_ratio: float = 0.0  # magnets that keep their flux
 
 
 @dataclass(frozen=True)

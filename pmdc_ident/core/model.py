@@ -265,8 +265,8 @@ def _linear_kernel(v, tl, phi, gam, decay, a_mech, j, dt, x):  # pragma: no cove
 # ---------------------------------------------------------------------------
 # Layout of the coefficient vector handed to the kernel.
 _R, _L, _KE, _KT, _J, _B = 0, 1, 2, 3, 4, 5
-_TC, _TS, _WS, _CQ, _TL, _VB, _TCOG, _NCOG, _PHCOG, _KR, _ISAT, _TAUQ, _DS, _IB = range(6, 20)
-_NCOEF = 20
+_TC, _TS, _WS, _CQ, _TL, _VB, _TCOG, _NCOG, _PHCOG, _KR, _ISAT, _TAUQ, _DS, _IB, _KF = range(6, 21)
+_NCOEF = 21
 
 
 def effect_coefficients(model: Model) -> FloatArray:
@@ -292,6 +292,7 @@ def effect_coefficients(model: Model) -> FloatArray:
             c[_TCOG], c[_NCOG], c[_PHCOG] = e.torque_nm, e.periods_per_rev, e.phase_rad
         elif isinstance(e, ResistanceDrift):
             c[_KR] = e.coeff_per_a2s
+            c[_KF] = e.flux_loss_ratio * e.coeff_per_a2s  # Ke (1 - kf q)
             c[_TAUQ] = e.time_constant_s if e.time_constant_s < NO_COOLING_S else 0.0
         elif isinstance(e, InductanceSaturation):
             c[_ISAT] = e.saturation_current_a
@@ -531,7 +532,9 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
     ``st`` = [i, w, th, heat, stuck] is the state, updated in place (heat: the winding
     heat state q of :class:`~pmdc_ident.core.effects.ResistanceDrift`). Returns the states
     (n, 3) at the sample instants."""
-    r0, l0, ke, kt, j, b = c[0], c[1], c[2], c[3], c[4], c[5]
+    r0, l0, ke0, kt0, j, b = c[0], c[1], c[2], c[3], c[4], c[5]
+    ke, kt = ke0, kt0
+    kf = c[20]  # magnets' flux falling with the heat: Ke (1 - kf q), Kt likewise
     tc, ts, ws, cq, tl, vb = c[6], c[7], c[8], c[9], c[10], c[11]
     tcog, ncog, phcog, kr, isat = c[12], c[13], c[14], c[15], c[16]
     ds = c[18]  # Stribeck shape exponent
@@ -552,6 +555,9 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
         is_open = math.isnan(vk)
         for _ in range(nsub):
             q *= cool
+            if kf > 0.0:
+                flux = max(1.0 - kf * q, 0.0)
+                ke, kt = ke0 * flux, kt0 * flux
             # Torques that do not depend on the sign of w (opposing +w when positive).
             t_pos = tl
             if tcog > 0.0:

@@ -47,7 +47,8 @@ _NOT_CARRIED: dict[str, str] = {
     "dead_zone": "driver dead zone (put it in your controller's output stage)",
     "cogging": "cogging torque (dcmotor's cogging needs integer poles; not exported)",
     "resistance_drift": (
-        "winding heating R(1 + k q), dq/dt = i^2 - q/tau (MuJoCo's thermal model differs)"
+        "winding heating R(1 + k q), dq/dt = i^2 - q/tau, flux Ke (1 - r k q) "
+        "(MuJoCo's thermal model differs)"
     ),
     "delay": "command delay (use MuJoCo's actuator delay/nsample history if you need it)",
     "current_offset": "current-sensor offset (a measurement effect, not dynamics)",
