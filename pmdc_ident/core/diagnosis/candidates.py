@@ -131,10 +131,11 @@ def starting_effects(name: str, sc: DataScales) -> list[Effect]:
             for ph in (-2.5, -1.0, 0.5, 2.0)
         ]
     if name == "resistance_drift":
-        # first-order heating: q levels off near (mean i^2) x tau when tau < the span
+        # first-order heating: q levels off near (mean i^2) x tau when tau < the span;
+        # magnets that keep their flux (the diagnosis frees that only where heating helps)
         power = sc.charge_a2s / sc.span_s
         return [
-            _start(ResistanceDrift, f / (power * min(tau, sc.span_s)), tau)
+            _start(ResistanceDrift, f / (power * min(tau, sc.span_s)), tau, 0.0)
             for f in (0.05, 0.2)
             for tau in (0.25 * sc.span_s, sc.span_s, NO_COOLING_S)
         ]
@@ -193,13 +194,15 @@ def free_fields(e: Effect) -> tuple[str, ...]:
     resistance drift without cooling (the integral, ``time_constant_s`` at
     :data:`NO_COOLING_S`) costs one parameter, first-order heating two; a hard brush
     drop (``knee_current_a`` 0) one, a contact film's smooth drop two; a transport
-    delay (``lag_s`` 0) one, one followed by a first-order lag two."""
+    delay (``lag_s`` 0) one, one followed by a first-order lag two. A resistance
+    drift whose magnets lose flux (``flux_loss_ratio`` above its limit 0) costs one
+    more: the starts hold it at 0, the diagnosis frees it only where heating helps."""
     return e.free_names()
 
 
 def in_limit(e: Effect) -> bool:
     """Whether ``e`` is its effect's one-parameter limit (see :func:`free_fields`)."""
-    return len(free_fields(e)) < len(e.fitted_names())
+    return len(free_fields(e)) == 1 < len(e.fitted_names())
 
 
 def scan_start(

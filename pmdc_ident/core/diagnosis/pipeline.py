@@ -23,7 +23,13 @@ from dataclasses import replace
 import numpy as np
 
 from pmdc_ident.core.data import Run, Segment, check_excitation, unique_labels
-from pmdc_ident.core.diagnosis.candidates import DataScales, data_scales, in_limit, predict
+from pmdc_ident.core.diagnosis.candidates import (
+    DataScales,
+    data_scales,
+    free_fields,
+    in_limit,
+    predict,
+)
 from pmdc_ident.core.diagnosis.choice import Choice, chain_lag_s, choose
 from pmdc_ident.core.diagnosis.cogging import angle_cogging
 from pmdc_ident.core.diagnosis.config import DiagnosisConfig
@@ -278,7 +284,9 @@ def _single_candidates(
     no candidate closes the gap and the second parameter could pay its penalty
     (:func:`_second_form_can_pay`), they are fitted again with it free (first-order
     heating, a contact film's smooth drop, a first-order lag), and the form with the
-    smaller penalized held-out gap stands for the name.
+    smaller penalized held-out gap stands for the name. Heating that helps is fitted
+    once more with the magnets losing flux in its heat (:func:`_flux_start`), which
+    stands where it beats that form by its parameter's penalty.
     """
     cfg = search.cfg
     periods = list(loc.angle_candidates)
@@ -322,7 +330,38 @@ def _single_candidates(
     for k, full in zip(seconds, fulls, strict=True):
         if _penalized(full, scoring) < _penalized(singles[k], scoring):
             singles[k] = full
+    # heating that helps is fitted once more with the magnets losing flux in its heat
+    # (a further parameter, at its penalty): never where heating does not help, so
+    # never on an effect-free run's noise
+    heats = [
+        k
+        for k, f in enumerate(singles)
+        if f.effects[0] == "resistance_drift" and scoring.score(f).significant
+    ]
+    for k in heats:
+        flux = search.single(base, "resistance_drift", sc, start=_flux_start(singles[k]))
+        if _penalized(flux, scoring) < _penalized(singles[k], scoring):
+            singles[k] = flux
     return untestable, singles
+
+
+# where the flux-loss form of a resistance drift starts: a quarter of the relative
+# rise of R, between NdFeB's 0.31 and half of it (magnets cooler than the winding)
+_FLUX_LOSS_START = 0.2
+
+
+def _flux_start(heating: Fitted) -> Model:
+    """The fitted heating (the heat integral or first-order, as chosen) with its
+    magnets losing flux (:class:`~pmdc_ident.core.effects.ResistanceDrift`'s
+    ``flux_loss_ratio``) freed from its limit 0, the rest where the fit left it."""
+    m = heating.fit.model
+    return Model(
+        m.params,
+        tuple(
+            replace(e, flux_loss_ratio=_FLUX_LOSS_START) if e.NAME == "resistance_drift" else e
+            for e in m.effects
+        ),
+    )
 
 
 def _closes(f: Fitted, scoring: Scoring) -> bool:
@@ -347,7 +386,7 @@ def _second_form_can_pay(limit: Fitted, scoring: Scoring) -> bool:
     if limit.effects[0] not in TWO_FORMS:
         return False
     e = limit.fit.model.effect(limit.effects[0])
-    n_full = len(e.fitted_names()) if e is not None else 2
+    n_full = len(free_fields(e)) + 1 if e is not None else 2
     return limit.gap > scoring.penalty and scoring.g0 > n_full * scoring.penalty
 
 

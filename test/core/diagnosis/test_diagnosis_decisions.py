@@ -1,5 +1,5 @@
-"""Decision rules of the diagnosis: evidence ties, first-order winding heating, the
-signal chain's lag, a brush drop's knee."""
+"""Decision rules of the diagnosis: evidence ties, first-order winding heating (and
+magnets losing flux with it), the signal chain's lag, a brush drop's knee."""
 
 from __future__ import annotations
 
@@ -344,3 +344,31 @@ def test_the_second_form_is_tried_only_where_its_parameter_could_pay():
     assert not _second_form_can_pay(limit(BrushDrop(1.0), 0.5), small)
     # an effect of one form only
     assert not _second_form_can_pay(limit(CoulombFriction(0.1), 3.0), scoring)
+
+
+def test_magnets_losing_flux_as_the_winding_heats_are_fitted_with_the_heating():
+    # NdFeB magnets (-0.12 %/K against copper's +0.39 %/K) warming a third as much as
+    # the winding: Ke and Kt fall by 0.1 of R's relative rise. Heating alone helps but
+    # leaves the fall of Ke; the flux loss is fitted on top of it and recovered
+    spec, plan, _ = _session(6.0)
+    model = Model(spec.model.params, (ResistanceDrift(0.002, 6.0, 0.1),))
+    run = synthesize_run(model, plan, spec.sensors, seed=3)
+    r = diagnose(run)
+    assert r.verdict.status is VerdictStatus.EXPLAINED
+    assert r.verdict.effects[:1] == ("resistance_drift",)
+    got = {p.name: p for p in r.augmented}
+    flux = got["resistance_drift.flux_loss_ratio"]
+    assert flux.ci95 is not None
+    assert flux.ci95[0] <= 0.1 <= flux.ci95[1]
+    assert flux.ci95[0] > 0.0  # the loss is resolved, not the limit's 0
+    assert got["resistance_drift.time_constant_s"].value == pytest.approx(6.0, rel=0.3)
+
+
+def test_flux_loss_stays_at_its_limit_where_the_magnets_keep_their_flux():
+    spec, plan, _ = _session(6.0)
+    model = Model(spec.model.params, (ResistanceDrift(0.002, 6.0),))
+    run = synthesize_run(model, plan, spec.sensors, seed=3)
+    r = diagnose(run)
+    assert r.verdict.effects[:1] == ("resistance_drift",)
+    got = {p.name: p.value for p in r.augmented}
+    assert got["resistance_drift.flux_loss_ratio"] == 0.0
