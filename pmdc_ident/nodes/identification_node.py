@@ -69,6 +69,11 @@ __all__ = ["IdentificationNode", "main"]
 NODE_NAME = "identification_node"
 TICK_S = 0.02
 DELIVERY_TIMEOUT_S = 5.0
+# A reader that started before this node gets its latched status and result only once
+# the two have discovered each other, which takes seconds on a busy machine: a node
+# that refuses its plan at once (1.3 s after start under load, before a waiting
+# monitor had matched it) lives at least this long, so the refusal is not lost.
+MIN_LIFE_S = 4.0
 
 
 class IdentificationNode(Node):
@@ -76,6 +81,7 @@ class IdentificationNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
+        self._built_s = time.monotonic()
         values = declare(self, IDENTIFICATION)
         self.controller = SessionController(controller_config(values), ports=self)
         self.exit_code = 0
@@ -113,6 +119,8 @@ class IdentificationNode(Node):
         while self.controller.confirming:
             spin_once(0.02)
             self.controller.confirm_tick(time.monotonic())
+        while time.monotonic() - self._built_s < MIN_LIFE_S:
+            spin_once(0.05)  # readers still discovering us (see MIN_LIFE_S)
         self.wait_delivered(DELIVERY_TIMEOUT_S)
         self.exit_code = self.controller.exit_code
 
