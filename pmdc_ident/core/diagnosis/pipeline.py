@@ -365,12 +365,15 @@ def _flux_start(heating: Fitted) -> Model:
 
 
 def _closes(f: Fitted, scoring: Scoring) -> bool:
-    """Whether ``f`` helps and closes the gap as an explained verdict requires (most
-    of it, or down to the noise)."""
+    """Whether ``f`` helps and closes the gap as an explained verdict requires."""
+    return scoring.score(f).significant and _closes_gap(scoring, f.gap)
+
+
+def _closes_gap(scoring: Scoring, gap: float) -> bool:
+    """Whether a model that leaves ``gap`` closes the baseline's gap: most of it, or
+    down to the noise (the verdict's rule, :func:`_verdict`)."""
     th = scoring.thresholds
-    return scoring.score(f).significant and (
-        scoring.g0 - f.gap >= th.explained_shrink * scoring.g0 or f.gap <= th.no_gap_noise
-    )
+    return scoring.g0 - gap >= th.explained_shrink * scoring.g0 or gap <= th.no_gap_noise
 
 
 def _second_form_can_pay(limit: Fitted, scoring: Scoring) -> bool:
@@ -466,9 +469,7 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
     lag_note = "" if lag is None else f", the signals read {lag * 1e6:.3g} us late (chain lag)"
     # a lag-only choice means no gap when the lag closes the gap (most of it, or down to
     # the noise): the lag is a nuisance, so a gap it leaves is judged as the baseline's
-    closes = shrink >= scoring.thresholds.explained_shrink or (
-        chosen.gap <= scoring.thresholds.no_gap_noise
-    )
+    closes = _closes_gap(scoring, chosen.gap)
     if lag is not None and not named and closes:
         return Verdict(
             VerdictStatus.NO_GAP,
