@@ -21,6 +21,8 @@ class DiagnosisConfig:
     :mod:`~pmdc_ident.core.diagnosis.holdout`). ``effects``: the vocabulary to
     try. ``fixed``: parameters held at known values (e.g. ``{"L": 3e-4}`` from an
     LCR meter). ``initial``: starting parameters (e.g. from ``identify``).
+    ``swap``: when the default split finds no gap, look again with its sides
+    swapped (:func:`~pmdc_ident.core.diagnosis.pipeline.diagnose`).
     """
 
     holdout: tuple[str, ...] = ()
@@ -31,6 +33,7 @@ class DiagnosisConfig:
     max_nfev: int = 30
     workers: int = 2
     thresholds: Thresholds = field(default_factory=Thresholds)
+    swap: bool = True
 
     def __post_init__(self) -> None:
         unknown = [e for e in self.effects if e not in EFFECT_NAMES]

@@ -16,6 +16,10 @@ A piece cut in time keeps the samples before it as history (``Segment.slice``), 
 a delay line and a resistance drift continue into it as they did in the motor.
 
 ``holdout_labels`` overrides the default: exactly those segments are held out.
+
+:func:`swapped` exchanges the two sides (the other half of a two-fold
+cross-validation): an effect confined to one regime that the default split fits
+(the lowest staircase level, the opening step) is then judged where it is.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ import numpy as np
 from pmdc_ident.core.data import Segment, TestKind
 from pmdc_ident.core.errors import DataError
 
-__all__ = ["HoldoutSplit", "split_segments"]
+__all__ = ["HoldoutSplit", "split_segments", "swapped"]
 
 MIN_PIECE_SAMPLES = 2
 
@@ -39,7 +43,7 @@ class HoldoutSplit:
 
     fit: tuple[Segment, ...]
     held_out: tuple[Segment, ...]
-    rule: str  # "default" or "user"
+    rule: str  # "default", "user" or "swapped" (the default's sides exchanged)
     description: tuple[str, ...]
 
     def to_json(self) -> dict[str, object]:
@@ -140,3 +144,17 @@ def split_segments(
         msg = "cannot hold out any data: every segment is too short to split"
         raise DataError(msg)
     return HoldoutSplit(tuple(fit), tuple(held), "default", tuple(notes))
+
+
+def swapped(split: HoldoutSplit) -> HoldoutSplit:
+    """The split with its sides exchanged: fitted on what ``split`` holds out, judged on
+    what it fits (still on samples the fit never saw)."""
+    return HoldoutSplit(
+        split.held_out,
+        split.fit,
+        "swapped",
+        (
+            *split.description,
+            "sides swapped: fitted on the held-out pieces above, judged on the fitted ones",
+        ),
+    )
