@@ -255,8 +255,14 @@ def combine(
     """Greedy forward selection: add the helping effect that lowers the penalized gap
     most, while the held-out evidence prefers the larger model beyond the penalty of
     what it adds (:func:`separated`). Tried whatever share of the gap is left, also
-    with effects tied with the chosen one (both may be at work)."""
+    with effects tied with the chosen one (both may be at work).
+
+    One backward step (:func:`_added_alone`): when the effect added to a single one
+    does as well alone (the pair does not beat it by the first's penalty beyond
+    doubt), the first was only standing in for part of it, and the added effect is
+    named alone with the ties the evidence leaves it; at most once per choice."""
     penalty = scoring.penalty
+    stepped_back = False
     while len(choice.chosen.effects) < search.cfg.max_effects:
         chosen = choice.chosen
         if chosen.gap <= penalty:
@@ -276,8 +282,51 @@ def combine(
         if chosen.gap - best_trial.gap > k_new * penalty and separated(
             best_trial, chosen, -k_new, penalty
         ):
+            alone = None if stepped_back else _added_alone(scoring, chosen, best_trial, by_name)
+            if alone is not None:
+                stepped_back = True
+                _name_alone(scoring, choice, alone, by_name, ranked_names)
+                continue
             choice.chosen = best_trial
             named = set(best_trial.effects)
             choice.ties[:] = [t for t in choice.ties if not set(t.effects) <= named]
         else:
             break
+
+
+def _added_alone(
+    scoring: Scoring, chosen: Fitted, pair: Fitted, by_name: Mapping[str, Fitted]
+) -> Fitted | None:
+    """The effect ``pair`` adds to the single effect ``chosen``, as fitted alone, when
+    the pair does not beat it beyond the penalty of ``chosen``'s parameters and beyond
+    doubt (:func:`separated`): then ``chosen`` only stood in for part of the added
+    effect (a load torque taking the offset of a quadratic drag the staircase shows
+    whole), and naming both would attribute a gap to an effect the data do not need."""
+    if len(chosen.effects) != 1 or chosen.effects[0] == "delay":
+        return None
+    alone = by_name.get(pair.effects[-1])
+    if alone is None or alone.failed:
+        return None
+    k_first = n_added(pair.fit.model, chosen.effects)
+    penalty = scoring.penalty
+    if alone.gap - pair.gap > k_first * penalty and separated(pair, alone, -k_first, penalty):
+        return None
+    return alone
+
+
+def _name_alone(
+    scoring: Scoring,
+    choice: Choice,
+    alone: Fitted,
+    by_name: Mapping[str, Fitted],
+    ranked_names: Sequence[str],
+) -> None:
+    """Name ``alone`` with the ties the held-out evidence leaves it among the helping
+    single effects (each with its separating test)."""
+    name = alone.effects[0]
+    others = [(scoring.score(by_name[n]), by_name[n]) for n in ranked_names if n != name]
+    tied = _tied_with((scoring.score(alone), alone), others, scoring)
+    choice.chosen = alone
+    choice.ties[:] = [
+        Tie((name, s.effects[0]), separating_test(name, s.effects[0])) for s, _ in tied
+    ]
