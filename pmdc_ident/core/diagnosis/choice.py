@@ -114,7 +114,10 @@ def beyond_chain_lag(
 def with_chain_lag(
     search: Search, scoring: Scoring, choice: Choice, by_name: Mapping[str, Fitted]
 ) -> None:
-    """The chosen effect leaves most of the gap and the delay did not help alone: the
+    """The chosen effect leaves most of the gap and the delay did not help alone, or
+    helped only as a chain lag (a Coulomb friction whose current steps the sensor's
+    filter rounds off: the lag closes a little of the gap alone, the friction the
+    rest, and combined as an effect the lag would be judged as a delay): the
     signal chain's lag is tried on top of it, judged against it as a single effect
     against the baseline (its penalty), and kept only where its delay stays a chain lag
     (:func:`chain_lag_s`, so it names nothing) and the effect still beats its penalty
@@ -129,7 +132,9 @@ def with_chain_lag(
         lag is None
         or lag.failed
         or "delay" in chosen.effects
-        or scoring.score(lag).significant  # a helping delay is combined as an effect
+        # a delay that helps alone is combined as an effect, unless it is itself only
+        # a chain lag (its helping alone is the filter's lag, not a dead time)
+        or (scoring.score(lag).significant and chain_lag_s(lag, search.dt_s) is None)
         or scoring.g0 - chosen.gap >= th.explained_shrink * scoring.g0
     ):
         return

@@ -91,3 +91,15 @@ def test_an_effect_that_does_as_well_alone_as_with_the_first_is_named_alone(tmp_
     assert res.verdict.effects == ("quadratic_drag",)
     assert res.gap_after < 0.5 * res.gap_before
 
+
+def test_a_chain_lag_that_helps_alone_is_tried_on_top_of_the_effect(tmp_path):
+    # seed 2's coulomb_friction_11: the current sensor's filter lags a fraction of a
+    # sample; alone that lag closes a little of the gap, the friction most of it but
+    # not enough; the lag on top of the friction, kept as the chain's lag and unnamed,
+    # explains it (judged as a delay effect it would not be combined)
+    case, vis, segs = _segments("coulomb_friction_11", tmp_path, seed=2)
+    assert vis is not None and vis.residual > 1.0
+    res = diagnose(segs)
+    assert res.verdict.status is VerdictStatus.EXPLAINED
+    assert res.verdict.effects == ("coulomb_friction",)
+    assert res.gap_after < 0.5 * res.gap_before
