@@ -16,7 +16,9 @@ warm numba cache; issue 11, <= 10 s wall on 2 cores. The run is ``bench_cli.py``
   number of candidate fits the diagnosis makes.
 
 Run: ``.venv/bin/python benchmarks/bench_diagnosis_speed.py [--repeat 3]
-[--skip-command]`` (``make bench``).
+[--skip-command] [--effect-free]`` (``make bench``). ``--effect-free`` times the
+slowest path: the same motor without its friction, where no gap is found and the split
+is looked at a second time with its sides swapped.
 """
 
 from __future__ import annotations
@@ -62,10 +64,14 @@ def _cpu_s() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
-def session():
+def session(effect_free: bool = False):
+    """The 60 s run; ``effect_free``: the same motor without its Coulomb friction, the
+    slowest path (no gap: every candidate fitted, then the split looked at again with
+    its sides swapped)."""
     spec = load_motor("seed000_ebike")
     plan = plan_60s(spec)[0]
-    return spec, plan, synthesize_run(spec.model, plan, spec.sensors, seed=1)
+    model = Model(spec.model.params) if effect_free else spec.model
+    return spec, plan, synthesize_run(model, plan, spec.sensors, seed=1)
 
 
 def command_times(run, repeat: int) -> tuple[list[float], list[float]]:
@@ -145,8 +151,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3, help="timed command runs (default 3)")
     ap.add_argument("--skip-command", action="store_true", help="no whole-command runs")
+    ap.add_argument(
+        "--effect-free",
+        action="store_true",
+        help="the motor without its friction: no gap, the split looked at twice (slowest)",
+    )
     args = ap.parse_args()
-    spec, plan, run = session()
+    spec, plan, run = session(args.effect_free)
     n = plan.n_samples
     print(
         f"session: {plan.duration_s:.1f} s at {1 / DT_S:g} Hz = {n} samples, "
