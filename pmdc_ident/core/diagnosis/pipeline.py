@@ -109,9 +109,11 @@ def _swapped_look(
     if progress is not None:
         progress("no gap on held-out data: the sides of the split swapped")
     try:
-        other = _diagnose_split(segments, swapped(split), noise, cfg, progress)
+        other = _diagnose_split(segments, swapped(split), noise, cfg, progress, second_look=True)
     except DataError:
         return None  # the held-out side alone cannot carry a fit: no second look
+    except _NothingToNameError:
+        return None
     if other.verdict.status is not VerdictStatus.EXPLAINED:
         return None
     v = other.verdict
@@ -122,14 +124,25 @@ def _swapped_look(
     return replace(other, verdict=replace(v, message=v.message + note))
 
 
+class _NothingToNameError(Exception):
+    """A second look whose baseline gap no candidate could beat by its penalty."""
+
+
 def _diagnose_split(
     segments: Sequence[Segment],
     split: HoldoutSplit,
     noise: NoiseModel,
     cfg: DiagnosisConfig,
     progress: ProgressCallback | None,
+    second_look: bool = False,
 ) -> DiagnosisResult:
-    """Steps 2-6 of the module notes on one fit / held-out split."""
+    """Steps 2-6 of the module notes on one fit / held-out split.
+
+    ``second_look``: only a named effect matters, so when the baseline's gap is within
+    one parameter's penalty (an effect can close at most the whole gap, and every
+    candidate adds a parameter) no candidate can be significant, the verdict can only
+    be ``no_gap``, and :class:`_NothingToNameError` is raised before any candidate is fitted
+    (on an effect-free run this halves the diagnosis)."""
     t_start = time.perf_counter()
     search = Search(split, noise, cfg, progress)
     slow_note = _hold_inductance_for_tables(search)
@@ -144,6 +157,12 @@ def _diagnose_split(
     masks = regime_masks(split.held_out, base.fit.model.params.mechanical_time_constant_s)
     loc = localize(split.held_out, base.res, masks)
     scoring = Scoring.for_baseline(base, cfg.thresholds)
+    if second_look and scoring.g0 <= scoring.penalty:
+        search.say(
+            f"gap {scoring.g0:.3g} within one parameter's penalty {scoring.penalty:.3g}: "
+            "no effect can be named"
+        )
+        raise _NothingToNameError
     untestable, singles = _single_candidates(search, base, loc, scoring)
     choice = choose(search, scoring, base, singles)
     verdict = _verdict(choice, scoring, search.dt_s)

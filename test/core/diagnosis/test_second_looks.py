@@ -103,3 +103,17 @@ def test_a_chain_lag_that_helps_alone_is_tried_on_top_of_the_effect(tmp_path):
     assert res.verdict.status is VerdictStatus.EXPLAINED
     assert res.verdict.effects == ("coulomb_friction",)
     assert res.gap_after < 0.5 * res.gap_before
+
+
+def test_a_swapped_side_whose_gap_no_effect_could_beat_fits_no_candidate(tmp_path):
+    # clean_00: the swapped baseline misses its held-out side by 0.03 noise variances,
+    # less than one parameter's penalty, so no candidate could be named there: the
+    # second look stops after its baseline (same verdict, half the work)
+    _, _, segs = _segments("clean_00", tmp_path)
+    said: list[str] = []
+    res = diagnose(segs, progress=said.append)
+    assert res.verdict.status is VerdictStatus.NO_GAP
+    i = next(k for k, m in enumerate(said) if "sides of the split swapped" in m)
+    assert any("no effect can be named" in m for m in said[i:])
+    assert not any(m.startswith("candidate") for m in said[i:])
+    assert any(m.startswith("candidate") for m in said[:i])  # the first look fits them
