@@ -390,7 +390,13 @@ def substeps_for(p: FloatArray, dt_s: float) -> int:
         l_min = p[P_L] * 0.05
     limits.append(0.7 * l_min / p[P_R])
     if p[P_BRUSH] > 0 and p[P_VB] > 0:
-        limits.append(0.7 * l_min * p[P_I0] / p[P_VB])
+        # the drop's steepest slope, at zero current: VB / I0 for tanh and the
+        # saturating law; VB I0^n / I0 for the power law's linear stretch (its VB is
+        # in volts per ampere^n: VB / I0 counted 1 / I0^n too many sub-steps)
+        slope = p[P_VB] / p[P_I0]
+        if p[P_BRUSH] == 3.0:
+            slope *= p[P_I0] ** p[P_PW]
+        limits.append(0.7 * l_min / slope)
     if p[P_FRIC] == 2.0:
         limits.append(0.7 * p[P_J] * p[P_WT] / (p[P_TC] + p[P_TS] + 1e-30))
     if p[P_FRIC] == 3.0:

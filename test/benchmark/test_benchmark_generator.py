@@ -136,6 +136,23 @@ def test_run_file_holds_no_truth_and_hidden_effects_are_measured(tmp_path):
     assert vis is not None and vis.raw >= vis.residual >= 0.0
 
 
+def test_a_power_law_brush_drop_is_stepped_by_the_slope_of_its_linear_stretch():
+    # seed 3's brush_drop_20 (0.37 power law, linear below 4.7 mA, 12 V gearmotor at
+    # 250 Hz) stopped the seed-3 benchmark: its sub-steps were counted from VB / I0,
+    # 7x the drop's real slope at zero current; they follow that slope now, as the
+    # tanh law's with the same slope
+    case = {c.name: c for c in build_cases(24, 30, 4, 12, 3)}["brush_drop_20"]
+    p = sensor_vector(case, case.effects)
+    assert p[pl.P_BRUSH] == 3.0
+    as_tanh = p.copy()
+    as_tanh[pl.P_BRUSH] = 1.0
+    as_tanh[pl.P_VB] = p[pl.P_VB] * p[pl.P_I0] ** p[pl.P_PW]  # same slope at zero
+    dt = 1.0 / case.rate_hz
+    assert pl.substeps_for(p, dt) == pl.substeps_for(as_tanh, dt) < 1000
+    rec, _ = record(case, with_visibility=False)
+    assert np.isfinite(rec.current).all()
+
+
 def _outcome(truth, effects, ties=(), kind="effect", vis=5.0, level=0):  # type: ignore[no-untyped-def]
     effs = tuple(TrueEffect(n, "x", level, 1.0, "u") for n in truth)
     case = Case("c", kind, "servo_24v", 1000.0, False, effs, _sensors(MOTORS["servo_24v"]), 0, vis)
