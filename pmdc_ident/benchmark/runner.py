@@ -7,6 +7,7 @@ then, so the full benchmark uses the machine's cores without oversubscribing.
 
 from __future__ import annotations
 
+import math
 import os
 import resource
 import tempfile
@@ -20,7 +21,9 @@ import numpy as np
 
 from pmdc_ident.benchmark.cases import Case, Recording, record
 
-__all__ = ["Outcome", "run_cases", "write_recording"]
+__all__ = ["GENERATOR_FAILED", "Outcome", "run_cases", "write_recording"]
+
+GENERATOR_FAILED = "the generator could not simulate this run"
 
 
 @dataclass(frozen=True)
@@ -73,7 +76,13 @@ def run_one(case: Case, directory: str, workers: int = 1) -> Outcome:
     from pmdc_ident.core.errors import PmdcError
     from pmdc_ident.dataio import load_data
 
-    rec, vis = record(case)
+    try:
+        rec, vis = record(case)
+    except (ValueError, ArithmeticError) as exc:
+        # the generator's failure, not the diagnosis': reported and scored as a miss
+        # (visible, named nothing) rather than ending the whole benchmark
+        missed = replace(case, visibility=math.inf) if case.effects else case
+        return Outcome(missed, "error", (), message=f"{GENERATOR_FAILED}: {exc}")
     if vis is not None:
         case = replace(case, visibility=vis.residual, visibility_raw=vis.raw)
     path = write_recording(rec, Path(directory) / f"run_{case.seed:010d}.csv")

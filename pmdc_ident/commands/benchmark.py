@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         summary_table,
         write_figures,
     )
-    from pmdc_ident.benchmark.runner import Outcome, run_cases
+    from pmdc_ident.benchmark.runner import GENERATOR_FAILED, Outcome, run_cases
     from pmdc_ident.benchmark.scoring import score
     from pmdc_ident.benchmark.truth import VOCABULARY
     from pmdc_ident.commands.outputs import check_file_output, check_folder_output
@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
             f"[{k}/{total} {time.perf_counter() - t0:5.0f} s] {c.name} ({c.motor}, "
             f"{c.rate_hz:g} Hz{', one direction' if c.one_direction else ''}; truth {truth}, "
             f"visibility {c.visibility:.2g}): {o.status} {'+'.join(o.effects)} "
-            f"({o.seconds:.1f} s)",
+            f"({o.seconds:.1f} s){': ' + o.message if o.status == 'error' else ''}",
             file=sys.stderr,
             flush=True,
         )
@@ -120,6 +120,9 @@ def run(args: argparse.Namespace) -> int:
     print()
     print(detail)
     print(f"\n{len(outcomes)} runs in {time.perf_counter() - t0:.0f} s (seed {args.seed})")
+    unmade = [o.case.name for o in outcomes if o.message.startswith(GENERATOR_FAILED)]
+    if unmade:
+        print(f"{GENERATOR_FAILED}, scored as misses: {', '.join(unmade)}")
     if args.report:
         d = Path(args.report)
         paths = write_figures(sc, d)

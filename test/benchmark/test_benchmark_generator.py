@@ -18,7 +18,7 @@ from pmdc_ident.benchmark.cases import (
     sensor_vector,
 )
 from pmdc_ident.benchmark.motors import MOTORS
-from pmdc_ident.benchmark.runner import Outcome, write_recording
+from pmdc_ident.benchmark.runner import GENERATOR_FAILED, Outcome, run_one, write_recording
 from pmdc_ident.benchmark.scoring import right_tie_honest, score
 from pmdc_ident.benchmark.sensors import SensorSetup
 from pmdc_ident.benchmark.truth import EQUATIONS, VOCABULARY, TrueEffect, draw_effect
@@ -151,6 +151,20 @@ def test_a_power_law_brush_drop_is_stepped_by_the_slope_of_its_linear_stretch():
     assert pl.substeps_for(p, dt) == pl.substeps_for(as_tanh, dt) < 1000
     rec, _ = record(case, with_visibility=False)
     assert np.isfinite(rec.current).all()
+
+
+def test_a_run_the_generator_cannot_simulate_is_reported_and_scored_as_a_miss(
+    tmp_path, monkeypatch
+):
+    cases = build_cases(1, 1, 0, 0, seed=2, effects=("load_torque",), max_samples=4000)
+    monkeypatch.setattr(pl, "substeps_for", lambda p, dt: 10**6)  # "too stiff"
+    out = [run_one(c, str(tmp_path)) for c in cases]
+    assert [o.status for o in out] == ["error", "error"]
+    assert all(o.message.startswith(GENERATOR_FAILED) for o in out)
+    assert "sub-steps per sample" in out[0].message
+    sc = score(out)
+    assert len(sc.visible) == 1 and sc.tie_honest() == 0.0  # not dropped: a miss
+    assert sc.false_attribution == (0, 1)  # a clean run it could not make names nothing
 
 
 def _outcome(truth, effects, ties=(), kind="effect", vis=5.0, level=0):  # type: ignore[no-untyped-def]
