@@ -105,7 +105,14 @@ def _ready(c: SessionController, now: float, clock_offset_ns: int = 0) -> None:
     """The driver answered, samples arrive on time, the recorder receives them."""
     c.on_driver_parameters(DRIVER)
     c.on_recorder_status(json.dumps({"receiving": {"a": 1, "b": 1, "c": 1}}), now)
-    c.on_encoder(0, 0.0, 0.0, now, clock_offset_ns)
+    _samples(c, 0, now, clock_offset_ns)
+
+
+def _samples(c: SessionController, ns: int, now: float, clock_ns: int) -> None:
+    """One driver sample on each of its three topics (the encoder's last)."""
+    c.on_current(ns, 0.0)
+    c.on_voltage(ns, 0.0, math.nan)
+    c.on_encoder(ns, 0.0, 0.0, now, clock_ns)
 
 
 def test_start_up_waits_for_each_check_in_order_then_starts():
@@ -122,11 +129,19 @@ def test_start_up_waits_for_each_check_in_order_then_starts():
     c.on_driver_parameters(DRIVER)
     assert c.start_check(0.04) is StartCheck.SAMPLES
     c.on_encoder(0, 0.0, 0.0, 0.05, 0)
-    c.on_encoder(1_000_000, 0.0, 0.0, 0.06, 200_000_000)  # 0.2 s late: a backlog
+    c.on_encoder(600_000_000, 0.0, 0.0, 0.05, 600_000_000)
+    # the encoder's samples arrive, the current's and the voltage's not yet (their
+    # subscriptions not matched): this node would miss the session's first samples
+    assert c.start_check(0.05) is StartCheck.SAMPLES
+    c.on_current(600_000_000, 0.0)
+    assert c.start_check(0.05) is StartCheck.SAMPLES
+    c.on_voltage(600_000_000, 0.0, math.nan)
+    assert c.start_check(0.05) is not StartCheck.SAMPLES
+    c.on_encoder(601_000_000, 0.0, 0.0, 0.06, 801_000_000)  # 0.2 s late: a backlog
     assert c.start_check(0.06) is StartCheck.LATENCY
-    c.on_encoder(2_000_000, 0.0, 0.0, 0.07, 2_000_000)
+    c.on_encoder(602_000_000, 0.0, 0.0, 0.07, 602_000_000)
     assert c.start_check(0.07) is StartCheck.SETTLE  # on time, not yet for settle_s
-    c.on_encoder(3_000_000, 0.0, 0.0, 0.58, 3_000_000)
+    c.on_encoder(603_000_000, 0.0, 0.0, 0.58, 603_000_000)
     assert c.start_check(0.58) is StartCheck.RECORDER
     c.on_recorder_status(json.dumps({"receiving": {"a": 5, "b": 5}}), 0.58)
     assert c.start_check(0.58) is StartCheck.RECORDER  # not yet on all three topics
@@ -145,15 +160,19 @@ def test_start_up_waits_for_each_check_in_order_then_starts():
         (lambda c: None, "no driver node 'driver_node' answered within 20 s"),
         (lambda c: c.on_driver_parameters(DRIVER), "the driver sent no samples within 20 s"),
         (
+            lambda c: (c.on_driver_parameters(DRIVER), c.on_encoder(0, 0.0, 0.0, 19.9, 0)),
+            "no samples on current and voltage_applied within 20 s (encoder samples arrive)",
+        ),
+        (
             lambda c: (
                 c.on_driver_parameters(DRIVER),
-                c.on_encoder(0, 0.0, 0.0, 19.9, 0),
+                _samples(c, 0, 19.9, 0),
                 c.on_recorder_status("{}", 19.9),
             ),
             "the recorder received no driver samples within 20 s",
         ),
         (
-            lambda c: (c.on_driver_parameters(DRIVER), c.on_encoder(0, 0.0, 0.0, 19.9, 0)),
+            lambda c: (c.on_driver_parameters(DRIVER), _samples(c, 0, 19.9, 0)),
             "no recorder within 20 s",
         ),
     ],

@@ -169,10 +169,12 @@ class SessionController:
     # -- inputs: data --------------------------------------------------------------------
     def on_current(self, stamp_ns: int, current_a: float) -> None:
         self._last_current_a = current_a
+        self.peers.on_stamp("current", stamp_ns)
         if self.recording_samples:
             self.recording.current.append(stamp_ns, current_a)
 
     def on_voltage(self, stamp_ns: int, voltage_v: float, terminal_v: float) -> None:
+        self.peers.on_stamp("voltage_applied", stamp_ns)
         if self.recording_samples:
             self.recording.voltage.append(stamp_ns, voltage_v, terminal_v)
         elif self.confirmation.pending:
@@ -185,6 +187,7 @@ class SessionController:
     ) -> None:
         """A driver sample; ``now_ns`` is the host's wall clock (the latency's)."""
         self.peers.last_sample_s = now_s
+        self.peers.on_stamp("encoder", stamp_ns)
         self._last_stamp_ns = stamp_ns
         lag_ns = self.latency.update(stamp_ns, now_ns)
         if not self.recording_samples:

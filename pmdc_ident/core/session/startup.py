@@ -5,7 +5,12 @@ names what the node waits for, and becomes the refusal when ``driver_wait_s`` ru
 out):
 
 1. the driver answered: its limits (voltage, current, speed), motor and rate are read;
-2. its samples arrive (one within 0.5 s);
+2. its samples arrive (one within 0.5 s), on every topic this node records: the
+   current and the applied voltage as well as the encoder, each within 0.5 s of the
+   encoder's stamp (DDS matches each subscription on its own; on a loaded machine the
+   current's could match a quarter of a second after the encoder's, and the first
+   samples of the session would be missing from this node's record but not from the
+   bag);
 3. they arrive on time (latency below ``max_start_latency_s``) and have done so for
    ``settle_s`` (the other processes are done starting up, so the first commands are
    not late);
@@ -47,6 +52,7 @@ __all__ = [
 
 ABORT_FRACTION = 0.9  # default session aborts: this fraction of the driver's trip limits
 SAMPLES_STALE_S = 0.5  # no driver sample for this long: the driver is not streaming
+RECORDED_TOPICS = ("current", "voltage_applied", "encoder")  # the driver's data topics
 # read from the driver node before anything moves
 DRIVER_PARAMETERS = ("voltage_limit_v", "current_limit_a", "speed_limit_rad_s", "motor", "rate_hz")
 
@@ -82,6 +88,7 @@ class Peers:
     driver: dict[str, Any] | None = None  # the driver's parameters, once read
     driver_asked: bool = False  # a request for them is on its way
     last_sample_s: float = -math.inf  # the last driver sample arrived
+    stamps_ns: dict[str, int] = field(default_factory=dict)  # topic -> its last stamp
     settled_since_s: float = math.inf  # samples on time since
     recorder_seen_s: float = -math.inf  # the recorder's last heartbeat
     recorder_receiving: bool = False  # it has driver samples on every topic
@@ -121,11 +128,25 @@ class Peers:
         got = d.get("receiving") or {}
         self.recorder_receiving = len(got) == 3 and min(got.values()) >= 0
 
+    def on_stamp(self, topic: str, stamp_ns: int) -> None:
+        self.stamps_ns[topic] = stamp_ns
+
+    def silent_topics(self) -> list[str]:
+        """The data topics besides the encoder whose samples do not keep up with it."""
+        enc = self.stamps_ns.get("encoder")
+        if enc is None:
+            return []  # the encoder's own check comes first
+        return [
+            t
+            for t in RECORDED_TOPICS
+            if t != "encoder" and enc - self.stamps_ns.get(t, -(2**62)) > SAMPLES_STALE_S * 1e9
+        ]
+
     def start_check(self, now_s: float, latency_ns: int, rules: StartRules) -> StartCheck:
         """The first start-up check not met yet (see the module docs)."""
         if self.driver is None:
             return StartCheck.DRIVER
-        if now_s - self.last_sample_s > SAMPLES_STALE_S:
+        if now_s - self.last_sample_s > SAMPLES_STALE_S or self.silent_topics():
             return StartCheck.SAMPLES
         if latency_ns > rules.max_start_latency_s * 1e9:
             self.settled_since_s = math.inf  # still working through a backlog
@@ -150,6 +171,8 @@ class Peers:
             )
         if now_s - self.last_sample_s > SAMPLES_STALE_S:
             return f"the driver sent no samples within {waited}"
+        if silent := self.silent_topics():
+            return f"no samples on {' and '.join(silent)} within {waited} (encoder samples arrive)"
         if latency_ns > rules.max_start_latency_s * 1e9:
             return f"driver samples still arrive late after {waited}"
         if now_s - self.recorder_seen_s <= rules.peer_timeout_s:
