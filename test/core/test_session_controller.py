@@ -434,3 +434,29 @@ def test_exports_are_written_beside_the_results_and_a_failed_one_is_one_line(tmp
     assert said["files"] == [] and "speed bandwidth 400 Hz" in said["error"], said
     assert notes == [("warning", f"exports not written: {said['error']}")]
     assert not (tmp_path / "bad").exists()
+
+
+def test_a_backlog_drained_one_topic_first_is_judged_with_each_samples_own_current():
+    # a node held up by the host drains its encoder queue before its current queue:
+    # each encoder sample waits for the current of its stamp, so a locked rotor's
+    # stall is called stall_time_s after the current rose, not on a stale 0 A
+    ports = Ports()
+    c = SessionController(
+        _config(settle_s=0.0, **{"safety.stall_current_a": 5.0, "safety.stall_time_s": 0.2}),
+        ports,
+    )
+    c.start(autostart=True, now_s=0.0)
+    _ready(c, 0.0)
+    c.tick(0.02)
+    assert c.phase is Phase.RUNNING
+    stamps = [k * 1_000_000 for k in range(1, 400)]
+    for ns in stamps:  # the encoder's backlog first (all within CURRENT_WAIT_S)
+        c.on_encoder(ns, 0.0, 0.0, 0.05, ns)
+    assert c.session.abort_reason is None
+    for ns in stamps:  # then the current's: 12 A from the first sample on
+        c.on_current(ns, 12.0)
+        if c.session.abort_reason is not None:
+            break
+    assert c.session.abort_reason is AbortReason.STALL
+    (abort,) = [m for m in ports.markers if m["event"] == "abort"]
+    assert 0.2 <= abort["t_s"] < 0.21, abort  # 0.2 s after the first sample's 12 A

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import enum
 import json
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
@@ -61,6 +62,9 @@ PROGRESS_EVERY_S = 0.2
 DRIVER_GONE_S = 2.0  # flushing: no driver sample for this long, the rest will not come
 DRIVER_QUIET_S = 0.5  # stopped while idle: no driver sample for this long, it stopped too
 LATE_TICK_S = 0.1  # a timer this late means the node itself was held up
+# A driver sample waits this long (host clock) for its current: the node's executor
+# can drain a backlog of encoder samples before the current samples of the same stamps
+CURRENT_WAIT_S = 0.1
 LATE_TICK_GRACE_S = 0.05
 
 
@@ -107,6 +111,8 @@ class SessionController:
         self._prep_deadline_s = 0.0
         self._last_stamp_ns = 0
         self._last_current_a = 0.0
+        self._currents: deque[tuple[int, float]] = deque(maxlen=8192)  # (stamp, A)
+        self._held: deque[tuple[int, float, float]] = deque()  # (stamp, speed, arrived)
         self._last_tick_s: float | None = None
         self._suspect_until_s = 0.0
         self._last_progress_s = 0.0
@@ -168,10 +174,11 @@ class SessionController:
 
     # -- inputs: data --------------------------------------------------------------------
     def on_current(self, stamp_ns: int, current_a: float) -> None:
-        self._last_current_a = current_a
         self.peers.on_stamp("current", stamp_ns)
         if self.recording_samples:
             self.recording.current.append(stamp_ns, current_a)
+        self._currents.append((stamp_ns, current_a))
+        self._release(None)
 
     def on_voltage(self, stamp_ns: int, voltage_v: float, terminal_v: float) -> None:
         self.peers.on_stamp("voltage_applied", stamp_ns)
@@ -196,13 +203,37 @@ class SessionController:
         self.recording.latency.append(lag_ns)
         if self.phase is not Phase.RUNNING or self.session is None:
             return
-        s = self.session
         if lag_ns > self.config.session.data_timeout_s * 1e9:
             detail = f"driver samples arrive {lag_ns * 1e-9:.2f} s late: commands would be too"
+            s = self.session
+            self._held.clear()
             self._apply(s.abort(AbortReason.LOST_DRIVER_DATA, stamp_ns * 1e-9, detail), now_s)
             return
-        step = s.on_sample(stamp_ns * 1e-9, self._last_current_a, speed_rad_s, now_s)
-        self._apply(step, now_s)
+        self._held.append((stamp_ns, speed_rad_s, now_s))
+        self._release(now_s)
+
+    def _release(self, now_s: float | None) -> None:
+        """Step the session on each held encoder sample with the current of its stamp
+        (the newest at or before it), in stamp order, once that current has arrived: a
+        node held up by the host drains its queues one topic after another, and a stall
+        judged on a stale current would be judged late. A sample waits at most
+        :data:`CURRENT_WAIT_S`, and not at all from a driver that sends no current."""
+        held, cur = self._held, self._currents
+        while held and self.phase is Phase.RUNNING and self.session is not None:
+            stamp_ns, speed_rad_s, arrived_s = held[0]
+            waiting = cur and cur[-1][0] < stamp_ns
+            if waiting and (now_s is None or now_s - arrived_s < CURRENT_WAIT_S):
+                return
+            held.popleft()
+            while len(cur) > 1 and cur[1][0] <= stamp_ns:
+                cur.popleft()
+            if cur and cur[0][0] <= stamp_ns:
+                self._last_current_a = cur[0][1]
+            step = self.session.on_sample(
+                stamp_ns * 1e-9, self._last_current_a, speed_rad_s, arrived_s
+            )
+            self._apply(step, arrived_s)
+        held.clear()  # the session is over: nothing left to step
 
     def on_recorder_status(self, text: str, now_s: float) -> None:
         self.peers.on_recorder_status(text, now_s)
