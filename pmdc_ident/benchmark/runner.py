@@ -7,7 +7,6 @@ then, so the full benchmark uses the machine's cores without oversubscribing.
 
 from __future__ import annotations
 
-import math
 import os
 import resource
 import tempfile
@@ -80,9 +79,9 @@ def run_one(case: Case, directory: str, workers: int = 1) -> Outcome:
         rec, vis = record(case)
     except (ValueError, ArithmeticError) as exc:
         # the generator's failure, not the diagnosis': reported and scored as a miss
-        # (visible, named nothing) rather than ending the whole benchmark
-        missed = replace(case, visibility=math.inf) if case.effects else case
-        return Outcome(missed, "error", (), message=f"{GENERATOR_FAILED}: {exc}")
+        # (its visibility unmeasured, NaN, counts as visible; named nothing) rather
+        # than ending the whole benchmark
+        return Outcome(case, "error", (), message=f"{GENERATOR_FAILED}: {exc}")
     if vis is not None:
         case = replace(case, visibility=vis.residual, visibility_raw=vis.raw)
     path = write_recording(rec, Path(directory) / f"run_{case.seed:010d}.csv")

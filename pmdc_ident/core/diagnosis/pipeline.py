@@ -154,8 +154,6 @@ def _diagnose_split(
         del search.fixed["L"]
         slow_note = ""
         base = _baseline(search)
-    masks = regime_masks(split.held_out, base.fit.model.params.mechanical_time_constant_s)
-    loc = localize(split.held_out, base.res, masks)
     scoring = Scoring.for_baseline(base, cfg.thresholds)
     if second_look and scoring.g0 <= scoring.penalty:
         search.say(
@@ -163,6 +161,8 @@ def _diagnose_split(
             "no effect can be named"
         )
         raise _NothingToNameError
+    masks = regime_masks(split.held_out, base.fit.model.params.mechanical_time_constant_s)
+    loc = localize(split.held_out, base.res, masks)
     untestable, singles = _single_candidates(search, base, loc, scoring)
     choice = choose(search, scoring, base, singles)
     verdict = _verdict(choice, scoring, search.dt_s)

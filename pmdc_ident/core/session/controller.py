@@ -109,7 +109,6 @@ class SessionController:
         self._stop_requested: AbortReason | None = None
         self.peers = Peers()  # what is known of the driver and the recorder
         self._prep_deadline_s = 0.0
-        self._last_stamp_ns = 0
         self._last_current_a = 0.0
         self._currents: deque[tuple[int, float]] = deque(maxlen=8192)  # (stamp, A)
         self._held: deque[tuple[int, float, float]] = deque()  # (stamp, speed, arrived)
@@ -195,7 +194,6 @@ class SessionController:
         """A driver sample; ``now_ns`` is the host's wall clock (the latency's)."""
         self.peers.last_sample_s = now_s
         self.peers.on_stamp("encoder", stamp_ns)
-        self._last_stamp_ns = stamp_ns
         lag_ns = self.latency.update(stamp_ns, now_ns)
         if not self.recording_samples:
             return
@@ -437,7 +435,7 @@ class SessionController:
             )
             self._stopped_idle = not cut_short
             self._publish_status("stopped", reason=reason.value)
-            self.confirmation.start(self._last_stamp_ns, now_s)
+            self.confirmation.start(self.peers.stamps_ns.get("encoder", 0), now_s)
         self.finished = True
         if cut_short:
             self.exit_code = EXIT_INTERRUPTED
