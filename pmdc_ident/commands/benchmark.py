@@ -72,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from pmdc_ident.benchmark.truth import VOCABULARY
     from pmdc_ident.commands.outputs import check_file_output, check_folder_output
     from pmdc_ident.core.errors import ParameterError
+    from pmdc_ident.core.safe_write import write_text
 
     n = _counts(args)
     # checked before the (long) run, not after it
@@ -126,10 +127,10 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         d = Path(args.report)
         paths = write_figures(sc, d)
-        (d / "benchmark.md").write_text(f"{table}\n\n```\n{confusion}\n```\n\n{detail}\n")
+        write_text(d / "benchmark.md", f"{table}\n\n```\n{confusion}\n```\n\n{detail}\n")
         print("report: " + ", ".join(str(p) for p in [*paths, d / "benchmark.md"]))
     if args.json:
-        Path(args.json).write_text(json.dumps(_json(outcomes), indent=1) + "\n")
+        write_text(args.json, json.dumps(_json(outcomes), indent=1) + "\n")
     return 0
 
 

@@ -97,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
         return run_batch(args, __name__, batch_table, forbidden=("--json", "--report"))
     targets = {
         "--json": check_file_output("--json", args.json, args.data, suffixes=(".json",)),
-        "--report": check_folder_output("--report", args.report, args.data),
+        "--report": check_folder_output(
+            "--report", args.report, args.data, writes=("index.html", "diagnosis.json")
+        ),
     }
     check_distinct(targets)
     check_inputs_distinct(args.data)
@@ -122,9 +124,9 @@ def run(args: argparse.Namespace) -> int:
         if json_to == STDOUT:
             print(document, end="")
         else:
-            path = Path(json_to)
-            path.write_text(document)
-            written.append(path)
+            from pmdc_ident.core.safe_write import write_text
+
+            written.append(write_text(json_to, document))
     if report_to is not None:
         from pmdc_ident.report.diagnosis_html import write_diagnosis_report
 

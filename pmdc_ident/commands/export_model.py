@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.safe_write import write_text
 
 HELP = (
     "write an identified motor as MuJoCo MJCF (--mujoco), URDF (--urdf), ros2_control "
@@ -80,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     if args.urdf:
         from pmdc_ident.exports.urdf import urdf_xml
 
-        Path(args.urdf).write_text(urdf_xml(spec, reduction=args.reduction, joint=args.joint))
+        write_text(args.urdf, urdf_xml(spec, reduction=args.reduction, joint=args.joint))
         print(f"{args.urdf}: URDF joint '{args.joint}' (reduction {args.reduction:g})")
     if args.gains or args.ros2_control:
         return _gains(args, spec)
@@ -129,7 +130,7 @@ def _gains(args: argparse.Namespace, spec: object) -> int:
         from pmdc_ident.exports.urdf import ros2_control_yaml
 
         text = ros2_control_yaml(spec, design, reduction=args.reduction, joint=args.joint)
-        Path(args.ros2_control).write_text(text)
+        write_text(args.ros2_control, text)
         print(f"{args.ros2_control}: ros2_control parameters for '{args.joint}'")
     pr = design.promised
     print(
@@ -169,7 +170,7 @@ def _gains(args: argparse.Namespace, spec: object) -> int:
             for c in checks
         ]
         header = f"# Cascade PI gains written by pmdc-ident export-model for '{spec.name}'.\n"
-        Path(args.gains).write_text(header + yaml.safe_dump(data, sort_keys=False))
+        write_text(args.gains, header + yaml.safe_dump(data, sort_keys=False))
         print(f"{args.gains}: gains and closed-loop checks")
     return 0 if all(c.ok for c in checks) else 1
 

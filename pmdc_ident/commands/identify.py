@@ -146,7 +146,9 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path | str | None]:
     targets: dict[str, Path | str | None] = {
         "--json": check_file_output("--json", args.json, inputs, suffixes=(".json",)),
         "--yaml": check_file_output("--yaml", args.yaml, inputs, suffixes=(".yaml", ".yml")),
-        "--report": check_folder_output("--report", args.report, inputs),
+        "--report": check_folder_output(
+            "--report", args.report, inputs, writes=("identify.json", "identified_motor.yaml")
+        ),
     }
     check_distinct(targets)
     check_inputs_distinct(args.data)
@@ -154,10 +156,9 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path | str | None]:
 
 
 def _write(path: Path | str, text: str) -> Path:
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text(text)
-    return p
+    from pmdc_ident.core.safe_write import write_text
+
+    return write_text(path, text)
 
 
 def run(args: argparse.Namespace) -> int:

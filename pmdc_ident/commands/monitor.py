@@ -15,6 +15,9 @@ from typing import Any
 
 from pmdc_ident.core.errors import DataError
 
+# what --report DIR writes
+REPORT_FILES = ("drift.csv", "drift.png")
+
 HELP = "replay a bag or CSV through the drift monitor: R, temperature, Ke, friction, delay"
 
 
@@ -58,7 +61,9 @@ def run(args: argparse.Namespace) -> int:
     from pmdc_ident.core.motors import load_motor
     from pmdc_ident.dataio import load_data
 
-    args.report = check_folder_output("--report", args.report, [args.data, args.params])
+    args.report = check_folder_output(
+        "--report", args.report, [args.data, args.params], writes=REPORT_FILES
+    )
 
     spec = load_motor(args.params)
     data = load_data(args.data)
@@ -144,7 +149,10 @@ def _write_report(out: Path, reports: list) -> None:
             row += [q.value, q.ci95]
         rows.append(row)
     arr = np.array(rows)
-    np.savetxt(out / "drift.csv", arr, delimiter=",", header=",".join(header), comments="")
+    from pmdc_ident.core.safe_write import atomic_path, save_figure
+
+    with atomic_path(out / "drift.csv") as tmp:
+        np.savetxt(tmp, arr, delimiter=",", header=",".join(header), comments="")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -165,5 +173,5 @@ def _write_report(out: Path, reports: list) -> None:
     axes[-1].set_yticks([0, 1, 2], ["OK", "WARN", "ERROR"])
     axes[-1].set_xlabel("t s")
     fig.tight_layout()
-    fig.savefig(out / "drift.png", dpi=90)
+    save_figure(fig, out / "drift.png", dpi=90)
     plt.close(fig)

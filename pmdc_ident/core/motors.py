@@ -124,6 +124,10 @@ def load_motor(name_or_path: str | Path) -> MotorSpec:
     elif not path.is_file():
         msg = f"no motor file {text!r} (built-in motors: {', '.join(BUILTIN_MOTORS)})"
         raise ParameterError(msg)
+    else:
+        from pmdc_ident.core.safe_write import protect
+
+        protect([path], "the motor file")  # never an output of the command reading it
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError:

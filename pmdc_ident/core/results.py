@@ -174,10 +174,9 @@ class IdentificationResult:
         )
 
     def write_json(self, path: str | Path) -> Path:
-        p = Path(path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(self.to_json_dict(), indent=2, allow_nan=False) + "\n")
-        return p
+        from pmdc_ident.core.safe_write import write_text
+
+        return write_text(path, json.dumps(self.to_json_dict(), indent=2, allow_nan=False) + "\n")
 
     def motor_spec(self, name: str = "identified") -> MotorSpec:
         sensors = SensorSpec(
@@ -194,11 +193,11 @@ class IdentificationResult:
         )
 
     def write_motor_yaml(self, path: str | Path, name: str | None = None) -> Path:
+        from pmdc_ident.core.safe_write import write_text
+
         p = Path(path)
-        p.parent.mkdir(parents=True, exist_ok=True)
         header = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
-        p.write_text(header + motor_to_yaml(self.motor_spec(name or p.stem)))
-        return p
+        return write_text(p, header + motor_to_yaml(self.motor_spec(name or p.stem)))
 
 
 def _jsonable(obj: Any) -> Any:

@@ -21,10 +21,13 @@ def load_data(
     ``columns`` and ``scale`` (CSV only, see :func:`~pmdc_ident.dataio.csvio.read_csv`)
     map schema names to the file's own headers and multiply columns to SI.
     """
+    from pmdc_ident.core.safe_write import protect
+
     p = Path(path)
     if not p.exists():
         msg = f"{p}: no such file or directory"
         raise DataError(msg)
+    protect([p])  # what a command reads, it never writes (core.safe_write)
     if p.is_dir() or p.suffix.lower() == ".mcap":
         if columns or scale:
             msg = f"{p}: --column and unit scales apply to CSV files only (a bag is in SI)"

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TextIO
@@ -48,7 +49,7 @@ import numpy as np
 from pmdc_ident.core.data import Run, Segment, link_history
 from pmdc_ident.core.errors import DataError
 
-__all__ = ["CSV_COLUMNS", "read_csv", "write_csv"]
+__all__ = ["CSV_COLUMNS", "parse_number", "read_csv", "write_csv"]
 
 CSV_COLUMNS: tuple[str, ...] = (
     "t",
@@ -60,6 +61,21 @@ CSV_COLUMNS: tuple[str, ...] = (
     "segment",
 )
 _NUMERIC = ("t", "voltage", "current", "position", "speed", "terminal_voltage")
+# A number as loggers write one, and nothing else: ASCII digits, one point, an
+# exponent (nan/inf are recognised to be refused with their own message). Python's
+# float() also takes "1_000" and other scripts' digits: a cell written so is a
+# typing slip or another locale, never a measurement to read as 1000.
+_NUMBER = re.compile(
+    r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|[+-]?(?:nan|inf|infinity)",
+    re.IGNORECASE | re.ASCII,
+)
+
+
+def parse_number(cell: str) -> float:
+    """``cell`` (stripped) as a float, read strictly (:data:`_NUMBER`); ValueError else."""
+    if _NUMBER.fullmatch(cell) is None:
+        raise ValueError(cell)
+    return float(cell)
 
 
 def read_csv(
@@ -75,7 +91,10 @@ def read_csv(
     multiplies a column by a factor to SI before the run is built (the unit
     layer :mod:`pmdc_ident.dataio.units` computes it).
     """
+    from pmdc_ident.core.safe_write import protect
+
     p = Path(path)
+    protect([p])  # what a command reads, it never writes (core.safe_write)
     text = _text(p)
     table = _fast_table(p, text, columns or {})
     if table is None:  # anything odd: row by row, every error naming the file's line
@@ -188,7 +207,7 @@ def _voltage_cell(cell: str) -> float:
     """An empty voltage cell is an open armature (NaN); a written NaN or inf is not plain."""
     if not cell.strip():
         return math.nan
-    value = float(cell)
+    value = parse_number(cell.strip())
     if not math.isfinite(value):
         raise ValueError(cell)
     return value
@@ -286,9 +305,12 @@ def _column(p: Path, body: list[list[str]], where: Sequence[int], name: str, k: 
             msg = f"{p}: line {where[i]}: empty '{name}' cell (only voltage may be empty)"
             raise DataError(msg)
         try:
-            value = float(cell)
+            value = parse_number(cell)
         except ValueError:
-            msg = f"{p}: line {where[i]}: '{name}' is not a number: {cell[:20]!r}"
+            hint = ""
+            if "_" in cell or "," in cell:
+                hint = " (digits, one point and an exponent only: no digit separators)"
+            msg = f"{p}: line {where[i]}: '{name}' is not a number: {cell[:20]!r}{hint}"
             raise DataError(msg) from None
         if not math.isfinite(value):
             hint = " (leave the voltage cell empty to mark an open armature)" * (name == "voltage")
@@ -364,8 +386,10 @@ def write_csv(run: Run | Iterable[Segment], path: str | Path | TextIO) -> Path |
     if not isinstance(path, (str, Path)):
         _write_rows(path, names, segs)
         return path
+    from pmdc_ident.core.safe_write import atomic_open
+
     p = Path(path)
-    with p.open("w", newline="") as fh:
+    with atomic_open(p, "w", newline="") as fh:  # complete under its name, or not there
         _write_rows(fh, names, segs)
     return p
 

@@ -30,6 +30,7 @@ from pmdc_ident.core.data import Run
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.motors import MotorSpec, motor_to_yaml
+from pmdc_ident.core.safe_write import write_text
 from pmdc_ident.core.session.ports import ExportRequest, IdentificationJob, IdentificationOutcome
 from pmdc_ident.core.session.recording import SessionSamples
 from pmdc_ident.dataio.bagio import DriverArrays, assemble_run
@@ -153,8 +154,8 @@ def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
         if job.exports is not None:
             made = write_session_exports(result.spec, job.output_dir, job.exports, notes)
             result = result.with_entry("exports", made)
-        (job.output_dir / "parameters.json").write_text(result.json_text)
-        (job.output_dir / "parameters.yaml").write_text(result.yaml_text)
+        write_text(job.output_dir / "parameters.json", result.json_text)
+        write_text(job.output_dir / "parameters.yaml", result.yaml_text)
     except PmdcError as exc:
         return IdentificationOutcome(error=str(exc), exit_code=2, notes=tuple(notes))
     except Exception as exc:  # noqa: BLE001 - report in one line, keep the node alive
