@@ -170,14 +170,17 @@ def check_magnitudes(
     has_position = any(s.position is not None for s in dyn)
     w_max = float(w.max())
     if "speed" not in declared and not has_position and w_max > 3000.0:
+        # an error like the current and voltage magnitudes (a speed 9.5x or 57x too high
+        # gave Ke -90 % / -98 %); rpm and deg/s both fit and nothing here tells them apart
         out.append(
             Finding(
                 "speed-unit",
-                Severity.WARNING,
+                Severity.ERROR,
                 where,
-                f"speed reaches {w_max:.5g} rad/s ({w_max * 30 / math.pi:.3g} rpm): rpm? (no "
-                "position column to check it against; --speed-unit rad/s keeps it)",
-                "--speed-unit rpm",
+                f"speed reaches {w_max:.5g} rad/s ({w_max * 30 / math.pi:.3g} rpm): beyond "
+                "any motor in rad/s; without a position column the data cannot tell rpm "
+                "from deg/s (pass --speed-unit rad/s if it really is rad/s)",
+                "--speed-unit rpm or --speed-unit deg/s (whichever the logger wrote)",
                 value=w_max,
                 unit="rad/s",
             )
