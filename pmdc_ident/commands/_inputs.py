@@ -11,6 +11,7 @@ import argparse
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 if TYPE_CHECKING:
@@ -94,6 +95,13 @@ def add_gate_arguments(parser: argparse.ArgumentParser) -> None:
         "plateaus, coasts, sweeps and PRBS stretches are found and labelled)",
     )
     parser.add_argument(
+        "--drop-outliers",
+        action="store_true",
+        help="leave out the isolated outliers the gate finds (one- or two-sample glitches "
+        "far outside a signal's range; listed with their lines): the fit steps over them "
+        "as over gaps (default: they are an error)",
+    )
+    parser.add_argument(
         "--ignore",
         action="append",
         default=[],
@@ -104,11 +112,120 @@ def add_gate_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def load_inputs(args: argparse.Namespace) -> list[LoadedInput]:
-    """Every DATA argument in SI units (command-line keys over each file's sidecar)."""
+    """Every DATA argument in SI units (command-line keys over each file's sidecar).
+
+    A recording that is not whole (an interrupted session, a truncated bag, segments
+    cut short, a topic at another rate) carries what was left out in its notes, so
+    the gate, the progress lines and the JSON (:func:`input_json`) say so."""
+    from dataclasses import replace
+
+    from pmdc_ident.dataio.outliers import drop_outliers, find_outliers
     from pmdc_ident.dataio.units import load_input, spec_from_args
 
     spec = spec_from_args(args)
-    return [load_input(p, spec) for p in args.data]
+    drop = bool(getattr(args, "drop_outliers", False))
+    out = []
+    for p in args.data:
+        x = load_input(p, spec)
+        state = recording_of(x.path)
+        if state is not None:
+            lines = state.lines(truncation=False)
+            x = replace(x, notes=(*x.notes, *(s.removeprefix(f"{state.source}: ") for s in lines)))
+        found = find_outliers(x.run)
+        _OUTLIERS[x.path] = (found, drop)
+        if found and drop:
+            x = replace(x, run=drop_outliers(x.run, found))
+        out.append(x)
+    return out
+
+
+# DATA path -> (isolated outliers found, left out?) of the inputs loaded last
+_OUTLIERS: dict[str, tuple[list[Any], bool]] = {}
+
+
+def _csv_lines(path: str, rows: list[int]) -> dict[int, int]:
+    """The file line of each data row (0-based, comments and blank lines skipped)."""
+    wanted = set(rows)
+    out: dict[int, int] = {}
+    row = -1  # the header is row -1
+    try:
+        with open(path, encoding="utf-8-sig") as fh:
+            for line_no, line in enumerate(fh, start=1):
+                if not line.strip() or line.lstrip().startswith("#"):
+                    continue
+                if row in wanted:
+                    out[row] = line_no
+                    if len(out) == len(wanted):
+                        break
+                row += 1
+    except (OSError, UnicodeDecodeError):
+        return {}
+    return out
+
+
+def outlier_findings(inputs: list[LoadedInput]) -> list[Any]:
+    """The ``outlier`` findings of the loaded inputs: an error per signal (the lines and
+    values), or a warning saying they were left out (``--drop-outliers``)."""
+    from pmdc_ident.core.quality.findings import Finding, Severity
+
+    findings = []
+    for x in inputs:
+        found, dropped = _OUTLIERS.get(x.path, ([], False))
+        if not found:
+            continue
+        is_csv = not (x.path.endswith(".mcap") or Path(x.path).is_dir())
+        lines = _csv_lines(x.path, [o.row for o in found]) if is_csv else {}
+        by_signal: dict[str, list[Any]] = {}
+        for o in found:
+            by_signal.setdefault(o.signal, []).append(o)
+        for signal, items in by_signal.items():
+            shown = "; ".join(o.describe(lines.get(o.row)) for o in items[:4])
+            more = f"; and {len(items) - 4} more" if len(items) > 4 else ""
+            if dropped:
+                findings.append(
+                    Finding(
+                        "outlier",
+                        Severity.WARNING,
+                        x.path,
+                        f"{len(items)} isolated {signal} outlier(s) left out (--drop-outliers), "
+                        f"the fit steps over them as gaps: {shown}{more}",
+                        value=float(len(items)),
+                    )
+                )
+                continue
+            findings.append(
+                Finding(
+                    "outlier",
+                    Severity.ERROR,
+                    x.path,
+                    f"{len(items)} isolated {signal} outlier(s), far outside the signal's own "
+                    f"range for one or two samples (a glitch or a mistyped cell the fit would "
+                    f"read as physics): {shown}{more}",
+                    "correct those cells, or --drop-outliers to fit around them",
+                    value=float(len(items)),
+                )
+            )
+    return findings
+
+
+def recording_of(path: str) -> Any:
+    """The bag reader's :class:`~pmdc_ident.dataio.bagio.RecordingState` of ``path``, or
+    None (a CSV; the bag module is not even imported then)."""
+    bagio = sys.modules.get("pmdc_ident.dataio.bagio")
+    return None if bagio is None else bagio.recording_state(path)
+
+
+def show_incomplete(inputs: list[LoadedInput], show: Callable[[str], None]) -> None:
+    """One line per way a recording is not whole (and per topic joined at another
+    rate), in the command's report."""
+    for x in inputs:
+        state = recording_of(x.path)
+        if state is None:
+            continue
+        joined = [f"{state.source}: {j}" for j in state.join]
+        for line in state.lines():
+            whole = state.complete or line in joined
+            show(f"recording{'' if whole else ' incomplete'}: {line}")
 
 
 def segment_inputs(
@@ -144,13 +261,19 @@ def quality(
 ) -> QualityReport:
     """The gate's findings on ``inputs`` (``--ignore CODE`` errors turned into warnings);
     ``fixed`` parameters are left out of the expected uncertainties."""
-    from pmdc_ident.core.quality import GateInput, check_inputs
+    from pmdc_ident.core.quality import GateInput, QualityReport, check_inputs
 
-    return check_inputs(
+    ignore = getattr(args, "ignore", []) or []
+    report = check_inputs(
         [GateInput(x.path, x.run, x.spec.declared(), x.notes) for x in inputs],
         fixed=fixed,
-        ignore=getattr(args, "ignore", []) or [],
+        ignore=ignore,
     )
+    extra = outlier_findings(inputs)
+    if not extra:
+        return report
+    merged = QualityReport.of([*extra, *report.findings], report.expected_rsd)
+    return merged.downgraded(ignore)
 
 
 def show_quality(
@@ -228,6 +351,7 @@ def prepare_inputs(
     for x in inputs:
         for note in x.notes:
             progress(f"{x.path}: {note}")
+    show_incomplete(inputs, show)
     report = gate(args, inputs, show=show, fixed=fixed)
     return segment_inputs(args, inputs, show=show), report, progress
 
@@ -257,8 +381,15 @@ def load_side(values: dict[str, float], inputs: list[LoadedInput]) -> dict[str, 
 
 
 def input_json(inputs: list[LoadedInput], report: QualityReport) -> dict[str, Any]:
-    """The ``quality`` and ``inputs`` (units applied per file) keys of a command's JSON."""
+    """The ``quality``, ``inputs`` (units applied per file) and ``recording`` keys of a
+    command's JSON. ``recording`` says, per bag, whether it is whole: an interrupted
+    session, a truncated file, the segments left out (``complete`` false); and
+    ``recording_complete`` whether every input is."""
+    states = {x.path: recording_of(x.path) for x in inputs}
+    recording = {p: s.to_json() for p, s in states.items() if s is not None}
     return {
         "quality": report.to_json(),
         "inputs": {x.path: {"units": x.spec.to_json(), "notes": list(x.notes)} for x in inputs},
+        "recording": recording,
+        "recording_complete": all(r["complete"] for r in recording.values()),
     }

@@ -9,15 +9,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 from pmdc_ident.commands._inputs import (
     add_gate_arguments,
     add_unit_arguments,
     check_ignore,
+    input_json,
     load_inputs,
     quality,
     segment_inputs,
+    show_incomplete,
     show_quality,
     stop_on_errors,
 )
@@ -52,16 +53,19 @@ def run(args: argparse.Namespace) -> int:
     check_ignore(args)
     fixed = parse_fix(args.fix)
     inputs = load_inputs(args)
+    show_incomplete(inputs, lambda line: print(line, file=text_out))
     report = quality(args, inputs, fixed)
     show_quality(report, info=True, show=lambda line: print(line, file=text_out))
     segment_inputs(args, inputs, show=lambda line: print(line, file=text_out))
     if json_to is not None:
-        body = {"sources": [x.path for x in inputs], "quality": report.to_json()}
+        body = {"sources": [x.path for x in inputs], **input_json(inputs, report)}
         document = json.dumps(body, indent=2, allow_nan=False) + "\n"
         if json_to == STDOUT:
             print(document, end="")
         else:
-            Path(json_to).write_text(document)
+            from pmdc_ident.core.safe_write import write_text
+
+            write_text(json_to, document)
             print(f"wrote {json_to}", file=text_out)
     stop_on_errors(report)
     print(f"ok: no errors, {len(report.warnings)} warning(s)", file=text_out)
