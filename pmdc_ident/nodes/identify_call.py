@@ -312,6 +312,10 @@ def _serve(conn: Any, nominal: MotorSpec | None) -> None:
     # Ctrl-C reaches the whole process group: the node decides (it terminates this
     # process with SIGTERM when it stops), so no KeyboardInterrupt traceback here.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # and it never outlives the node (killed with -9, its fit would run on for seconds)
+    from pmdc_ident.core.workers import die_with_parent
+
+    die_with_parent(signal.SIGKILL)
     fit_nice = _normal_priority()  # the fit is batch work: never at real-time priority
     if nominal is not None:
         cpu0 = time.process_time()
