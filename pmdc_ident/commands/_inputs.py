@@ -95,6 +95,14 @@ def add_gate_arguments(parser: argparse.ArgumentParser) -> None:
         "plateaus, coasts, sweeps and PRBS stretches are found and labelled)",
     )
     parser.add_argument(
+        "--all-samples",
+        action="store_true",
+        help=f"fit and check every sample of a long record (default: above {LONG_SAMPLES} "
+        "samples the physics checks and the fit use a representative subset of its "
+        "segments, every kind spread over the record; timing, units, clipping and outliers "
+        "are checked on every sample)",
+    )
+    parser.add_argument(
         "--drop-outliers",
         action="store_true",
         help="leave out the isolated outliers the gate finds (one- or two-sample glitches "
@@ -111,7 +119,33 @@ def add_gate_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def load_inputs(args: argparse.Namespace) -> list[LoadedInput]:
+def data_megabytes(args: argparse.Namespace) -> float:
+    """The size of the DATA files (a bag folder's files included), MB."""
+    total = 0
+    for p in map(Path, args.data):
+        try:
+            files = [p] if p.is_file() else [f for f in p.rglob("*") if f.is_file()]
+            total += sum(f.stat().st_size for f in files)
+        except OSError:
+            continue
+    return total / 1e6
+
+
+def make_progress(args: argparse.Namespace, *, quiet: bool = False) -> Callable[[str], None]:
+    """Timed progress lines on stderr (``[  1.2 s] ...``), nothing with ``--quiet``."""
+    t0 = time.perf_counter()
+    silent = quiet or getattr(args, "quiet", False)
+
+    def progress(msg: str) -> None:
+        if not silent:
+            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    return progress
+
+
+def load_inputs(
+    args: argparse.Namespace, progress: Callable[[str], None] | None = None
+) -> list[LoadedInput]:
     """Every DATA argument in SI units (command-line keys over each file's sidecar).
 
     A recording that is not whole (an interrupted session, a truncated bag, segments
@@ -126,6 +160,12 @@ def load_inputs(args: argparse.Namespace) -> list[LoadedInput]:
     drop = bool(getattr(args, "drop_outliers", False))
     out = []
     for p in args.data:
+        if progress is not None:
+            try:
+                size = f" ({Path(p).stat().st_size / 1e6:.3g} MB)" if Path(p).is_file() else ""
+            except OSError:
+                size = ""
+            progress(f"reading {p}{size}")
         x = load_input(p, spec)
         state = recording_of(x.path)
         if state is not None:
@@ -247,10 +287,163 @@ def segment_inputs(
             run, lines = x.run, []
         if lines:
             show(f"segments found in {x.path} (no segment column; --no-auto-segments keeps one):")
-            for line in lines:
+            for line in lines[:MAX_SEGMENT_LINES]:
                 show(f"  {line}")
+            if len(lines) > MAX_SEGMENT_LINES:
+                kinds = _kind_counts([s.label for s in run.segments])
+                show(f"  ... and {len(lines) - MAX_SEGMENT_LINES} more; in all {kinds}")
             x = replace(x, run=run, notes=(*x.notes, f"segments found: {len(lines)}"))
         out.append(x)
+    return out
+
+
+MAX_SEGMENT_LINES = 40  # segments listed one per line; the rest counted by kind
+
+
+def _kind(label: str) -> str:
+    head, _, tail = label.rpartition("_")
+    return head if head and tail.isdigit() else label
+
+
+def _kind_counts(labels: list[str]) -> str:
+    counts: dict[str, int] = {}
+    for label in labels:
+        counts[_kind(label)] = counts.get(_kind(label), 0) + 1
+    return ", ".join(f"{n} {k}" for k, n in counts.items())
+
+
+# -- long records ------------------------------------------------------------------
+# Above this many samples (about 4 minutes at 1 kHz) the physics checks of the gate and
+# the fit use a representative subset of the record's segments (--all-samples: all).
+LONG_SAMPLES = 250_000
+# codes of the checks that run on every sample of a long record (cheap, linear)
+WHOLE_RECORD_CODES = frozenset(
+    {
+        "sample-period",
+        "jitter",
+        "gaps",
+        "voltage-unit",
+        "current-unit",
+        "speed-unit",
+        "clipping",
+        "current-missing",
+        "voltage-missing",
+    }
+)
+
+
+def is_long(args: argparse.Namespace, inputs: list[LoadedInput]) -> bool:
+    """A record too long to fit whole by default (and no --all-samples)."""
+    if getattr(args, "all_samples", False):
+        return False
+    return any(sum(s.n for s in x.run.segments) > LONG_SAMPLES for x in inputs)
+
+
+def _spread(n: int) -> list[int]:
+    """0..n-1 in an order that spreads every prefix over the range (first, last, middle,
+    quarters, ...)."""
+    if n <= 0:
+        return []
+    order: list[int] = [0] + ([n - 1] if n > 1 else [])
+    seen = set(order)
+    step = n
+    while len(order) < n:
+        step = max(1, step // 2)
+        for k in range(step // 2 if step > 1 else 0, n, step):
+            if k not in seen:
+                seen.add(k)
+                order.append(k)
+    return order
+
+
+def representative(
+    x: LoadedInput, budget: int = LONG_SAMPLES, keep: tuple[str, ...] = ()
+) -> tuple[LoadedInput, str]:
+    """A subset of ``x``'s segments of at most ``budget`` samples: every kind of segment
+    (step_up, sweep, coast, ...), each kind's segments taken spread over the record
+    (first, last, middle, ...), in record order; ``keep`` labels always. A record that is
+    one long segment gives evenly spaced windows (each fitted from its own initial
+    state). Returns the input and one line saying what was taken (``''``: all of it)."""
+    from dataclasses import replace
+
+    from pmdc_ident.core.data import Run
+
+    segs = list(x.run.segments)
+    total = sum(s.n for s in segs)
+    if total <= budget:
+        return x, ""
+    if len(segs) == 1:
+        seg = segs[0]
+        windows = 8
+        width = budget // windows
+        starts = [round(k * (seg.n - width) / (windows - 1)) for k in range(windows)]
+        chosen = [
+            seg.slice(a, a + width, label=f"{seg.label}.{k + 1}") for k, a in enumerate(starts)
+        ]
+    else:
+        by_kind: dict[str, list[int]] = {}
+        for k, s in enumerate(segs):
+            by_kind.setdefault(_kind(s.label), []).append(k)
+        queues = {kind: [idx[j] for j in _spread(len(idx))] for kind, idx in by_kind.items()}
+        picked = {k for k, s in enumerate(segs) if s.label in keep}
+        used = sum(segs[k].n for k in picked)
+        progress = True
+        while progress:
+            progress = False
+            for q in queues.values():
+                while q and q[0] in picked:
+                    q.pop(0)
+                if not q:
+                    continue
+                k = q[0]
+                first_of_kind = not any(j in picked for j in by_kind[_kind(segs[k].label)])
+                if used + segs[k].n <= budget or first_of_kind:
+                    picked.add(q.pop(0))
+                    used += segs[k].n
+                    progress = True
+        chosen = [segs[k] for k in sorted(picked)]
+    n = sum(s.n for s in chosen)
+    line = (
+        f"long record: {total} samples in {len(segs)} segment(s); the physics checks and the "
+        f"fit use a representative {n} samples ({len(chosen)} segments: "
+        f"{_kind_counts([s.label for s in chosen])}, spread over the record); timing, units, "
+        "clipping, outliers and completeness are checked on every sample (--all-samples "
+        "uses all of them)"
+    )
+    run = Run(tuple(chosen), source=x.run.source)
+    return replace(x, run=run, notes=(*x.notes, line)), line
+
+
+def _whole_record_findings(inputs: list[LoadedInput]) -> list[Any]:
+    """The cheap checks of :data:`WHOLE_RECORD_CODES` on every sample of ``inputs``."""
+    from pmdc_ident.core.quality.findings import Finding, Severity
+    from pmdc_ident.core.quality.scales import check_magnitudes
+    from pmdc_ident.core.quality.signals import check_clipping, check_columns
+    from pmdc_ident.core.quality.timing import check_timing
+
+    out: list[Any] = []
+    for x in inputs:
+        segs = x.run.segments
+        declared = x.spec.declared()
+        for check, extra in (
+            (check_timing, ()),
+            (check_columns, ()),
+            (check_magnitudes, (declared,)),
+            (check_clipping, ()),
+        ):
+            try:
+                found = check(x.path, segs, *extra)  # type: ignore[operator]
+                out += [f for f in found if f.code in WHOLE_RECORD_CODES]
+            except (ArithmeticError, ValueError, IndexError) as exc:
+                out.append(
+                    Finding(
+                        "check-failed",
+                        Severity.WARNING,
+                        x.path,
+                        f"a check could not run on these data ({type(exc).__name__}); "
+                        "the others did",
+                    )
+                )
     return out
 
 
@@ -258,9 +451,12 @@ def quality(
     args: argparse.Namespace,
     inputs: list[LoadedInput],
     fixed: dict[str, float] | None = None,
+    whole: list[LoadedInput] | None = None,
 ) -> QualityReport:
     """The gate's findings on ``inputs`` (``--ignore CODE`` errors turned into warnings);
-    ``fixed`` parameters are left out of the expected uncertainties."""
+    ``fixed`` parameters are left out of the expected uncertainties. ``whole``: the full
+    records of which ``inputs`` are representative subsets (a long record): the checks
+    of :data:`WHOLE_RECORD_CODES` and the outliers then come from every sample."""
     from pmdc_ident.core.quality import GateInput, QualityReport, check_inputs
 
     ignore = getattr(args, "ignore", []) or []
@@ -269,10 +465,14 @@ def quality(
         fixed=fixed,
         ignore=ignore,
     )
-    extra = outlier_findings(inputs)
-    if not extra:
+    findings = list(report.findings)
+    if whole is not None:
+        findings = [f for f in findings if f.code not in WHOLE_RECORD_CODES]
+        findings += _whole_record_findings(whole)
+    extra = outlier_findings(whole if whole is not None else inputs)
+    if not extra and whole is None:
         return report
-    merged = QualityReport.of([*extra, *report.findings], report.expected_rsd)
+    merged = QualityReport.of([*extra, *findings], report.expected_rsd)
     return merged.downgraded(ignore)
 
 
@@ -322,10 +522,11 @@ def gate(
     show: Callable[[str], None] = print,
     info: bool = False,
     fixed: dict[str, float] | None = None,
+    whole: list[LoadedInput] | None = None,
 ) -> QualityReport:
     """:func:`quality`, :func:`show_quality`, :func:`stop_on_errors`: the gate before a fit."""
     check_ignore(args)
-    report = quality(args, inputs, fixed)
+    report = quality(args, inputs, fixed, whole)
     show_quality(report, show=show, info=info)
     stop_on_errors(report)
     return report
@@ -338,22 +539,40 @@ def prepare_inputs(
     progress), run the :func:`gate`, cut the automatic segments. Returns the inputs,
     the gate's report and the progress callback (timed lines on stderr unless
     ``--quiet``)."""
-    t0 = time.perf_counter()
-
-    def progress(msg: str) -> None:
-        if not args.quiet:
-            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+    progress = make_progress(args)
 
     def show(line: str) -> None:
         print(line, file=text_out)
 
-    inputs = load_inputs(args)
+    inputs = load_inputs(args, progress)
     for x in inputs:
         for note in x.notes:
             progress(f"{x.path}: {note}")
     show_incomplete(inputs, show)
+    if is_long(args, inputs):
+        chosen = long_subset(args, segment_inputs(args, inputs, show=show), show, progress)
+        report = gate(args, chosen, show=show, fixed=fixed, whole=inputs)
+        return chosen, report, progress
     report = gate(args, inputs, show=show, fixed=fixed)
     return segment_inputs(args, inputs, show=show), report, progress
+
+
+def long_subset(
+    args: argparse.Namespace,
+    inputs: list[LoadedInput],
+    show: Callable[[str], None],
+    progress: Callable[[str], None],
+) -> list[LoadedInput]:
+    """Each long input's representative subset (:func:`representative`), said once."""
+    keep = tuple(getattr(args, "holdout", ()) or ())
+    out = []
+    for x in inputs:
+        x, line = representative(x, keep=keep)
+        if line:
+            show(f"{x.path}: {line}")
+            progress(f"{x.path}: {line}")
+        out.append(x)
+    return out
 
 
 # load-side value = motor-side value * gear_ratio ** power (N motor turns per load turn)

@@ -38,6 +38,7 @@ __all__ = [
 ]
 
 DATA_SUFFIXES = (".csv", ".txt", ".mcap")
+MAX_JOBS = 256
 _GLOB = re.compile(r"[*?\[]")
 
 
@@ -265,9 +266,9 @@ def run_batch(
             msg = f"{option} is per run: not with --batch (each input's JSON goes to the folder)"
             raise ParameterError(msg)
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
-    if jobs < 1:
-        msg = f"--jobs must be >= 1, got {jobs}"
-        raise ParameterError(msg)
+    from pmdc_ident.commands._bounds import Bound
+
+    Bound("--jobs", 1, MAX_JOBS, "worker processes", integer=True).check(jobs)
     paths = expand_inputs(args.data)
     from pmdc_ident.commands.outputs import check_folder_output
 

@@ -56,6 +56,21 @@ def _counts(args: argparse.Namespace) -> dict[str, int]:
     if min(out.values()) < 0 or args.jobs < 1:
         msg = "--runs-per-effect, --clean, --oov and --pairs must be >= 0, --jobs >= 1"
         raise ParameterError(msg)
+    from pmdc_ident.commands._bounds import Bound, check_bounds
+
+    check_bounds(
+        [
+            *(
+                (Bound(f"--{k.replace('_', '-')}", 0, 10_000, "runs", integer=True), v)
+                for k, v in out.items()
+            ),
+            (Bound("--jobs", 1, 256, "worker processes", integer=True), args.jobs),
+            (
+                Bound("--seed", 0, 2**32 - 1, "a seed of numpy's generator", integer=True),
+                args.seed,
+            ),
+        ]
+    )
     return out
 
 
@@ -80,8 +95,11 @@ def run(args: argparse.Namespace) -> int:
     check_folder_output("--keep", args.keep, [])
     check_folder_output("--report", args.report, [])
     only = VOCABULARY
-    if args.effects:
+    if args.effects is not None:
         only = tuple(e.strip() for e in args.effects.split(",") if e.strip())
+        if not only:
+            msg = f"--effects lists no effect (give one or more of: {', '.join(VOCABULARY)})"
+            raise ParameterError(msg)
         unknown = [e for e in only if e not in VOCABULARY]
         if unknown:
             msg = f"unknown effect(s) {', '.join(unknown)}; known: {', '.join(VOCABULARY)}"

@@ -14,8 +14,12 @@ from pmdc_ident.commands._inputs import (
     add_gate_arguments,
     add_unit_arguments,
     check_ignore,
+    data_megabytes,
     input_json,
+    is_long,
     load_inputs,
+    long_subset,
+    make_progress,
     quality,
     segment_inputs,
     show_incomplete,
@@ -23,6 +27,8 @@ from pmdc_ident.commands._inputs import (
     stop_on_errors,
 )
 from pmdc_ident.commands.outputs import STDOUT, check_file_output
+
+PROGRESS_MB = 10.0
 
 HELP = "check recordings before a fit: timing, units, signs, clipping, encoder, delay, duplicates"
 
@@ -41,6 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME=VALUE",
         help="a parameter the fit will hold (SI units): left out of the expected uncertainties",
     )
+    parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     add_gate_arguments(parser)
     add_unit_arguments(parser)
 
@@ -52,11 +59,26 @@ def run(args: argparse.Namespace) -> int:
 
     check_ignore(args)
     fixed = parse_fix(args.fix)
-    inputs = load_inputs(args)
-    show_incomplete(inputs, lambda line: print(line, file=text_out))
-    report = quality(args, inputs, fixed)
-    show_quality(report, info=True, show=lambda line: print(line, file=text_out))
-    segment_inputs(args, inputs, show=lambda line: print(line, file=text_out))
+    # progress lines for large inputs only (a small file is checked in a second)
+    progress = make_progress(args, quiet=data_megabytes(args) < PROGRESS_MB)
+
+    def show(line: str) -> None:
+        print(line, file=text_out)
+
+    inputs = load_inputs(args, progress)
+    show_incomplete(inputs, show)
+    if is_long(args, inputs):  # the physics checks on a representative subset
+        progress("finding the segments of the long record")
+        segmented = segment_inputs(args, inputs, show=show)
+        chosen = long_subset(args, segmented, show, progress)
+        progress("checking")
+        report = quality(args, chosen, fixed, whole=inputs)
+        show_quality(report, info=True, show=show)
+    else:
+        progress("checking")
+        report = quality(args, inputs, fixed)
+        show_quality(report, info=True, show=show)
+        segment_inputs(args, inputs, show=show)
     if json_to is not None:
         body = {"sources": [x.path for x in inputs], **input_json(inputs, report)}
         document = json.dumps(body, indent=2, allow_nan=False) + "\n"

@@ -86,7 +86,11 @@ def run(args: argparse.Namespace) -> int:
 
     effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
     if not effects:
-        msg = "--effects lists no effect"
+        msg = f"--effects lists no effect (give one or more of: {', '.join(EFFECT_NAMES)})"
+        raise ParameterError(msg)
+    unknown = [e for e in effects if e not in EFFECT_NAMES]
+    if unknown:
+        msg = f"--effects: unknown effect {unknown[0]!r} (known: {', '.join(EFFECT_NAMES)})"
         raise ParameterError(msg)
     if args.max_effects < 1:
         msg = f"--max-effects must be >= 1 (effects combined at most), got {args.max_effects}"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from pmdc_ident.core.errors import PmdcError
@@ -67,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
     if not any((args.mujoco, args.urdf, args.ros2_control, args.gains)):
         msg = "nothing to write: give --mujoco, --urdf, --ros2-control and/or --gains"
         raise PmdcError(msg)
+    _check_numbers(args)
     _check_outputs(args)
     spec = load_motor(args.motor)
     if args.mujoco:
@@ -86,6 +88,47 @@ def run(args: argparse.Namespace) -> int:
     if args.gains or args.ros2_control:
         return _gains(args, spec)
     return 0
+
+
+def _check_numbers(args: argparse.Namespace) -> None:
+    """Every numeric option inside what a controller or a gear can be (one line each)."""
+    from pmdc_ident.commands._bounds import Bound, check_bounds
+
+    rate = args.sample_rate_hz
+    nyquist = rate / 2 if isinstance(rate, float) and math.isfinite(rate) and rate > 0 else 1e9
+    check_bounds(
+        [
+            (Bound("--sample-rate-hz", 1.0, 1e6, "a controller's loop rate, Hz"), rate),
+            (
+                Bound("--reduction", 0.0, 1e6, "motor turns per joint turn", open_low=True),
+                args.reduction,
+            ),
+            (
+                Bound("--phase-margin-deg", 10.0, 89.0, "a PI loop's phase margin"),
+                args.phase_margin_deg,
+            ),
+            (
+                Bound(
+                    "--speed-bandwidth-hz",
+                    0.0,
+                    nyquist,
+                    "below half the sample rate",
+                    open_low=True,
+                ),
+                args.speed_bandwidth_hz,
+            ),
+            (
+                Bound(
+                    "--current-bandwidth-hz",
+                    0.0,
+                    nyquist,
+                    "below half the sample rate",
+                    open_low=True,
+                ),
+                args.current_bandwidth_hz,
+            ),
+        ]
+    )
 
 
 def _check_outputs(args: argparse.Namespace) -> None:

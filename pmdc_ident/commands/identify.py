@@ -41,6 +41,7 @@ HELP = "identify R, L, Ke, Kt, J, B and friction from recorded runs (CSV or bag)
 # The values of core.estimators.identify.ModelChoice (a test checks they agree): the
 # numerical core is imported by run(), not to build the help (see pmdc_ident.cli).
 MODEL_CHOICES: tuple[str, ...] = ("auto", "linear", "coulomb")
+MAX_BOOTSTRAP = 500  # parametric-bootstrap refits at most
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -166,9 +167,11 @@ def run(args: argparse.Namespace) -> int:
     from pmdc_ident.core.fixed import parse_fix
 
     fixed = parse_fix(args.fix)
-    if args.bootstrap is not None and args.bootstrap < 0:
-        msg = f"--bootstrap must be >= 0, got {args.bootstrap}"
-        raise ParameterError(msg)
+    from pmdc_ident.commands._bounds import Bound
+
+    Bound("--bootstrap", 0, MAX_BOOTSTRAP, "each refit costs a whole fit", integer=True).check(
+        args.bootstrap
+    )
     if args.closure == "none" and not ({"Kt", "J"} & set(fixed) or args.added_inertia):
         msg = (
             "--closure none leaves the scale of (Kt, J, B) unidentifiable from voltage, "

@@ -56,11 +56,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pmdc_ident.commands._bounds import Bound, check_bounds
     from pmdc_ident.commands.outputs import check_folder_output
     from pmdc_ident.core.drift_monitor import DriftMonitor, MonitorConfig
     from pmdc_ident.core.motors import load_motor
     from pmdc_ident.dataio import load_data
 
+    check_bounds(
+        [
+            (
+                Bound("--every", 0.0, 1e9, "seconds between printed lines", open_low=True),
+                args.every,
+            ),
+            *(
+                (
+                    Bound(f"--{name.replace('_', '-')}", 0.0, 1e6, "a drift threshold"),
+                    getattr(args, name),
+                )
+                for name in (
+                    "r_warn",
+                    "r_error",
+                    "ke_warn",
+                    "ke_error",
+                    "friction_warn",
+                    "friction_error",
+                    "delay_warn",
+                    "delay_error",
+                )
+            ),
+        ]
+    )
     args.report = check_folder_output(
         "--report", args.report, [args.data, args.params], writes=REPORT_FILES
     )

@@ -52,12 +52,34 @@ def reads_of(inputs: Reads) -> list[tuple[str | Path, str]]:
     return out
 
 
+def _bag_holding(path: Path) -> Path | None:
+    """The rosbag2 folder (``metadata.yaml`` and an ``.mcap``) ``path`` lies inside, if any:
+    a recording no command writes into, whether it reads it or not."""
+    try:
+        folder = path.resolve().parent
+    except (OSError, RuntimeError):
+        return None
+    for p in (folder, *folder.parents):
+        try:
+            if (p / "metadata.yaml").is_file() and any(p.glob("*.mcap")):
+                return p
+        except OSError:
+            return None
+    return None
+
+
 def _check_not_input(option: str, path: Path, inputs: Reads) -> None:
     """The one test (``core.safe_write.conflict``): not an input, not inside a bag
     folder that is one, not an input's sidecar name."""
-    from pmdc_ident.core.safe_write import conflict
+    from pmdc_ident.core.safe_write import conflict, sidecar_owner
 
     why = conflict(path, reads_of(inputs))
+    owner = sidecar_owner(path)
+    if why is None and owner is not None:
+        why = f"that is the sidecar name of the recording {owner} (its units, read on every run)"
+    bag = _bag_holding(path)
+    if why is None and bag is not None:
+        why = f"that is inside the bag folder {bag} (a recording; write outside it)"
     if why is not None:
         msg = f"{option} {path}: {why}; refusing to write over an input (choose another name)"
         raise OutputError(msg)
@@ -102,6 +124,14 @@ def check_file_output(
         raise OutputError(msg)
     _check_parent(option, path)
     _check_not_input(option, path, inputs)
+    if path.is_symlink():
+        from pmdc_ident.core.safe_write import WriteRefusedError, refuse_link
+
+        try:
+            refuse_link(path, path.resolve(), option)
+        except WriteRefusedError as exc:
+            raise OutputError(str(exc)) from None
+        _check_not_input(option, path.resolve(), inputs)
     return path
 
 

@@ -50,6 +50,9 @@ KERNEL_SOURCES = (
     "core/estimators/output_error/kernel.py",
     "core/drift_estimator.py",
     "dataio/mcap_scan.py",
+    "dataio/csv_scan.py",
+    "core/segmentation.py",
+    "dataio/outliers.py",
     "benchmark/plant.py",
 )
 _STALE_AFTER_S = 7 * 24 * 3600.0  # caches of other source versions unused this long go

@@ -150,8 +150,50 @@ def conflict(target: str | Path, reads: Iterable[tuple[str | Path, str]]) -> str
     return None
 
 
+RECORDING_SUFFIXES = (".csv", ".txt", ".mcap")
+
+
+def sidecar_owner(target: str | Path) -> Path | None:
+    """The recording beside ``target`` whose sidecar name ``target`` is (``run.csv`` for
+    ``run.csv.yaml``, a bag folder ``DIR`` for ``DIR.yaml``), or None."""
+    t = str(target)
+    if not t.lower().endswith(".yaml"):
+        return None
+    owner = Path(t[: -len(".yaml")])
+    try:
+        if owner.is_dir() and (owner / "metadata.yaml").is_file():
+            return owner
+        if owner.is_file() and owner.suffix.lower() in RECORDING_SUFFIXES:
+            return owner
+    except OSError:
+        return None
+    return None
+
+
+def refuse_link(link: Path, target: Path, option: str = "") -> None:
+    """A link is written through only to a file of its own kind: ``out.yaml`` linked to a
+    recording ``run.csv`` would replace the recording with a motor file."""
+    if target.exists() and target.suffix.lower() != link.suffix.lower():
+        who = f"{option} " if option else ""
+        msg = (
+            f"{who}{link}: a link to {target}, which is no {link.suffix or 'such'} file; "
+            "refusing to write through it (give the file's own name)"
+        )
+        raise WriteRefusedError(msg)
+
+
 def refuse_protected(target: str | Path, option: str = "") -> None:
-    """:class:`WriteRefusedError` when ``target`` conflicts with a registered input."""
+    """:class:`WriteRefusedError` when ``target`` conflicts with a registered input, or is
+    the sidecar name of a recording beside it (whether this command reads it or not:
+    the next command on that recording would read the file as its units)."""
+    owner = sidecar_owner(target)
+    if owner is not None:
+        who = f"{option} " if option else ""
+        msg = (
+            f"{who}{target}: that is the sidecar name of the recording {owner} (its units "
+            "and columns, read on every run); refusing to write there (choose another name)"
+        )
+        raise WriteRefusedError(msg)
     reads = [(k, v) for k, v in protected().items()]
     why = conflict(target, reads)
     if why is not None:
@@ -220,7 +262,9 @@ def _prepare(path: str | Path, option: str) -> tuple[Path, bool]:
     final = Path(path)
     refuse_protected(final, option)
     if final.is_symlink():
-        final = final.resolve()
+        target = final.resolve()
+        refuse_link(final, target, option)
+        final = target
         refuse_protected(final, option)
     if final.is_dir():
         msg = f"{option + ' ' if option else ''}{final}: is a folder; give a file name"

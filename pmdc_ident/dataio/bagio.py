@@ -495,7 +495,22 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
                 return _recovered_arrays(p, inside[0])
             _log.warning(f"{p}: no metadata.yaml: read {inside[0].name}, a complete MCAP file")
             return read_driver_arrays(inside[0])
-        msg = f"{p}: a folder without metadata.yaml is not a rosbag2 bag"
+        csvs = sorted(f.name for f in p.iterdir() if f.suffix.lower() in (".csv", ".txt"))
+        if len(inside) > 1:
+            msg = (
+                f"{p}: {len(inside)} .mcap files and no metadata.yaml: not one bag; pass one "
+                f"file ({p / inside[0].name}), or --batch OUTDIR to treat each on its own"
+            )
+        elif csvs:
+            msg = (
+                f"{p}: a folder of CSV files ({', '.join(csvs[:3])}{', ...' * (len(csvs) > 3)}), "
+                "not a bag: pass the files themselves, or --batch OUTDIR to treat each on its own"
+            )
+        else:
+            msg = (
+                f"{p}: a folder without metadata.yaml or an .mcap file: not a rosbag2 bag "
+                "(give a bag folder, an .mcap file or a CSV file)"
+            )
         raise DataError(msg)
     fast = _read_driver_arrays_fast(p)
     if fast is not None:
@@ -505,8 +520,11 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
     try:
         with Reader(p) as reader:
             conns = [c for c in reader.connections if _topic_role(c.topic)]
+            _check_types(p, conns)
             messages = [(c.topic, raw) for c, _, raw in reader.messages(connections=conns)]
             topics = sorted(c.topic for c in reader.connections)
+    except DataError:
+        raise
     except Exception as exc:  # noqa: BLE001 - whatever rosbags raises on a damaged bag
         from pmdc_ident.dataio.mcap_recover import unfinished
 
@@ -518,6 +536,27 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
             raise DataError(msg) from None
         return _recovered_arrays(p, mcap[0])
     return _arrays_from(p, messages, topics)
+
+
+def _check_types(p: Path, conns: Sequence[Any]) -> None:
+    """Each driver topic holds the message type the driver publishes (a TwistStamped
+    encoder was read as a JointState and reported as 'neither position nor speed')."""
+    for c in conns:
+        role = _topic_role(c.topic)
+        want = TOPIC_TYPES.get(role or "")
+        if want is not None and c.msgtype != want:
+            what = {
+                "encoder": "position[0] rad, velocity[0] rad/s",
+                "current": "effort[0] A",
+                "voltage_applied": "effort[0] V, NaN while open",
+            }.get(role or "", "")
+            msg = (
+                f"{p}: topic {c.topic} is {c.msgtype}; pmdc_ident reads {want} there"
+                f"{f' ({what})' if what else ''}, as the driver node publishes it: republish "
+                "it in that type, or export the samples as CSV (t, voltage, current, "
+                "position/speed)"
+            )
+            raise DataError(msg)
 
 
 def _recovered_arrays(p: Path, mcap: Path) -> DriverArrays:

@@ -102,6 +102,7 @@ def _speed_position_ratio(run: Run) -> float | None:
         inc = 0.5 * (s.speed[1:] + s.speed[:-1]) * np.diff(s.t)
         # a wrap (position back by about a turn) is no motion
         keep = np.abs(d_pos) < 0.5 * max(float(np.ptp(s.position)), 1e-300)
+        keep &= np.abs(np.diff(s.t) - s.dt_s) <= 0.25 * s.dt_s  # gaps are no interval
         if keep.sum() < 2:
             continue
         num += float(np.sum(inc[keep] * inc[keep]))

@@ -15,6 +15,9 @@ inertia forbid it), so such samples are found by a robust residual test:
   that range by half its width, in at most two consecutive samples (a longer
   excursion is a real event, not a glitch; a pulse inside the range, a PRBS's, is a
   command);
+* the sample must also jump away from both of its neighbours (a transient decays from
+  its peak: the sample after it is still near it), and neither end of a segment is
+  tested;
 * the current is not tested within two samples of a voltage edge (a PRBS's one-sample
   pulse is a command, and the current follows it).
 
@@ -31,6 +34,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from pmdc_ident.core._jit import njit
 from pmdc_ident.core.data import Run, Segment, link_history
 
 __all__ = ["K_NOISE", "Outlier", "drop_outliers", "find_outliers"]
@@ -64,14 +68,44 @@ class Outlier:
         )
 
 
+@njit
+def _median5_kernel(x, out):  # pragma: no cover - jitted
+    n = x.size
+    for k in range(n):
+        v0 = x[min(max(k - 2, 0), n - 1)]
+        v1 = x[min(max(k - 1, 0), n - 1)]
+        v2 = x[k]
+        v3 = x[min(k + 1, n - 1)]
+        v4 = x[min(k + 2, n - 1)]
+        # the nine-comparator sorting network for five; v2 ends as the median
+        if v0 > v1:
+            v0, v1 = v1, v0
+        if v3 > v4:
+            v3, v4 = v4, v3
+        if v2 > v4:
+            v2, v4 = v4, v2
+        if v2 > v3:
+            v2, v3 = v3, v2
+        if v0 > v3:
+            v0, v3 = v3, v0
+        if v0 > v2:
+            v0, v2 = v2, v0
+        if v1 > v4:
+            v1, v4 = v4, v1
+        if v1 > v3:
+            v1, v3 = v3, v1
+        if v1 > v2:
+            v1, v2 = v2, v1
+        out[k] = v2
+
+
 def _median5(x: FloatArray) -> FloatArray:
-    """The running median of five (the ends padded with their own value), by the
-    nine-comparator sorting network for five elements: linear, no (N, 5) copy."""
-    p = np.pad(x, 2, mode="edge")
-    v = [p[k : k + x.size] for k in range(5)]
-    for i, j in ((0, 1), (3, 4), (2, 4), (2, 3), (0, 3), (0, 2), (1, 4), (1, 3), (1, 2)):
-        v[i], v[j] = np.minimum(v[i], v[j]), np.maximum(v[i], v[j])
-    return v[2]
+    """The running median of five (the ends padded with their own value), one compiled
+    pass by the nine-comparator sorting network for five elements."""
+    out = np.empty(x.size)
+    if x.size:
+        _median5_kernel(np.ascontiguousarray(x, dtype=np.float64), out)
+    return out
 
 
 def _filled(x: FloatArray) -> FloatArray:
@@ -131,9 +165,26 @@ def _signal_outliers(x: FloatArray, skip: NDArray[np.bool_] | None) -> NDArray[n
     # one-sample pulse inside its range (a PRBS) is not a glitch
     outside = (x > hi + 0.5 * span) | (x < lo - 0.5 * span)
     flag = (np.abs(r) > limit) & finite & outside
+    flag[:1] = flag[-1:] = False  # a record's end has a neighbour on one side only
     if skip is not None:
         flag &= ~skip
-    return np.flatnonzero(_isolated(flag))
+    flag = _isolated(flag)
+    # a glitch jumps away from BOTH its unflagged neighbours and back (a transient
+    # decays from its peak: the sample after it is still near it)
+    idx = np.flatnonzero(flag)
+    keep = []
+    for k in idx.tolist():
+        a = k - 1
+        while a >= 0 and flag[a]:
+            a -= 1
+        b = k + 1
+        while b < x.size and flag[b]:
+            b += 1
+        if a < 0 or b >= x.size:
+            continue
+        if min(abs(xs[k] - xs[a]), abs(xs[k] - xs[b])) > limit:
+            keep.append(k)
+    return np.asarray(keep, dtype=np.intp)
 
 
 def find_outliers(run: Run) -> list[Outlier]:

@@ -42,6 +42,9 @@ def speed_position_ratio(segments: Sequence[Segment]) -> float | None:
         keep = np.ones(d_pos.size, dtype=bool)
         if wrap is not None:
             keep = np.abs(d_pos) < 0.5 * wrap[0]
+        # a gap (a paused logger, a clock jump) is no sample interval: 1000 s of it
+        # outweighed the whole record and read as a time unit (fix: --time-unit us)
+        keep &= np.abs(np.diff(s.t) - s.dt_s) <= 0.25 * s.dt_s
         inc = 0.5 * (s.speed[1:] + s.speed[:-1]) * np.diff(s.t)
         num += float(np.sum(inc[keep] * inc[keep]))
         den += float(np.sum(inc[keep] * d_pos[keep]))
