@@ -28,6 +28,9 @@ def _hold(signum: int, _frame: object) -> None:
 if sys.argv and sys.argv[0].rsplit("/", 1)[-1] in ("pmdc-ident", "-c"):
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
         signal.signal(signal.SIGINT, _hold)
+    for _sig in (signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(_sig) == signal.SIG_DFL:
+            signal.signal(_sig, _hold)
 
 import argparse  # noqa: E402
 import gc  # noqa: E402
@@ -95,6 +98,25 @@ def _interrupt(_signum: int, _frame: object) -> None:
     raise KeyboardInterrupt
 
 
+def _unraisable(hook: object) -> object:
+    """A ``sys.unraisablehook`` that re-sends a signal whose exception landed where
+    Python cannot raise it (a weakref callback, ``__del__``: it would print "Exception
+    ignored in ..." with a traceback and go on): the handler then raises it at the next
+    ordinary statement."""
+
+    def resend(unraisable: object) -> None:
+        exc = getattr(unraisable, "exc_value", None)
+        if isinstance(exc, Terminated):
+            os.kill(os.getpid(), exc.signum)
+            return
+        if isinstance(exc, KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            return
+        hook(unraisable)  # type: ignore[operator]
+
+    return resend
+
+
 @contextmanager
 def _signals() -> Iterator[None]:
     """Ctrl-C, SIGTERM and SIGHUP as exceptions while the command runs (main thread)."""
@@ -103,6 +125,8 @@ def _signals() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    old_hook = sys.unraisablehook
+    sys.unraisablehook = _unraisable(old_hook)  # type: ignore[assignment]
     old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     signal.signal(signal.SIGTERM, _terminate)
     signal.signal(signal.SIGHUP, _terminate)
@@ -110,13 +134,16 @@ def _signals() -> Iterator[None]:
         signal.signal(signal.SIGINT, _interrupt)
     early, _EARLY[:] = list(_EARLY), []
     try:
-        if early:
-            raise KeyboardInterrupt
+        if early:  # a signal held while this module was imported
+            raise KeyboardInterrupt if early[0] == signal.SIGINT else Terminated(early[0])
         yield
     finally:
         for s, h in old.items():
+            if h is _hold:
+                h = signal.default_int_handler if s == signal.SIGINT else signal.SIG_DFL
             if h is not None:
-                signal.signal(s, h if h is not _hold else signal.default_int_handler)
+                signal.signal(s, h)
+        sys.unraisablehook = old_hook
 
 
 def _signal_of(exc: BaseException) -> int | None:

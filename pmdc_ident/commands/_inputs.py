@@ -567,7 +567,7 @@ def long_subset(
     keep = tuple(getattr(args, "holdout", ()) or ())
     out = []
     for x in inputs:
-        x, line = representative(x, keep=keep)
+        x, line = representative(x, budget=LONG_SAMPLES, keep=keep)
         if line:
             show(f"{x.path}: {line}")
             progress(f"{x.path}: {line}")

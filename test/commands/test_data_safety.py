@@ -18,7 +18,6 @@ from helpers.full_disk import files_in, nearly_full
 from helpers.paths import FIXTURES
 
 from pmdc_ident.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, main
-from pmdc_ident.core import safe_write
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.dataio.csvio import read_csv, write_csv
@@ -96,6 +95,8 @@ def test_a_motor_file_is_never_written_onto_a_sidecar_name(tmp_path, capsys, exi
 def test_the_writer_itself_refuses_what_the_command_read(tmp_path):
     """The net under the up-front check: inside a command, a write onto anything a
     reader registered is refused, whatever spelling leads to it."""
+    from pmdc_ident.core import safe_write
+
     run = tmp_path / "run.csv"
     shutil.copy(TABLE, run)
     (tmp_path / "link.csv").symlink_to(run)
@@ -110,6 +111,8 @@ def test_the_writer_itself_refuses_what_the_command_read(tmp_path):
 
 
 def test_write_is_atomic_and_keeps_the_mode_of_the_file_it_replaces(tmp_path):
+    from pmdc_ident.core import safe_write
+
     target = tmp_path / "out.json"
     target.write_text("old")
     target.chmod(0o640)
@@ -124,6 +127,8 @@ def test_write_is_atomic_and_keeps_the_mode_of_the_file_it_replaces(tmp_path):
 
 
 def test_a_dead_process_temporary_is_swept_by_the_next_write(tmp_path):
+    from pmdc_ident.core import safe_write
+
     stale = tmp_path / ".out.csv.999999999.0123abcd.partial"
     stale.write_text("from a process killed with -9")
     safe_write.write_text(tmp_path / "out.csv", "whole")

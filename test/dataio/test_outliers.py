@@ -15,7 +15,6 @@ from helpers.motor_records import Motor, prbs, simulate, steps, write_csv
 
 from pmdc_ident.cli import EXIT_USER_ERROR, main
 from pmdc_ident.dataio.csvio import read_csv
-from pmdc_ident.dataio.outliers import _median5, find_outliers
 
 RATE = 1000.0
 MOTOR = Motor()
@@ -36,6 +35,8 @@ def record():
 def test_the_running_median_is_the_median_of_five():
     from numpy.lib.stride_tricks import sliding_window_view
 
+    from pmdc_ident.dataio.outliers import _median5
+
     rng = np.random.default_rng(0)
     for n in (1, 4, 5, 9, 200):
         x = rng.normal(size=n)
@@ -45,6 +46,8 @@ def test_the_running_median_is_the_median_of_five():
 
 def test_a_clean_record_has_no_outlier(record, tmp_path):
     """Steps, one-sample PRBS pulses, a quantised encoder, an open-armature coast."""
+    from pmdc_ident.dataio.outliers import find_outliers
+
     run = read_csv(write_csv(tmp_path / "clean.csv", record))
     assert find_outliers(run) == []
 
