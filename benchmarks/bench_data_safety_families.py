@@ -46,7 +46,8 @@ import psutil
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "test"))
-EXE = str(Path(sys.executable).parent / "pmdc-ident")
+# PMDC_FAMILIES_EXE: another pmdc-ident (e.g. an older checkout's wrapper, to count its failures)
+EXE = os.environ.get("PMDC_FAMILIES_EXE") or str(Path(sys.executable).parent / "pmdc-ident")
 PY = [sys.executable, "-c", "import sys; from pmdc_ident.cli import main; sys.exit(main())"]
 FAMILIES = ("data-loss", "stale", "orphans", "tracebacks")
 
@@ -109,7 +110,7 @@ def outputs_over_inputs(t: Tally, d: Path) -> None:
     (logs / "session.csv.yaml").write_text("current_unit: A\n")
     x = d / "X"
     x.mkdir()
-    shutil.copy(table, x / "drift.csv")
+    shutil.copy(logs / "session.csv", x / "drift.csv")  # a session the monitor replays
     cases = [
         ("identify --batch logs logs", [EXE, "identify", "--batch", "logs", "logs"]),
         ("identify --batch logs 'logs/*'", [EXE, "identify", "--batch", "logs", "logs/*"]),
@@ -322,6 +323,26 @@ def _alive(procs: list[psutil.Process], wait_s: float) -> list[psutil.Process]:
     return [p for p in alive if p.status() != psutil.STATUS_ZOMBIE]
 
 
+def _finish(proc: subprocess.Popen[str], timeout: float = 120.0) -> str:
+    """The process's stderr once it ended; an orphan that kept the pipe open (an older
+    pmdc-ident's worker) must not hang the count: its parent's end is enough."""
+    try:
+        return proc.communicate(timeout=timeout)[1] or ""
+    except subprocess.TimeoutExpired:
+        proc.wait(timeout=timeout)
+        return ""
+
+
+def _reap(procs: list[psutil.Process]) -> None:
+    """Stop what this script started and left running (an orphan it just counted)."""
+    for p in procs:
+        try:
+            p.kill()
+        except psutil.Error:
+            pass
+    psutil.wait_procs(procs, timeout=5.0)
+
+
 def orphans(t: Tally, d: Path) -> None:
     from pmdc_ident.dataio.csvio import write_csv
 
@@ -355,7 +376,7 @@ def orphans(t: Tally, d: Path) -> None:
             time.sleep(1.0)
             kids = _descendants(proc.pid) or kids
             proc.send_signal(sig)
-            _, err = proc.communicate(timeout=120)
+            err = _finish(proc)
             alive = _alive(kids, 5.0)
             t.record(
                 "orphans",
@@ -364,6 +385,7 @@ def orphans(t: Tally, d: Path) -> None:
                 str([p.pid for p in alive]),
             )
             t.output(name, err)
+            _reap(alive + _descendants(proc.pid))
             if "leaked semaphore" in err or "resource_tracker" in err:
                 t.record("tracebacks", f"{name}: resource tracker warning", False, err[-200:])
 
@@ -450,6 +472,7 @@ def ros_sessions(t: Tally, d: Path) -> None:
             text = "".join(lines) + (rest or "")
             alive = _alive(nodes, 20.0)
             t.record("orphans", f"{case}: every node ends", not alive, str(alive))
+            _reap(alive)
             if case != "SIGKILL of bringup":
                 stale_ok = (
                     proc.returncode != 0
@@ -468,13 +491,14 @@ def ros_sessions(t: Tally, d: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ros", action="store_true", help="also the bringup session families")
+    ap.add_argument("--only", metavar="NAME", help="only this family function (e.g. stale)")
     args = ap.parse_args()
     print(f"load average {os.getloadavg()}", flush=True)
     t = Tally()
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="pmdc_families_") as tmp:
         d = Path(tmp)
-        for family in (
+        families = (
             outputs_over_inputs,
             full_disk,
             ctrl_c_during_export,
@@ -482,11 +506,14 @@ def main() -> None:
             stale,
             orphans,
             early_ctrl_c,
-        ):
+        )
+        for family in families:
+            if args.only and family.__name__ != args.only:
+                continue
             sub = d / family.__name__
             sub.mkdir()
             family(t, sub)
-        if args.ros:
+        if args.ros and args.only in (None, "ros_sessions"):
             sub = d / "ros"
             sub.mkdir()
             ros_sessions(t, sub)
