@@ -147,7 +147,7 @@ def motor_from_mapping(data: Any, source: str = "motor") -> MotorSpec:
             else "not a motor file"
         )
         msg = (
-            f"{source}: {what}: a motor file has a 'parameters' mapping (R, L, Ke, Kt, J, B), "
+            f"{source}: {what}: a motor file needs a 'parameters' mapping (R, L, Ke, Kt, J, B), "
             "as `pmdc-ident identify --yaml` writes it; or give a built-in motor "
             f"({', '.join(BUILTIN_MOTORS)})"
         )

@@ -173,7 +173,8 @@ def sidecar_owner(target: str | Path) -> Path | None:
 def refuse_link(link: Path, target: Path, option: str = "") -> None:
     """A link is written through only to a file of its own kind: ``out.yaml`` linked to a
     recording ``run.csv`` would replace the recording with a motor file."""
-    if target.exists() and target.suffix.lower() != link.suffix.lower():
+    regular = target.is_file() or target.is_dir()  # a device or a pipe is written through
+    if regular and target.suffix.lower() != link.suffix.lower():
         who = f"{option} " if option else ""
         msg = (
             f"{who}{link}: a link to {target}, which is no {link.suffix or 'such'} file; "

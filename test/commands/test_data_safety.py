@@ -135,6 +135,40 @@ def test_a_dead_process_temporary_is_swept_by_the_next_write(tmp_path):
     assert not stale.exists()
 
 
+def test_a_link_is_followed_only_to_a_file_of_its_kind_or_a_special_file(tmp_path, capsys):
+    """``out.yaml`` linked to a recording is refused; ``out.json`` linked to ``/dev/null``
+    or a named pipe (which have no suffix and nothing to replace) is written through."""
+    import os
+    import threading
+
+    from pmdc_ident.core import safe_write
+
+    run = tmp_path / "run.csv"
+    shutil.copy(TABLE, run)
+    (tmp_path / "out.yaml").symlink_to(run)
+    with pytest.raises(safe_write.WriteRefusedError, match="a link to"):
+        safe_write.write_text(tmp_path / "out.yaml", "x")
+    assert run.read_bytes() == TABLE.read_bytes()
+
+    (tmp_path / "null.json").symlink_to(os.devnull)
+    safe_write.write_text(tmp_path / "null.json", "{}")
+    assert (tmp_path / "null.json").is_symlink()
+    assert main(["check", str(run), "--json", str(tmp_path / "null.json")]) == 0, (
+        capsys.readouterr().err
+    )
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    (tmp_path / "pipe.json").symlink_to(fifo)
+    got: list[str] = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_text()))
+    reader.start()
+    safe_write.write_text(tmp_path / "pipe.json", "through")
+    reader.join(5)
+    assert got == ["through"]
+    assert not list(tmp_path.glob(".*partial*"))
+
+
 # ---------------------------------------------------------------------------
 # A full disk: the previous file stays, no partial file under any final name
 # ---------------------------------------------------------------------------
