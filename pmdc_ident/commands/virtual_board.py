@@ -4,6 +4,11 @@ Prints the port, then runs until Ctrl-C (or SIGTERM). Point the driver node at
 it exactly as at hardware: ``backend:=serial port:=<printed path> baud:=<baud>``.
 ``kill -USR1 <pid>`` makes the board reset (as a brown-out or a watchdog reset
 of the MCU would); stopping the process is the cable being pulled.
+
+``--emulated`` runs the reference firmware itself instead of the Python board:
+the sketch built for an Uno at ``--baud`` executes on simavr's ATmega328P against
+the motor part of ``firmware/emulator`` (built on first use, then cached).
+``kill -USR2 <pid>`` then cuts or reconnects its serial line with the board powered.
 """
 
 from __future__ import annotations
@@ -12,8 +17,10 @@ import argparse
 import os
 import signal
 import sys
+import time
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 from pmdc_ident.core.errors import ParameterError
 
@@ -47,6 +54,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=-10,
         help="scheduling niceness to ask for (a real board has a CPU of its own; "
         "ignored where not permitted)",
+    )
+    parser.add_argument(
+        "--emulated",
+        action="store_true",
+        help="run the reference firmware on an emulated ATmega328P (simavr) instead",
+    )
+    parser.add_argument(
+        "--counts-per-rev",
+        type=int,
+        default=0,
+        help="--emulated: encoder counts per turn the sketch is built for (0: the sketch's)",
     )
     parser.add_argument(
         "--protocol-version",
@@ -88,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
         msg = f"--seed must be >= 0, got {args.seed}"
         raise ParameterError(msg)
     _check_link(args.link)
+    if args.emulated:
+        return _run_emulated(args, spec)
     board = VirtualBoard(
         spec,
         baud=args.baud,
@@ -143,3 +163,75 @@ def run(args: argparse.Namespace) -> int:
         if link is not None and link.is_symlink() and os.readlink(link) == board.port:
             link.unlink()
         board.close()
+
+
+def _run_emulated(args: argparse.Namespace, spec: Any) -> int:
+    """The reference sketch on simavr (see the module docstring)."""
+    from pmdc_ident.backends.emulated_board import DEFAULT_COUNTS_PER_REV, EmulatedBoard
+
+    if args.protocol_version:
+        msg = "--protocol-version is for the Python board only"
+        raise ParameterError(msg)
+    if args.counts_per_rev < 0:
+        msg = f"--counts-per-rev must be >= 0, got {args.counts_per_rev}"
+        raise ParameterError(msg)
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, args.nice)  # the emulator inherits it
+    except (OSError, ValueError):
+        pass
+    board = EmulatedBoard(
+        spec,
+        baud=args.baud,
+        supply_v=args.supply_v,
+        seed=args.seed,
+        counts_per_rev=args.counts_per_rev or DEFAULT_COUNTS_PER_REV,
+    )
+    link: Path | None = args.link
+    stop = {"now": False}
+
+    def _ask_stop(_sig: int, _frame: FrameType | None) -> None:
+        stop["now"] = True
+
+    signal.signal(signal.SIGINT, _ask_stop)
+    signal.signal(signal.SIGTERM, _ask_stop)
+    signal.signal(signal.SIGUSR1, lambda _s, _f: board.reset())
+    signal.signal(signal.SIGUSR2, lambda _s, _f: board.cut_line())
+    try:
+        board.start()
+        if link is not None:
+            if link.is_symlink():
+                link.unlink()
+            os.symlink(board.port, link)
+        print(
+            f"virtual board on {board.port} ({args.baud} baud, motor {spec.name}, emulated "
+            f"ATmega328P running {board.elf}, {board.counts_per_rev} counts/rev)",
+            flush=True,
+        )
+        if link is not None:
+            print(f"linked as {link}", flush=True)
+        print(
+            f"driver: ros2 run pmdc_ident driver_node --ros-args -p backend:=serial "
+            f"-p port:={link or board.port} -p baud:={args.baud}  (Ctrl-C to stop; "
+            f"kill -USR1 {os.getpid()} resets the AVR, kill -USR2 cuts the serial line)",
+            flush=True,
+        )
+        while not stop["now"] and board.running:
+            time.sleep(0.05)
+        crashed = not board.running and not stop["now"]
+        status = board.close()
+        stats = board.stats() or {}
+        if crashed:
+            print(f"emulated board ended unexpectedly (exit status {status})", file=sys.stderr)
+            return 1
+        print(
+            f"emulated board stopped ({stats.get('sim_s', 0.0):.1f} s of board time, "
+            f"{stats.get('cpu_s', 0.0):.1f} s of emulator CPU, "
+            f"{stats.get('stalled_s', 0.0):.2f} s lost while it was paused)",
+            file=sys.stderr,
+        )
+        return 0
+    finally:
+        if link is not None and link.is_symlink() and os.readlink(link) == board.port:
+            link.unlink()
+        board.close()
+        board.cleanup()
