@@ -175,7 +175,7 @@ static uint8_t host_seq;
 static int host_streaming;
 static uint64_t host_frames, host_dropped, host_last_counter, host_have_counter, host_errors;
 static uint64_t host_boots, host_watchdog_open_cycle, host_silent_cycle;
-static double host_watchdog_s = -1.0;
+static double host_watchdog_s = -1.0, host_open_after_frame_s = -1.0;
 static int64_t host_enc_last;
 static uint64_t stalled_cycles;
 static uint64_t *profile; /* cycles per flash word (--profile) */
@@ -684,7 +684,10 @@ static avr_cycle_count_t on_host_tick(struct avr_t *a, avr_cycle_count_t when, v
     double t = now_s();
     if (opt.host_silent_at_s > 0 && t >= opt.host_silent_at_s) {
         if (!host_silent_cycle) host_silent_cycle = when;
-        if (!br_en && !host_watchdog_open_cycle) host_watchdog_open_cycle = when;
+        if (!br_en && !host_watchdog_open_cycle) {
+            host_watchdog_open_cycle = when;
+            host_open_after_frame_s = (double)(when - last_delim_end) / F_CPU;
+        }
         return when + 16000;
     }
     if (host_streaming) {
@@ -803,6 +806,7 @@ static void write_stats(double wall_s)
             " \"uart\": {\"to_host\": %llu, \"from_host\": %llu, \"lost\": %llu},\n"
             " \"host\": {\"frames\": %llu, \"dropped\": %llu, \"errors\": %llu, \"boots\": %llu, "
             "\"parser_errors\": %lu, \"watchdog_s\": %.6f, \"open_after_silent_s\": %.6f, "
+            "\"open_after_last_frame_s\": %.6f, "
             "\"last_encoder_count\": %lld},\n"
             " \"motor\": {\"i\": %.6f, \"w\": %.6f, \"theta\": %.6f}}\n",
             sim, wall_s, cpu, stalled_cycles / F_CPU, cyc_isr / total, cyc_sample / total,
@@ -821,7 +825,7 @@ static void write_stats(double wall_s)
             host_watchdog_open_cycle && host_silent_cycle
                 ? (double)(host_watchdog_open_cycle - host_silent_cycle) / F_CPU
                 : -1.0,
-            (long long)host_enc_last, m_i, m_w, m_th);
+            host_open_after_frame_s, (long long)host_enc_last, m_i, m_w, m_th);
     fclose(f);
     rename(tmp, opt.stats);
 }

@@ -91,7 +91,9 @@ def build_firmware(baud: int, counts_per_rev: int = 0) -> tuple[Path, Path]:
     r = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=600)
     if r.returncode != 0:
         lines = (r.stderr or r.stdout).strip().splitlines() or ["no output"]
-        raise EmulatorError(lines[0].removeprefix("build.py: "))
+        detail = next((ln for ln in lines if "error" in ln.lower() and ln is not lines[0]), "")
+        first = lines[0].removeprefix("build.py: ")
+        raise EmulatorError(f"{first} {detail.strip()}".strip())
     paths = json.loads(r.stdout.strip().splitlines()[-1])
     return Path(paths["elf"]), Path(paths["emulator"])
 

@@ -28,15 +28,16 @@
  *
  * What this board can do, measured on the emulated Uno (firmware/emulator; the
  * command and the full table: docs/serial-protocol.md section 6):
- *   - one sample costs ~350 us of CPU (seven ADC conversions at a 1 MHz ADC clock,
- *     91 us; framing, CRC and the UART), so the board refuses periods below
- *     HW_MIN_PERIOD_US = 750 us (1333 Hz) whatever the baud. The line allows 2605 us
+ *   - one sample costs ~370 us of CPU (seven ADC conversions at a 1 MHz ADC clock,
+ *     91 us, a random 0..48 us wait, framing, CRC and the UART); 750 us streamed
+ *     without a drop until the encoder ran near its limit, so the board refuses
+ *     periods below HW_MIN_PERIOD_US = 1000 us (1 kHz) whatever the baud. The line allows 2605 us
  *     at 115200, 1200 us at 250000, 600 us at 500000 and 300 us at 1000000 baud; the
  *     board announces the larger of the two (HELLO_ACK min_period_us), and the host
  *     refuses a faster rate in one line;
  *   - encoder: no missed count and no dropped sample up to MAX_EDGE_RATE = 100 000
- *     quadrature edges per second while streaming at 750 us (the first missed count
- *     was at 128 000 edges/s). At the default 2048 counts/rev that is
+ *     quadrature edges per second while streaming at 1000 us (the first missed count
+ *     was at 139 000 edges/s). At the default 2048 counts/rev that is
  *     2 pi * 100000 / 2048 = 306 rad/s (2930 rpm); max speed = 2 pi * 100000 /
  *     counts_per_rev. Faster, the board trips OVER_SPEED (armature open) rather than
  *     report a wrong angle.
@@ -60,7 +61,7 @@ static const uint32_t BAUD = PMDC_BAUD;
 static const uint32_t COUNTS_PER_REV = PMDC_COUNTS_PER_REV;
 static const uint16_t FIRMWARE_VERSION = 2;
 /* The CPU's own limit (see the header): seven conversions + framing + the UART. */
-static const uint32_t HW_MIN_PERIOD_US = 750;
+static const uint32_t HW_MIN_PERIOD_US = 1000;
 /* Quadrature edges per second the encoder interrupt follows while streaming at
  * the fastest period (see the header). */
 static const uint32_t MAX_EDGE_RATE = 100000UL;
@@ -210,9 +211,20 @@ static uint16_t adc_read(uint8_t channel)
 static int16_t volts_q(int16_t counts) { return (int16_t)(((int32_t)counts * VOLTAGE_Q13 + 4096) >> 13); }
 
 /* The mean of CURRENT_OVERSAMPLE back-to-back conversions (13 us apart): they span one
- * 50 us PWM period, so the switching ripple of the armature current averages out. */
+ * 50 us PWM period, so most of the switching ripple of the armature current averages
+ * out. What is left depends on where in the PWM period they start, and a sample period
+ * that is a multiple of 50 us would start them at the same place every time: a bias
+ * (+0.07 A at 12 V on the emulated rig). A random wait of 0..48 us first turns it into
+ * zero-mean noise. */
+static uint8_t phase_rand = 0x5A;
 static uint16_t current_sum()
 {
+    phase_rand ^= (uint8_t)(phase_rand << 3); /* xorshift: period 255 */
+    phase_rand ^= (uint8_t)(phase_rand >> 5);
+    phase_rand ^= (uint8_t)(phase_rand << 4);
+    for (uint8_t k = phase_rand & 63; k; --k) { /* ~12 cycles a turn */
+        __asm__ __volatile__("nop\n\tnop\n\tnop\n\tnop\n\tnop\n\tnop\n\tnop\n\tnop\n\t");
+    }
     uint16_t sum = 0;
     for (uint8_t k = 0; k < CURRENT_OVERSAMPLE; ++k) sum += adc_read(ADC_CURRENT);
     return sum;
@@ -341,7 +353,7 @@ static void take_sample(uint32_t t)
         max_edges = (MAX_EDGE_RATE / 100UL) * (edge_period_us / 100UL) / 100UL + 1;
     }
     uint32_t edges = (uint32_t)labs(count - last_count);
-    if (edges > max_edges) {
+    if (board.counter != 0 && edges > max_edges) { /* not across streams */
         pmdc_board_trip(&board, PMDC_FAULT_OVER_SPEED);
     }
     last_count = count;
