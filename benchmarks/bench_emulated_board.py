@@ -75,7 +75,8 @@ def main() -> int:
             )
         s = scripted(elf, emu, baud, "--host", str(board_min - 10), "--duration", "0.2")
         print(
-            f"{baud:>8} {board_min - 10:>9}  refused: {s['host']['errors'] == 1 and s['host']['frames'] == 0}"
+            f"{baud:>8} {board_min - 10:>9}  refused: "
+            f"{s['host']['errors'] == 1 and s['host']['frames'] == 0}"
         )
     elf, emu = rigs[1000000]
     s = scripted(elf, emu, 1000000, "--host", "1000", "--ramp", "700,3,0.2", "--duration", "3.3")
@@ -135,7 +136,8 @@ def main() -> int:
     board.cleanup()
     print(
         f"samples {n}, dropped {st.dropped_samples}, crc {st.crc_errors}, host-skipped "
-        f"{be.skipped_samples}; emulator: {es.get('cpu_s', 0) / max(1e-9, es.get('sim_s', 1)):.3f} "
+        f"{be.skipped_samples}; emulator: "
+        f"{es.get('cpu_s', 0) / max(1e-9, es.get('sim_s', 1)):.3f} "
         f"s CPU per simulated second (real time = 1.000), {es.get('stalled_s', 0):.2f} s stalled"
     )
     return 0
