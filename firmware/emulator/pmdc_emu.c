@@ -10,27 +10,34 @@
  *     through the body diodes to zero, then the winding floats);
  *   - the motor: L di/dt = V - R i - Ke w, J dw/dt = Kt i - B w - friction - load,
  *     stepped exactly (zero-order hold of the matrix exponential) at every pin edge
- *     and at least every microsecond (16 cycles), so each PWM pulse is integrated
- *     as the winding sees it; Coulomb friction holds a rotor at rest (stiction);
+ *     and at least every 4 us (64 cycles), so each PWM pulse is integrated as the
+ *     winding sees it; Coulomb friction holds a rotor at rest (stiction);
  *   - the sensors: ACS712 (2.5 V + gain * i, plus noise) on ADC0, the supply
  *     divider on ADC1, the terminal dividers (with their RC low-pass) on ADC2/ADC3,
  *     sampled when the ADC's sample-and-hold closes (1.5 ADC clocks after the start);
  *   - the encoder: the shaft angle drives quadrature edges on PD2/PD3 (INT0/INT1);
  *   - the UART: bridged to a pseudo-terminal, host bytes fed at the wire rate.
  *
- * With --realtime (default) simulated time is held to the wall clock, so a host on
- * the pty sees a board at its real speed: ahead, it sleeps; behind (its process was
- * starved), it runs flat out to catch up, as a crystal-clocked board never lags;
- * more than 1 s behind (paused), the lost time is counted and not made up. --free-run runs as fast as it can, for
+ * By default simulated time is held to the wall clock, so a host on the pty sees a
+ * board at its real speed: ahead, it sleeps; behind (its process was starved), it
+ * catches up as fast as its CPU lets it, as a crystal-clocked board never lags; paused
+ * (SIGSTOP/SIGCONT) or more than 1 s behind, the lost time is counted and not made up,
+ * and being behind is reported (stats, and a line on stderr past 0.25 s). A board has
+ * a CPU of its own: --cpu-share F reserves F of a core with SCHED_DEADLINE where
+ * permitted, so no other task (real-time ones included) holds it up, and the kernel
+ * never gives it more, whatever it does. --free-run runs as fast as it can, for
  * measurements with the built-in scripted host (--host), which speaks the protocol
  * through the same UART (the portable core of firmware/protocol encodes its frames
  * and parses the board's) and reports drops, latency, the watchdog and the encoder.
  *
  * Measurements in the --stats JSON: CPU use of the sketch from cycle counts (cycles
  * in interrupts, in the sample routine (D13 high), in host-byte handling (D12 high),
- * idle), ADC conversions, command-to-PWM latency, encoder edges and missed counts
+ * idle), when each sample's count was latched (D11) and its routine started, against
+ * the grid instant its telemetry names (the board's output is decoded here, whatever
+ * the host), ADC conversions, command-to-PWM latency, encoder edges and missed counts
  * (the firmware's pmdc_encoder_count compared with the emitted edges whenever no
- * encoder interrupt is pending), the emulator's own CPU time per simulated second.
+ * encoder interrupt is pending), the emulator's own CPU time per simulated second and
+ * how far it fell behind the wall clock.
  *
  * Signals: SIGINT/SIGTERM end it (the pty disappears: a pulled cable); SIGUSR1
  * resets the AVR (as a brown-out would; the motor keeps turning); SIGUSR2 cuts or
@@ -54,6 +61,7 @@
 #include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
+#include <sys/syscall.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -69,13 +77,14 @@
 #include "pmdc_protocol.h"
 
 #define F_CPU 16000000.0
-#define TICK_CYCLES 16 /* the motor is stepped at least every microsecond */
+#define TICK_CYCLES 64 /* the motor is stepped at least every 4 us (and at every edge) */
 #define TWO_PI 6.283185307179586
 /* ATmega328P data-space addresses */
 #define R_PIND 0x29
 #define R_DDRB 0x24
 #define R_PORTB 0x25
 #define R_EIFR 0x3C
+#define R_TCCR0B 0x45
 #define R_EIMSK 0x3D
 #define R_ADCSRA 0x7A
 #define R_TCCR1A 0x80
@@ -99,6 +108,7 @@ typedef struct {
     long parent;
     const char *stats;
     const char *profile;
+    double cpu_share; /* SCHED_DEADLINE reservation, fraction of a core (0: none) */
     /* encoder test: the shaft is driven at a speed ramping 0 -> ramp_w over ramp_s */
     double ramp_w, ramp_s, ramp_start_s;
     /* scripted host */
@@ -112,12 +122,12 @@ static options_t opt = {
     .Tc = 0.0256, .Tload = 0.0, .supply_v = 24.0, .acs_v_per_a = 0.100, .divider = 11.0,
     .term_tau_s = 1e-3, .current_noise_a = 0.0, .seed = 1, .counts_per_rev = 2048,
     .baud = 115200, .realtime = 1, .duration_s = 0.0, .parent = 0,
-    .host_step_v = 6.0, .host_step_every_s = 0.05,
+    .host_step_v = 6.0, .host_step_every_s = 0.05, .cpu_share = 0.0,
 };
 
 /* ---- globals -------------------------------------------------------------------- */
 static avr_t *avr;
-static volatile sig_atomic_t sig_stop, sig_reset, sig_cut;
+static volatile sig_atomic_t sig_stop, sig_reset, sig_cut, sig_cont;
 static int line_cut;
 
 /* motor state */
@@ -148,8 +158,23 @@ static uint32_t adc_prescaler = 128;
 
 /* CPU accounting (cycles) */
 static uint64_t cyc_isr, cyc_sample, cyc_rx, cyc_idle, n_samples_pin;
-static uint64_t sample_hi_since, sample_max_cycles;
-static int sample_pin;
+static uint64_t sample_hi_since, sample_max_cycles, rx_hi_since, rx_max_cycles;
+static int sample_pin, rx_pin, capture_pin;
+
+/* Sample instants: when the firmware latched the encoder (its capture pulse on D11) and
+ * when its sample routine started (D13 rising), against the grid instant the telemetry
+ * names (time_us, on the board's micros() clock = (cycle - t0_cycle) / 16). */
+typedef struct {
+    uint64_t n;
+    double sum, min, max;
+} lateness_t;
+#define RING 8
+static uint64_t cap_ring[RING], start_ring[RING];
+static unsigned cap_w, start_w;
+static lateness_t late_cap = {0, 0, 1e9, -1e9}, late_start = {0, 0, 1e9, -1e9};
+static uint64_t t0_cycle;
+static int t0_seen;
+static pmdc_parser_t mon_parser; /* the board's output, as a host would read it */
 
 /* UART bridge */
 static avr_irq_t *uart_in;
@@ -178,6 +203,9 @@ static uint64_t host_boots, host_watchdog_open_cycle, host_silent_cycle;
 static double host_watchdog_s = -1.0, host_open_after_frame_s = -1.0;
 static int64_t host_enc_last;
 static uint64_t stalled_cycles;
+/* real-time pacing: how far behind the wall clock the board fell, and how it is scheduled */
+static double behind_max_s, behind_total_s;
+static char sched_text[96] = "normal";
 static uint64_t *profile; /* cycles per flash word (--profile) */
 
 static double now_s(void) { return (double)avr->cycle / F_CPU; }
@@ -387,11 +415,64 @@ static void on_portb(struct avr_irq_t *irq, uint32_t value, void *param)
     if (hi && !sample_pin) {
         sample_hi_since = avr->cycle;
         n_samples_pin++;
+        start_ring[start_w++ % RING] = avr->cycle;
     } else if (!hi && sample_pin) {
         uint64_t d = avr->cycle - sample_hi_since;
         if (d > sample_max_cycles) sample_max_cycles = d;
     }
     sample_pin = hi;
+    hi = (value >> 4) & 1; /* D12: a host byte is handled */
+    if (hi && !rx_pin) {
+        rx_hi_since = avr->cycle;
+    } else if (!hi && rx_pin) {
+        uint64_t d = avr->cycle - rx_hi_since;
+        if (d > rx_max_cycles) rx_max_cycles = d;
+    }
+    rx_pin = hi;
+    hi = (value >> 3) & 1; /* D11: the encoder count is latched for a sample */
+    if (hi && !capture_pin) cap_ring[cap_w++ % RING] = avr->cycle;
+    capture_pin = hi;
+}
+
+/* The instant in `ring` that belongs to the grid instant `expect` (cycles): the first at
+ * or after it, less the 4 us steps of micros(). */
+static void lateness_add(lateness_t *l, const uint64_t *ring, unsigned written, uint64_t expect)
+{
+    uint64_t best = 0;
+    int found = 0;
+    unsigned n = written < RING ? written : RING;
+    for (unsigned k = 0; k < n; ++k) {
+        uint64_t c = ring[k];
+        if (c + 64 >= expect && (!found || c < best)) {
+            best = c;
+            found = 1;
+        }
+    }
+    if (!found) return;
+    double us = ((double)best - (double)expect) / 16.0;
+    l->n++;
+    l->sum += us;
+    if (us < l->min) l->min = us;
+    if (us > l->max) l->max = us;
+}
+
+/* A telemetry frame the board sent: how late its sample was taken. */
+static void timing_on_telemetry(uint32_t time_us)
+{
+    if (!t0_seen) return;
+    uint64_t expect = t0_cycle + (uint64_t)time_us * 16;
+    lateness_add(&late_cap, cap_ring, cap_w, expect);
+    lateness_add(&late_start, start_ring, start_w, expect);
+}
+
+static void monitor_byte(uint8_t byte)
+{
+    uint8_t payload[PMDC_MAX_PAYLOAD];
+    pmdc_msg_t m;
+    int n = pmdc_parser_feed(&mon_parser, byte, payload);
+    if (n > 0 && pmdc_decode_payload(payload, (size_t)n, &m) == PMDC_OK &&
+        m.type == PMDC_TELEMETRY)
+        timing_on_telemetry(m.u.telemetry.time_us);
 }
 
 /* ---- Timer1's waveform generator ---------------------------------------------------
@@ -506,6 +587,10 @@ static avr_cycle_count_t on_tick(struct avr_t *a, avr_cycle_count_t when, void *
     motor_advance();
     t1_watch();
     bridge_refresh(); /* catches TCCR1A (COM bits) writes, which raise no IRQ */
+    if (!t0_seen && (avr->data[R_TCCR0B] & 7)) { /* Timer0 started: micros() counts */
+        t0_seen = 1;
+        t0_cycle = avr->cycle;
+    }
     double rate = fabs(m_w) * (double)opt.counts_per_rev / TWO_PI;
     if (rate > enc_max_rate) enc_max_rate = rate;
     if ((when & 0x3FF) < TICK_CYCLES) encoder_check();
@@ -557,6 +642,7 @@ static void on_uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
     (void)irq;
     (void)param;
     uint8_t b = (uint8_t)value;
+    monitor_byte(b);
     if (opt.host_period_us) {
         host_on_byte(b);
         return;
@@ -762,7 +848,43 @@ static void on_signal(int sig)
 {
     if (sig == SIGUSR1) sig_reset = 1;
     else if (sig == SIGUSR2) sig_cut = 1;
+    else if (sig == SIGCONT) sig_cont = 1;
     else sig_stop = 1;
+}
+
+/* SCHED_DEADLINE: the kernel reserves `share` of a core for this process in every 10 ms
+ * and never gives it more. The board keeps its time on a busy machine (no other task,
+ * real-time ones included, can hold it up), and a catching-up emulator cannot take a
+ * whole core (a real-time priority would let it starve the host it serves). Needs
+ * CAP_SYS_NICE; where refused, it runs as started (the caller may have niced it). */
+struct pmdc_sched_attr {
+    uint32_t size, sched_policy;
+    uint64_t sched_flags;
+    int32_t sched_nice;
+    uint32_t sched_priority;
+    uint64_t sched_runtime, sched_deadline, sched_period;
+};
+
+static void reserve_cpu(double share)
+{
+    errno = 0;
+    int nice_v = getpriority(PRIO_PROCESS, 0);
+    snprintf(sched_text, sizeof sched_text, "normal, nice %d", nice_v);
+    if (share <= 0) return;
+#ifdef SYS_sched_setattr
+    struct pmdc_sched_attr a;
+    memset(&a, 0, sizeof a);
+    a.size = sizeof a;
+    a.sched_policy = 6; /* SCHED_DEADLINE */
+    a.sched_period = a.sched_deadline = 10000000ULL;
+    a.sched_runtime = (uint64_t)(share * 1e7);
+    if (syscall(SYS_sched_setattr, 0, &a, 0) == 0) {
+        snprintf(sched_text, sizeof sched_text, "deadline, %.2f of a core", share);
+        return;
+    }
+    snprintf(sched_text, sizeof sched_text, "normal, nice %d (deadline refused: %s)", nice_v,
+             strerror(errno));
+#endif
 }
 
 static double wall_now(void)
@@ -797,7 +919,11 @@ static void write_stats(double wall_s)
     fprintf(f,
             "{\"sim_s\": %.6f, \"wall_s\": %.6f, \"cpu_s\": %.6f, \"stalled_s\": %.6f,\n"
             " \"cpu\": {\"isr\": %.6f, \"sample\": %.6f, \"rx\": %.6f, \"idle\": %.6f},\n"
-            " \"samples_pin\": %llu, \"sample_max_us\": %.2f,\n"
+            " \"samples_pin\": %llu, \"sample_max_us\": %.2f, \"rx_max_us\": %.2f,\n"
+            " \"timing\": {\"capture_late_us\": {\"n\": %llu, \"mean\": %.2f, \"min\": %.2f, "
+            "\"max\": %.2f}, \"start_late_us\": {\"n\": %llu, \"mean\": %.2f, \"min\": %.2f, "
+            "\"max\": %.2f}},\n"
+            " \"realtime\": {\"sched\": \"%s\", \"behind_max_s\": %.4f, \"behind_s\": %.3f},\n"
             " \"adc\": {\"conversions\": %llu, \"prescaler\": %u, \"conversion_us\": %.3f},\n"
             " \"latency_us\": {\"n\": %llu, \"mean\": %.2f, \"max\": %.2f},\n"
             " \"encoder\": {\"counts_per_rev\": %ld, \"edges\": %llu, \"missed\": %llu, "
@@ -811,7 +937,12 @@ static void write_stats(double wall_s)
             " \"motor\": {\"i\": %.6f, \"w\": %.6f, \"theta\": %.6f}}\n",
             sim, wall_s, cpu, stalled_cycles / F_CPU, cyc_isr / total, cyc_sample / total,
             cyc_rx / total, cyc_idle / total, (unsigned long long)n_samples_pin,
-            sample_max_cycles / 16.0, (unsigned long long)adc_conversions, adc_prescaler,
+            sample_max_cycles / 16.0, rx_max_cycles / 16.0, (unsigned long long)late_cap.n,
+            late_cap.n ? late_cap.sum / late_cap.n : 0.0, late_cap.n ? late_cap.min : 0.0,
+            late_cap.n ? late_cap.max : 0.0, (unsigned long long)late_start.n,
+            late_start.n ? late_start.sum / late_start.n : 0.0, late_start.n ? late_start.min : 0.0,
+            late_start.n ? late_start.max : 0.0, sched_text, behind_max_s, behind_total_s,
+            (unsigned long long)adc_conversions, adc_prescaler,
             13.0 * adc_prescaler / 16.0, (unsigned long long)lat_n,
             lat_n ? lat_sum / 16.0 / lat_n : 0.0, lat_max / 16.0, opt.counts_per_rev,
             (unsigned long long)enc_edges, (unsigned long long)enc_missed,
@@ -843,7 +974,9 @@ static void usage(FILE *f)
             "  --host PERIOD_US  scripted host instead of the pty: HELLO, START_STREAM,\n"
             "                    voltage steps (--step V,EVERY_S), pings\n"
             "  --host-silent-at S  the scripted host falls silent at S (watchdog test)\n"
-            "  --profile FILE  cycles spent per flash address (\"ADDR CYCLES\" lines)\n");
+            "  --profile FILE  cycles spent per flash address (\"ADDR CYCLES\" lines)\n"
+            "  --cpu-share F  reserve F of a core (0.05..0.95) with SCHED_DEADLINE where\n"
+            "                 permitted: always served, never more (else it runs as started)\n");
 }
 
 static int parse(int argc, char **argv)
@@ -855,7 +988,8 @@ static int parse(int argc, char **argv)
         {"baud", 1, 0, 'b'}, {"free-run", 0, 0, 'F'}, {"duration", 1, 0, 'D'},
         {"link", 1, 0, 'l'}, {"parent", 1, 0, 'p'}, {"stats", 1, 0, 'j'},
         {"ramp", 1, 0, 'r'}, {"host", 1, 0, 'H'}, {"host-silent-at", 1, 0, 'w'},
-        {"step", 1, 0, 'x'}, {"profile", 1, 0, 'P'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+        {"step", 1, 0, 'x'}, {"profile", 1, 0, 'P'}, {"cpu-share", 1, 0, 'C'},
+        {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     int c;
     while ((c = getopt_long(argc, argv, "", lo, NULL)) != -1) {
         switch (c) {
@@ -902,6 +1036,7 @@ static int parse(int argc, char **argv)
             }
             break;
         case 'P': opt.profile = optarg; break;
+        case 'C': opt.cpu_share = atof(optarg); break;
         case 'h': usage(stdout); exit(0);
         default: usage(stderr); return -1;
         }
@@ -912,8 +1047,10 @@ static int parse(int argc, char **argv)
     }
     if (!(opt.R > 0 && opt.L > 0 && opt.Ke > 0 && opt.Kt > 0 && opt.J > 0 && opt.B >= 0 &&
           opt.Tc >= 0 && opt.supply_v > 0 && opt.counts_per_rev > 0 && opt.baud >= 300 &&
-          opt.term_tau_s > 0 && opt.divider > 0 && opt.acs_v_per_a > 0)) {
-        fprintf(stderr, "pmdc_emu: motor, supply, sensor and encoder values must be positive\n");
+          opt.term_tau_s > 0 && opt.divider > 0 && opt.acs_v_per_a > 0 &&
+          (opt.cpu_share == 0.0 || (opt.cpu_share >= 0.05 && opt.cpu_share <= 0.95)))) {
+        fprintf(stderr, "pmdc_emu: motor, supply, sensor and encoder values must be positive, "
+                        "--cpu-share within 0.05..0.95\n");
         return -1;
     }
     return 0;
@@ -935,6 +1072,7 @@ int main(int argc, char **argv)
     sigaction(SIGHUP, &sa, NULL);
     sigaction(SIGUSR1, &sa, NULL);
     sigaction(SIGUSR2, &sa, NULL);
+    sigaction(SIGCONT, &sa, NULL);
     signal(SIGPIPE, SIG_IGN);
     rng_state ^= (uint64_t)opt.seed * 0x9E3779B97F4A7C15ULL;
 
@@ -988,7 +1126,9 @@ int main(int argc, char **argv)
     if (opt.profile) profile = calloc(0x4000, sizeof *profile);
     node_p = node_n = 0.0;
     pmdc_parser_init(&host_parser);
+    pmdc_parser_init(&mon_parser);
     register_timers();
+    reserve_cpu(opt.cpu_share);
 
     if (!opt.host_period_us) {
         if (open_pty() != 0) {
@@ -1008,6 +1148,7 @@ int main(int argc, char **argv)
 
     const uint64_t slice = 4096; /* 256 us of board time between I/O and pacing */
     double wall0 = wall_now(), wall_start = wall0, sim0 = 0.0, last_parent = wall0;
+    double last_wall = wall0, last_warn = -1e9;
     uint64_t end_cycle = opt.duration_s > 0 ? (uint64_t)(opt.duration_s * F_CPU) : UINT64_MAX;
     int status = 0;
     while (!sig_stop && avr->cycle < end_cycle) {
@@ -1036,6 +1177,8 @@ int main(int argc, char **argv)
             motor_advance();
             avr_reset(avr); /* clears the cycle timers: ours go back on */
             enc_armed = 0;
+            t0_seen = 0; /* micros() starts again */
+            cap_w = start_w = 0;
             oc1a = oc1b = 0;
             rx_len = 0;
             uart_xon = 1;
@@ -1051,13 +1194,36 @@ int main(int argc, char **argv)
         pty_io();
         double wall = wall_now();
         if (opt.realtime) {
+            /* Paced by the wall clock: ahead, it waits; behind, it catches up as fast as
+             * its CPU reservation lets it (a crystal-clocked board never lags). Paused
+             * (SIGSTOP, then SIGCONT), or more than 1 s behind, the board's clock stood
+             * still: the lost time is counted, not made up in a burst. */
             double ahead = (now_s() - sim0) - (wall - wall0);
-            if (ahead < -1.0) { /* paused (or starved for long): the board's clock stood
-                                 * still; it goes on in real time, without a burst */
-                double lost = -ahead;
+            if (sig_cont || ahead < -1.0) {
+                if (!sig_cont) {
+                    fprintf(stderr,
+                            "pmdc_emu: the board's clock stood still for %.2f s at board "
+                            "time %.1f s: the emulator got no CPU (%s; raise --cpu-share)\n",
+                            -ahead, now_s(), sched_text);
+                }
+                sig_cont = 0;
+                double lost = ahead < 0 ? -ahead : 0.0;
                 wall0 += lost;
                 stalled_cycles += (uint64_t)(lost * F_CPU);
-            } else if (ahead > 0.0005) {
+                ahead = 0.0;
+            } else if (ahead < 0.0) {
+                if (-ahead > behind_max_s) behind_max_s = -ahead;
+                if (ahead < -0.05) behind_total_s += wall - last_wall;
+                if (ahead < -0.25 && wall - last_warn > 10.0) {
+                    last_warn = wall;
+                    fprintf(stderr,
+                            "pmdc_emu: the board runs %.2f s behind real time at board time "
+                            "%.1f s: the emulator gets too little CPU (%s; raise --cpu-share)\n",
+                            -ahead, now_s(), sched_text);
+                }
+            }
+            last_wall = wall;
+            if (ahead > 0.0005) {
                 struct pollfd p = {.fd = pty_master, .events = POLLIN};
                 int ms = (int)(ahead * 1000.0);
                 if (ms > 5) ms = 5;

@@ -9,7 +9,12 @@ The host opens :attr:`EmulatedBoard.port` exactly as it opens the Python
 :class:`~pmdc_ident.backends.virtual_board.VirtualBoard`'s, or a real board.
 
 The emulator process ends with this one (it asks the kernel for a parent-death
-signal and checks its parent itself), on :meth:`close`, and on SIGINT/SIGTERM.
+signal and checks its parent itself), on :meth:`close`, and on SIGINT/SIGTERM. It
+keeps the board's time against the wall clock with a bounded CPU reservation
+(``cpu_share`` of a core, SCHED_DEADLINE where permitted; never a real-time priority
+that a catching-up emulator could use to starve its host), and says so on its log
+when it falls behind (the machine gives it too little CPU). Its messages go to
+``log`` (default: stderr).
 Fault paths: :meth:`reset` (the AVR resets, as after a brown-out), :meth:`cut_line`
 (the serial line is cut with the board powered), :meth:`pause`/:meth:`resume` (the
 whole board freezes), :meth:`unplug` (the process ends: the pty disappears).
@@ -20,6 +25,7 @@ Needs Debian's ``gcc-avr avr-libc arduino-core-avr libsimavr-dev`` (``simavr``,
 
 from __future__ import annotations
 
+import collections
 import json
 import math
 import os
@@ -28,25 +34,37 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from pmdc_ident.backends.base import BackendError
 from pmdc_ident.core.effects import CoulombFriction, LoadTorque
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.motors import MotorSpec, share_candidates
+from pmdc_ident.protocol import min_period_us
 
 __all__ = [
+    "CPU_SHARE",
     "DEFAULT_COUNTS_PER_REV",
     "EmulatedBoard",
     "EmulatorError",
+    "board_min_period_us",
     "build_firmware",
+    "counts_for_motor",
     "firmware_dir",
     "tools_missing",
 ]
 
 DEFAULT_COUNTS_PER_REV = 2048  # PMDC_COUNTS_PER_REV of the sketch
+HW_MIN_PERIOD_US = 1000  # HW_MIN_PERIOD_US of the sketch (its CPU's limit)
+MAX_EDGE_RATE = 100_000  # MAX_EDGE_RATE of the sketch: quadrature edges/s it follows
+# The emulator's CPU reservation (SCHED_DEADLINE, fraction of one core): it needs about
+# 0.35 to keep a 1 kHz stream in real time, the rest is its margin to catch up after
+# a stall. Bounded by the kernel: it can never take more, whatever it does.
+CPU_SHARE = 0.6
 APT_PACKAGES = "gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev"
 _ARDUINO_CORE = Path("/usr/share/arduino/hardware/arduino/avr/cores/arduino/Arduino.h")
 _SIMAVR_HEADER = Path("/usr/include/simavr/sim_avr.h")
@@ -73,6 +91,32 @@ def tools_missing() -> str | None:
     if not missing:
         return None
     return f"{', '.join(missing)} not installed (apt-get install {APT_PACKAGES})"
+
+
+def board_min_period_us(baud: int) -> int:
+    """The shortest period the sketch accepts at ``baud`` (the line's or its CPU's)."""
+    return max(min_period_us(int(baud)), HW_MIN_PERIOD_US)
+
+
+def counts_for_motor(spec: MotorSpec) -> tuple[int, str]:
+    """Encoder counts per turn for this motor on the emulated Uno, and why, in words.
+
+    The motor file's encoder (else the sketch's default), halved until the motor's
+    speed limit stays within the edges the sketch's interrupt follows: beyond them it
+    trips OVER_SPEED, as it must on a real Uno with that encoder. ``why`` is empty
+    when the file's encoder fits."""
+    wanted = int(spec.sensors.encoder_counts_per_rev) or DEFAULT_COUNTS_PER_REV
+    speed = spec.limits.speed_max_rad_s
+    cpr = wanted
+    while cpr > 64 and speed * cpr / (2.0 * math.pi) > MAX_EDGE_RATE:
+        cpr //= 2
+    if cpr == wanted:
+        return cpr, ""
+    need = speed * wanted / (2.0 * math.pi)
+    return cpr, (
+        f"the motor file's {wanted} would need {need:,.0f} edges/s at its "
+        f"{speed:g} rad/s limit; the sketch follows {MAX_EDGE_RATE:,}"
+    )
 
 
 def build_firmware(baud: int, counts_per_rev: int = 0) -> tuple[Path, Path]:
@@ -122,18 +166,21 @@ def motor_arguments(spec: MotorSpec) -> str:
 
 
 def _raise_priority() -> None:
-    """In the emulator before exec: SCHED_RR where permitted, else a lower niceness.
+    """In the emulator before exec: a lower niceness where permitted.
 
     (A local copy of what nodes/priority.py does for the nodes: backends may not
-    import the node layer.) Round-robin at a low real-time priority: the emulator
-    sleeps whenever it is ahead of the wall clock, so it takes ~0.4 of a core."""
+    import the node layer.) The emulator then asks for its CPU reservation itself
+    (``--cpu-share``, SCHED_DEADLINE); this niceness is what it keeps where that is
+    refused. Never a real-time priority: a catching-up emulator would take a whole
+    core from the host it serves."""
     try:
-        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(10))
-    except (OSError, AttributeError):
-        try:
-            os.setpriority(os.PRIO_PROCESS, 0, -5)
-        except OSError:
-            pass
+        os.setpriority(os.PRIO_PROCESS, 0, -10)
+    except OSError:
+        pass
+
+
+def _to_stderr(text: str) -> None:
+    print(f"emulated board: {text}", file=sys.stderr, flush=True)
 
 
 class EmulatedBoard:
@@ -149,9 +196,10 @@ class EmulatedBoard:
         counts_per_rev: int = DEFAULT_COUNTS_PER_REV,
         current_noise_a: float | None = None,
         realtime: bool = True,
-        priority: bool = True,
+        cpu_share: float = CPU_SHARE,
         stats_path: str | Path | None = None,
         extra_args: tuple[str, ...] = (),
+        log: Callable[[str], None] | None = None,
     ) -> None:
         if not 1200 <= int(baud) <= 2_000_000:
             msg = f"baud must be within 1200..2000000, got {baud}"
@@ -164,7 +212,16 @@ class EmulatedBoard:
         noise = motor.sensors.current_noise_a if current_noise_a is None else current_noise_a
         self.current_noise_a = float(noise)
         self.realtime = realtime
-        self.priority = priority  # SCHED_RR where permitted: a board has a CPU of its own
+        if not (cpu_share == 0.0 or 0.05 <= cpu_share <= 0.95):
+            msg = f"cpu_share must be 0 (none) or within 0.05..0.95 of a core, got {cpu_share}"
+            raise ParameterError(msg)
+        # A board has a CPU of its own: the emulator gets a bounded reservation where the
+        # system permits it (0: it runs as a normal process).
+        self.cpu_share = float(cpu_share)
+        self.log = log if log is not None else _to_stderr
+        self._stderr_lines: collections.deque[str] = collections.deque(maxlen=20)
+        self._readers: list[threading.Thread] = []
+        self._pty_line = threading.Event()
         self._own_stats = stats_path is None
         self.stats_path = Path(stats_path) if stats_path is not None else None
         self.extra_args = tuple(extra_args)
@@ -185,6 +242,8 @@ class EmulatedBoard:
         cmd += ["--current-noise", f"{self.current_noise_a:g}", "--parent", str(os.getpid())]
         if not self.realtime:
             cmd.append("--free-run")
+        if self.cpu_share > 0:
+            cmd += ["--cpu-share", f"{self.cpu_share:g}"]
         if self.stats_path is not None:
             cmd += ["--stats", str(self.stats_path)]
         return [*cmd, *self.extra_args]
@@ -200,34 +259,66 @@ class EmulatedBoard:
         if self._own_stats:
             self._tmp = tempfile.TemporaryDirectory(prefix="pmdc_emu_")
             self.stats_path = Path(self._tmp.name) / "stats.json"
+        self._pty_line.clear()
+        self._stderr_lines.clear()
         self.proc = subprocess.Popen(
             self.command(),
-            preexec_fn=_raise_priority if self.priority else None,
+            preexec_fn=_raise_priority if self.cpu_share > 0 else None,
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
         )
+        # Both pipes are read to the end (a full pipe would stop the emulator): stdout
+        # for the pty's name, stderr line by line to the log.
+        assert self.proc.stdout is not None and self.proc.stderr is not None
+        self._readers = [
+            threading.Thread(target=self._read_stdout, args=(self.proc.stdout,), daemon=True),
+            threading.Thread(target=self._read_stderr, args=(self.proc.stderr,), daemon=True),
+        ]
+        for t in self._readers:
+            t.start()
         deadline = time.monotonic() + timeout_s
-        assert self.proc.stdout is not None
-        while time.monotonic() < deadline:
-            line = self.proc.stdout.readline()
-            if line.startswith("pty "):
-                self.port = line.split(None, 1)[1].strip()
+        while time.monotonic() < deadline and self.proc.poll() is None:
+            if self._pty_line.wait(0.05):
                 return self
-            if not line and self.proc.poll() is not None:
-                break
+        if self._pty_line.is_set():
+            return self
         err = self._stderr_tail()
         self.close()
         msg = f"emulated board did not start: {err or 'no pty within the timeout'}"
         raise EmulatorError(msg)
 
+    def _read_stdout(self, stream: IO[str]) -> None:
+        for line in stream:
+            if line.startswith("pty ") and not self._pty_line.is_set():
+                self.port = line.split(None, 1)[1].strip()
+                self._pty_line.set()
+
+    def _read_stderr(self, stream: IO[str]) -> None:
+        for line in stream:
+            text = line.rstrip()
+            if text:
+                self._stderr_lines.append(text)
+                if self._pty_line.is_set():  # start-up errors go into the exception
+                    self.log(text.removeprefix("pmdc_emu: "))
+
     def _stderr_tail(self) -> str:
         proc = self.proc
-        if proc is None or proc.poll() is None or proc.stderr is None:
+        if proc is None:
             return ""
-        lines = [ln for ln in proc.stderr.read().splitlines() if ln.strip()]
-        return lines[-1] if lines else f"exit status {proc.returncode}"
+        try:
+            proc.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
+            return ""
+        for t in self._readers:
+            t.join(timeout=2.0)
+        return self._stderr_lines[-1] if self._stderr_lines else f"exit status {proc.returncode}"
+
+    @property
+    def stderr_lines(self) -> list[str]:
+        """The emulator's last messages (AVR reset, line cut, behind real time, ...)."""
+        return list(self._stderr_lines)
 
     @property
     def running(self) -> bool:
@@ -270,6 +361,9 @@ class EmulatedBoard:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait(timeout=timeout_s)
+        for t in self._readers:  # the pipes end with the process
+            t.join(timeout=timeout_s)
+        self._readers = []
         for stream in (proc.stdout, proc.stderr):
             if stream is not None:
                 stream.close()

@@ -64,7 +64,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--counts-per-rev",
         type=int,
         default=0,
-        help="--emulated: encoder counts per turn the sketch is built for (0: the sketch's)",
+        help="--emulated: encoder counts per turn the sketch is built for (0: the motor "
+        "file's, halved until its speed limit stays within the edges the sketch follows)",
+    )
+    parser.add_argument(
+        "--cpu-share",
+        type=float,
+        default=None,
+        help="--emulated: fraction of a core reserved for the emulator where permitted "
+        "(SCHED_DEADLINE: always served, never more; 0 = none; default: a 1 kHz stream's "
+        "need and a margin to catch up)",
     )
     parser.add_argument(
         "--protocol-version",
@@ -76,6 +85,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _stop(_sig: int, _frame: FrameType | None) -> None:
     raise KeyboardInterrupt
+
+
+def _link(link: Path | None, port: str) -> None:
+    if link is not None:
+        if link.is_symlink():
+            link.unlink()
+        os.symlink(port, link)
+
+
+def _unlink(link: Path | None, port: str) -> None:
+    """Remove the link only if it is still ours (another board may have taken it), and
+    before closing: a board started next may reuse the pty's number."""
+    if link is not None and link.is_symlink() and os.readlink(link) == port:
+        link.unlink()
+
+
+def _announce(port: str, link: Path | None, baud: int, what: str, min_us: int, keys: str) -> None:
+    """The board's port, its link, and the driver's command line to reach it."""
+    print(
+        f"virtual board on {port} ({baud} baud, {what}, shortest period {min_us} us = "
+        f"{1e6 / min_us:.0f} Hz)",
+        flush=True,
+    )
+    if link is not None:
+        print(f"linked as {link}", flush=True)
+    print(
+        f"driver: ros2 run pmdc_ident driver_node --ros-args -p backend:=serial "
+        f"-p port:={link or port} -p baud:={baud} -p rate_hz:={min(1000.0, 1e6 / min_us):.1f}"
+        f"  (Ctrl-C to stop; {keys})",
+        flush=True,
+    )
 
 
 def _check_link(link: Path | None) -> None:
@@ -108,6 +148,9 @@ def run(args: argparse.Namespace) -> int:
     _check_link(args.link)
     if args.emulated:
         return _run_emulated(args, spec)
+    if args.cpu_share is not None or args.counts_per_rev:
+        msg = "--cpu-share and --counts-per-rev are for the emulated board (--emulated)"
+        raise ParameterError(msg)
     board = VirtualBoard(
         spec,
         baud=args.baud,
@@ -121,25 +164,15 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError):
         pass  # not permitted: run at the normal priority
     try:
-        if link is not None:
-            if link.is_symlink():
-                link.unlink()
-            os.symlink(board.port, link)
+        _link(link, board.port)
         info = board.core.info
-        print(
-            f"virtual board on {board.port} ({args.baud} baud, motor {spec.name}, "
-            f"protocol v{info.protocol_version}, shortest period {info.min_period_us} us = "
-            f"{1e6 / info.min_period_us:.0f} Hz)",
-            flush=True,
-        )
-        if link is not None:
-            print(f"linked as {link}", flush=True)
-        print(
-            f"driver: ros2 run pmdc_ident driver_node --ros-args -p backend:=serial "
-            f"-p port:={link or board.port} -p baud:={args.baud} "
-            f"-p rate_hz:={min(1000.0, 1e6 / info.min_period_us):.1f}  "
-            f"(Ctrl-C to stop; kill -USR1 {os.getpid()} to reset the board)",
-            flush=True,
+        _announce(
+            board.port,
+            link,
+            args.baud,
+            f"motor {spec.name}, protocol v{info.protocol_version}",
+            info.min_period_us,
+            f"kill -USR1 {os.getpid()} to reset the board",
         )
         # Stop on Ctrl-C and SIGTERM even when started in the background by a
         # shell (which would leave SIGINT ignored).
@@ -158,16 +191,18 @@ def run(args: argparse.Namespace) -> int:
         )
         return 0
     finally:
-        # Remove the link only if it is still ours (another board may have taken it),
-        # and before closing: a board started next may reuse the pty's number.
-        if link is not None and link.is_symlink() and os.readlink(link) == board.port:
-            link.unlink()
+        _unlink(link, board.port)
         board.close()
 
 
 def _run_emulated(args: argparse.Namespace, spec: Any) -> int:
     """The reference sketch on simavr (see the module docstring)."""
-    from pmdc_ident.backends.emulated_board import DEFAULT_COUNTS_PER_REV, EmulatedBoard
+    from pmdc_ident.backends.emulated_board import (
+        CPU_SHARE,
+        EmulatedBoard,
+        board_min_period_us,
+        counts_for_motor,
+    )
 
     if args.protocol_version:
         msg = "--protocol-version is for the Python board only"
@@ -175,6 +210,7 @@ def _run_emulated(args: argparse.Namespace, spec: Any) -> int:
     if args.counts_per_rev < 0:
         msg = f"--counts-per-rev must be >= 0, got {args.counts_per_rev}"
         raise ParameterError(msg)
+    counts, why = (args.counts_per_rev, "") if args.counts_per_rev else counts_for_motor(spec)
     try:
         os.setpriority(os.PRIO_PROCESS, 0, args.nice)  # the emulator inherits it
     except (OSError, ValueError):
@@ -184,7 +220,8 @@ def _run_emulated(args: argparse.Namespace, spec: Any) -> int:
         baud=args.baud,
         supply_v=args.supply_v,
         seed=args.seed,
-        counts_per_rev=args.counts_per_rev or DEFAULT_COUNTS_PER_REV,
+        counts_per_rev=counts,
+        cpu_share=CPU_SHARE if args.cpu_share is None else args.cpu_share,
     )
     link: Path | None = args.link
     stop = {"now": False}
@@ -198,22 +235,15 @@ def _run_emulated(args: argparse.Namespace, spec: Any) -> int:
     signal.signal(signal.SIGUSR2, lambda _s, _f: board.cut_line())
     try:
         board.start()
-        if link is not None:
-            if link.is_symlink():
-                link.unlink()
-            os.symlink(board.port, link)
-        print(
-            f"virtual board on {board.port} ({args.baud} baud, motor {spec.name}, emulated "
-            f"ATmega328P running {board.elf}, {board.counts_per_rev} counts/rev)",
-            flush=True,
-        )
-        if link is not None:
-            print(f"linked as {link}", flush=True)
-        print(
-            f"driver: ros2 run pmdc_ident driver_node --ros-args -p backend:=serial "
-            f"-p port:={link or board.port} -p baud:={args.baud}  (Ctrl-C to stop; "
-            f"kill -USR1 {os.getpid()} resets the AVR, kill -USR2 cuts the serial line)",
-            flush=True,
+        _link(link, board.port)
+        _announce(
+            board.port,
+            link,
+            args.baud,
+            f"motor {spec.name}, emulated ATmega328P running {board.elf}, encoder "
+            f"{counts} counts/rev{f' ({why})' if why else ''}",
+            board_min_period_us(args.baud),
+            f"kill -USR1 {os.getpid()} resets the AVR, kill -USR2 cuts the serial line",
         )
         while not stop["now"] and board.running:
             time.sleep(0.05)
@@ -223,15 +253,16 @@ def _run_emulated(args: argparse.Namespace, spec: Any) -> int:
         if crashed:
             print(f"emulated board ended unexpectedly (exit status {status})", file=sys.stderr)
             return 1
+        rt = stats.get("realtime", {})
         print(
             f"emulated board stopped ({stats.get('sim_s', 0.0):.1f} s of board time, "
-            f"{stats.get('cpu_s', 0.0):.1f} s of emulator CPU, "
-            f"{stats.get('stalled_s', 0.0):.2f} s lost while it was paused)",
+            f"{stats.get('cpu_s', 0.0):.1f} s of emulator CPU ({rt.get('sched', '?')}), "
+            f"at most {rt.get('behind_max_s', 0.0):.3f} s behind real time, "
+            f"{stats.get('stalled_s', 0.0):.2f} s lost while it was paused or starved)",
             file=sys.stderr,
         )
         return 0
     finally:
-        if link is not None and link.is_symlink() and os.readlink(link) == board.port:
-            link.unlink()
+        _unlink(link, board.port)
         board.close()
         board.cleanup()

@@ -67,6 +67,12 @@ def test_the_sketch_streams_1khz_at_1mbaud_without_a_drop_or_a_missed_count(
     assert enc["emulator_double_edges"] == 0
     assert s["cpu"]["idle"] > 0.15  # headroom at 1 kHz, from cycle counts
     assert 0 < s["latency_us"]["max"] < 2000  # command frame -> bridge reprogrammed
+    # every count latched at its grid instant (the timer's interrupt, D11), whatever the
+    # loop was busy with, and the conversions started soon after it (D13)
+    cap, start = s["timing"]["capture_late_us"], s["timing"]["start_late_us"]
+    assert cap["n"] >= 1450 and start["n"] >= 1450
+    assert cap["max"] - cap["min"] < 30 and -5 < cap["min"] and cap["max"] < 40
+    assert start["max"] < 150
     # the telemetry's count is the shaft's (a few samples behind the end)
     behind = enc["emitted"] - host["last_encoder_count"]
     assert 0 <= behind < 0.01 * enc["emitted"]

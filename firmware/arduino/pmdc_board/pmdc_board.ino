@@ -35,9 +35,13 @@
  *     at 115200, 1200 us at 250000, 600 us at 500000 and 300 us at 1000000 baud; the
  *     board announces the larger of the two (HELLO_ACK min_period_us), and the host
  *     refuses a faster rate in one line;
+ *   - the sample instant: the encoder count is latched by Timer0's compare interrupt
+ *     10..30 us after the grid instant the telemetry names, whatever the loop is doing
+ *     (version 2 read it in the loop: up to 280 us late behind a host frame, a speed
+ *     sample 28 % high at 1 kHz); the conversions start 30..100 us after it;
  *   - encoder: no missed count and no dropped sample up to MAX_EDGE_RATE = 100 000
  *     quadrature edges per second while streaming at 1000 us (the first missed count
- *     was at 139 000 edges/s). At the default 2048 counts/rev that is
+ *     was at 106 000 edges/s). At the default 2048 counts/rev that is
  *     2 pi * 100000 / 2048 = 306 rad/s (2930 rpm); max speed = 2 pi * 100000 /
  *     counts_per_rev. Faster, the board trips OVER_SPEED (armature open) rather than
  *     report a wrong angle.
@@ -59,7 +63,7 @@ extern "C" {
 #endif
 static const uint32_t BAUD = PMDC_BAUD;
 static const uint32_t COUNTS_PER_REV = PMDC_COUNTS_PER_REV;
-static const uint16_t FIRMWARE_VERSION = 2;
+static const uint16_t FIRMWARE_VERSION = 3; /* 3: counts latched at the sample instant */
 /* The CPU's own limit (see the header): seven conversions + framing + the UART. */
 static const uint32_t HW_MIN_PERIOD_US = 1000;
 /* Quadrature edges per second the encoder interrupt follows while streaming at
@@ -92,6 +96,7 @@ static const int16_t SUPPLY_NOMINAL_Q = (int16_t)(SUPPLY_NOMINAL_V / VOLTAGE_LSB
 #define EN_BIT _BV(PB0)
 #define RPWM_BIT _BV(PB1)
 #define LPWM_BIT _BV(PB2)
+#define CAPTURE_BIT _BV(PB3)
 #define RX_BUSY_BIT _BV(PB4)
 #define SAMPLE_BUSY_BIT _BV(PB5)
 static const uint8_t ADC_CURRENT = 0, ADC_SUPPLY = 1, ADC_TERM_P = 2, ADC_TERM_N = 3;
@@ -100,8 +105,8 @@ static const uint16_t PWM_PERIOD = 800;
 
 /* ---- state --------------------------------------------------------------------- */
 static pmdc_board_t board;
-static uint32_t next_sample_us = 0;
-static uint8_t sampling = 0; /* streaming, next_sample_us valid */
+static uint8_t sampling = 0; /* streaming: the capture interrupt is armed */
+static uint32_t next_instant_us = 0; /* the next grid instant (the loop's copy) */
 static int32_t last_count = 0;
 static uint32_t edge_period_us = 0, max_edges = 0; /* encoder edges allowed per period */
 static uint16_t current_zero_adc4 = 4 * 512; /* sum of CURRENT_OVERSAMPLE zero readings */
@@ -136,6 +141,80 @@ ISR(INT0_vect)
     }
 }
 ISR(INT1_vect, ISR_ALIASOF(INT0_vect));
+
+/* ---- the sample instant: the encoder count latched by a timer interrupt ------------
+ * A sample is the state at its grid instant (docs/serial-protocol.md). The loop cannot
+ * promise to be there: a host frame's last byte costs up to ~330 us (decode, CRC,
+ * reply), and a count read that late is a speed 1/3 too high at 1 kHz. Timer0 (the
+ * core's micros() clock: 4 us ticks, turning every 1024 us) runs in normal mode, so its
+ * compare-B register takes effect at once; its interrupt fires at the tick of the next
+ * instant and latches the count (D11 pulses: a scope, or the emulator, times it). The
+ * loop converts and sends it, and completes no host frame within GUARD_US of an instant,
+ * so the conversions start on time too. */
+static const uint16_t GUARD_US = 400; /* > the longest frame handling (~360 us) */
+static volatile uint32_t cap_due = 0, cap_period = 0, cap_t = 0;
+static volatile int16_t cap_count = 0;
+static volatile uint8_t cap_n = 0; /* instants so far (wraps); the loop compares */
+static volatile uint8_t cap_skip = 0; /* compare matches (timer turns) before the instant */
+static uint8_t cap_seen = 0;
+
+/* Arm the compare for the instant after `due` (both in micros(); ticks = us / 4). The
+ * match comes every 256 ticks: the turns before the instant's are skipped. */
+static inline void capture_next(uint32_t due)
+{
+    uint32_t next = due + cap_period;
+    cap_skip = (uint8_t)(((next >> 2) - (due >> 2) - 1) >> 8);
+    cap_due = next;
+    OCR0B = (uint8_t)(next >> 2);
+}
+
+/* Interruptible but for the latch: an encoder edge arriving meanwhile is served at
+ * once (two edges waiting for a long interrupt would be a missed count, at 10 us apart
+ * near the encoder limit). Nothing else touches cap_* while it runs. */
+ISR(TIMER0_COMPB_vect, ISR_NOBLOCK)
+{
+    if (cap_skip) {
+        cap_skip--;
+        return;
+    }
+    cli();
+    PORTB |= CAPTURE_BIT;
+    cap_count = pmdc_encoder_count;
+    PORTB &= (uint8_t)~CAPTURE_BIT;
+    sei();
+    uint32_t due = cap_due;
+    cap_t = due;
+    cap_n++;
+    capture_next(due);
+}
+
+/* START_STREAM: sample 0 is now, the grid follows from it. */
+static void capture_start(uint32_t period_us)
+{
+    uint8_t sreg = SREG;
+    cli();
+    uint32_t t = micros(); /* a whole tick: t / 4 is Timer0's count */
+    PORTB |= CAPTURE_BIT;
+    cap_count = pmdc_encoder_count;
+    cap_t = t;
+    cap_seen = cap_n;
+    cap_n++;
+    cap_period = period_us;
+    capture_next(t);
+    TIFR0 = _BV(OCF0B); /* a match already pending belongs to no instant */
+    TIMSK0 |= _BV(OCIE0B);
+    PORTB &= (uint8_t)~CAPTURE_BIT;
+    SREG = sreg;
+    next_instant_us = t;
+}
+
+static void capture_stop()
+{
+    uint8_t sreg = SREG;
+    cli();
+    TIMSK0 &= (uint8_t)~_BV(OCIE0B);
+    SREG = sreg;
+}
 
 /* ---- UART: a lean interrupt-driven driver in place of the core's Serial ----------
  * HardwareSerial costs ~10 us of CPU per byte sent (write + its UDRE interrupt): a
@@ -189,13 +268,9 @@ static void uart_write(const uint8_t *data, size_t n)
     }
 }
 
-static int16_t uart_read()
-{
-    if (rx_head == rx_tail) return -1;
-    uint8_t c = rx_ring[rx_tail];
-    rx_tail = (uint8_t)((rx_tail + 1) & (RX_RING - 1));
-    return c;
-}
+static int16_t uart_peek() { return rx_head == rx_tail ? -1 : rx_ring[rx_tail]; }
+
+static void uart_drop() { rx_tail = (uint8_t)((rx_tail + 1) & (RX_RING - 1)); }
 
 /* ---- ADC: 1 MHz ADC clock (prescaler 16): 13 us a conversion instead of the
  * Arduino core's 104 us (prescaler 128). About 9 effective bits instead of 10. */
@@ -276,7 +351,7 @@ static void bridge_apply(int32_t mv, int16_t supply_q)
 /* ---- setup / loop -------------------------------------------------------------- */
 void setup()
 {
-    DDRB |= EN_BIT | RPWM_BIT | LPWM_BIT | RX_BUSY_BIT | SAMPLE_BUSY_BIT;
+    DDRB |= EN_BIT | RPWM_BIT | LPWM_BIT | CAPTURE_BIT | RX_BUSY_BIT | SAMPLE_BUSY_BIT;
     bridge_open(); /* first thing: the winding is disconnected */
     /* Timer1: fast PWM, TOP = ICR1 (mode 14), no prescaler -> 20 kHz on OC1A/OC1B */
     ICR1 = PWM_PERIOD - 1;
@@ -284,6 +359,10 @@ void setup()
     OCR1B = 0;
     TCCR1A = _BV(WGM11);
     TCCR1B = _BV(WGM13) | _BV(WGM12) | _BV(CS10);
+    /* Timer0: normal mode (the core set fast PWM, for analogWrite on D5/D6, which this
+     * sketch does not use): same 0..255 count and overflow for micros(), and OCR0B
+     * writes take effect at once (the sample instants). */
+    TCCR0A = 0;
 
     /* encoder: inputs with pull-ups, INT0/INT1 on any change */
     DDRD &= (uint8_t)~(_BV(PD2) | _BV(PD3));
@@ -325,13 +404,10 @@ void setup()
     uart_write(tx, n);
 }
 
-/* One sample: counts, current, voltages; protections; the frame. */
-static void take_sample(uint32_t t)
+/* One sample: the count latched at instant t, current, voltages; protections; the frame. */
+static void take_sample(uint32_t t, int16_t raw)
 {
     PORTB |= SAMPLE_BUSY_BIT;
-    noInterrupts();
-    int16_t raw = pmdc_encoder_count;
-    interrupts();
     encoder_total += (int16_t)(raw - encoder_seen); /* wraps: fine below 32767 a period */
     encoder_seen = raw;
     int32_t count = encoder_total;
@@ -367,25 +443,30 @@ void loop()
 {
     uint32_t now = micros();
 
-    /* 1. samples on an exact grid: next += period, never now + period (no drift).
-     * Sampling goes before the host's bytes, so a frame being parsed delays a sample
-     * by one byte's work at most. A board more than one period late skips the missed
-     * instants (the host sees the counter gap as dropped samples) instead of
-     * falling behind for good. */
-    if (sampling && (int32_t)(now - next_sample_us) >= 0) {
-        uint32_t t = next_sample_us;
-        next_sample_us += board.period_us;
-        while ((int32_t)(now - next_sample_us) >= 0) {
-            pmdc_board_skip_sample(&board);
-            t = next_sample_us;
-            next_sample_us += board.period_us;
-        }
-        take_sample(t);
+    /* 1. samples on an exact grid (next += period, never now + period: no drift), the
+     * count latched by the timer at the instant. A board more than one period late
+     * skips the missed instants (the host sees the counter gap as dropped samples)
+     * instead of falling behind for good. */
+    if (sampling && cap_n != cap_seen) {
+        noInterrupts();
+        int16_t raw = cap_count;
+        uint32_t t = cap_t;
+        uint8_t n = cap_n;
+        interrupts();
+        for (uint8_t k = (uint8_t)(n - cap_seen - 1); k; --k) pmdc_board_skip_sample(&board);
+        cap_seen = n;
+        next_instant_us = t + board.period_us;
+        take_sample(t, raw);
+        now = micros();
     }
 
-    /* 2. one host byte -> protocol core -> replies */
-    int16_t in = uart_read();
+    /* 2. one host byte -> protocol core -> replies. A frame's last byte (the 0x00
+     * delimiter: decode, CRC, the command, a reply) waits in the ring while an instant
+     * is near, so the conversions of a sample start on time; the others cost a few us. */
+    int16_t in = uart_peek();
+    if (in == 0 && sampling && (int32_t)(next_instant_us - now) <= (int32_t)GUARD_US) in = -1;
     if (in >= 0) {
+        uart_drop();
         PORTB |= RX_BUSY_BIT;
         uint8_t byte = (uint8_t)in;
         uint8_t was_streaming = board.streaming;
@@ -393,9 +474,10 @@ void loop()
         size_t n = pmdc_board_receive(&board, &byte, 1, now, tx, sizeof tx);
         if (n) uart_write(tx, n);
         if (board.streaming && (!was_streaming || (board.counter == 0 && counter != 0))) {
-            next_sample_us = now; /* START_STREAM: sample 0 now, then on the new grid */
+            capture_start(board.period_us); /* START_STREAM: sample 0 now, then the grid */
             sampling = 1;
-        } else if (!board.streaming) {
+        } else if (!board.streaming && sampling) {
+            capture_stop();
             sampling = 0;
         }
         PORTB &= (uint8_t)~RX_BUSY_BIT;
