@@ -72,7 +72,15 @@ STRICT = ["-Wall", "-Wextra", "-Werror"]
 # WString.cpp needs DECIMAL_DIG, which Debian's avr-gcc 5.4 float.h lacks; the
 # sketch uses no String, so the core archive goes without it.
 CORE_SKIP = {"WString.cpp"}
-EMU_CFLAGS = ["-std=gnu11", "-O2", "-Wall", "-Wextra", "-Werror", "-Wno-unused-parameter"]
+EMU_CFLAGS = [
+    "-std=gnu11",
+    "-O2",
+    "-pthread",
+    "-Wall",
+    "-Wextra",
+    "-Werror",
+    "-Wno-unused-parameter",
+]
 
 
 class BuildError(Exception):
@@ -223,7 +231,7 @@ def build_emulator(root: Path) -> tuple[Path, bool]:
         srcs = [str(EMULATOR_SRC), str(PROTOCOL / "pmdc_protocol.c")]
         inc = [f"-I{SIMAVR_INCLUDE}", f"-I{PROTOCOL}"]
         cmd = [cc, *EMU_CFLAGS, *inc, *srcs, "-o", str(tmp / "pmdc_emu")]
-        _run([*cmd, "-lsimavr", "-lm"], tmp)
+        _run([*cmd, "-lsimavr", "-lm", "-pthread"], tmp)
         _publish(tmp, final)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -16,7 +16,9 @@
  *     divider on ADC1, the terminal dividers (with their RC low-pass) on ADC2/ADC3,
  *     sampled when the ADC's sample-and-hold closes (1.5 ADC clocks after the start);
  *   - the encoder: the shaft angle drives quadrature edges on PD2/PD3 (INT0/INT1);
- *   - the UART: bridged to a pseudo-terminal, host bytes fed at the wire rate.
+ *   - the UART: bridged to a pseudo-terminal (served by a thread of its own, so a pty
+ *     call blocked in the kernel never holds up the board's clock), host bytes fed at
+ *     the wire rate.
  *
  * By default simulated time is held to the wall clock, so a host on the pty sees a
  * board at its real speed: ahead, it sleeps; behind (its process was starved), it
@@ -58,6 +60,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <pthread.h>
+#include <sys/eventfd.h>
 #include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
@@ -172,6 +176,7 @@ typedef struct {
 static uint64_t cap_ring[RING], start_ring[RING];
 static unsigned cap_w, start_w;
 static lateness_t late_cap = {0, 0, 1e9, -1e9}, late_start = {0, 0, 1e9, -1e9};
+static lateness_t bridge_after = {0, 0, 1e9, -1e9}; /* bridge reprogrammed: us after a latch */
 static uint64_t t0_cycle;
 static int t0_seen;
 static pmdc_parser_t mon_parser; /* the board's output, as a host would read it */
@@ -181,8 +186,15 @@ static avr_irq_t *uart_in;
 static int uart_xon = 1;
 static uint8_t rx_buf[8192];
 static size_t rx_head, rx_len;
-static uint8_t tx_buf[1 << 16];
-static size_t tx_len;
+/* The pty is served by a thread of its own (see pty_thread): board -> host bytes go
+ * through tx_ring, host -> board bytes through in_ring (one writer, one reader each). */
+#define PTY_RING (1u << 16)
+static uint8_t tx_ring[PTY_RING], in_ring[PTY_RING];
+static size_t tx_head, tx_tail, in_head, in_tail; /* __atomic: head by the writer */
+static int tx_event = -1, in_event = -1;            /* eventfds: bytes to write / read */
+static volatile int pty_stop;
+static pthread_t pty_tid;
+static int pty_thread_on;
 static uint64_t bytes_to_host, bytes_from_host, bytes_lost;
 static uint32_t cycles_per_byte;
 static int pty_master = -1, pty_slave = -1;
@@ -285,6 +297,13 @@ static void bridge_refresh(void)
                    ((uint32_t)(avr->data[R_OCR1AL + 1] & 0x0F) << 28);
     if (sig != bridge_sig) {
         bridge_sig = sig;
+        if (cap_w) { /* streaming: when, after the last sample instant, the change came */
+            double us = (double)(avr->cycle - cap_ring[(cap_w - 1) % RING]) / 16.0;
+            bridge_after.n++;
+            bridge_after.sum += us;
+            if (us < bridge_after.min) bridge_after.min = us;
+            if (us > bridge_after.max) bridge_after.max = us;
+        }
         if (latency_open && avr->cycle >= last_delim_end) {
             uint64_t lat = avr->cycle - last_delim_end;
             lat_n++;
@@ -648,11 +667,16 @@ static void on_uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
         return;
     }
     if (line_cut) {
-        bytes_lost++;
+        __atomic_fetch_add(&bytes_lost, 1, __ATOMIC_RELAXED);
         return;
     }
-    if (tx_len < sizeof tx_buf) tx_buf[tx_len++] = b;
-    else bytes_lost++;
+    size_t head = __atomic_load_n(&tx_head, __ATOMIC_RELAXED);
+    if (head - __atomic_load_n(&tx_tail, __ATOMIC_ACQUIRE) < PTY_RING) {
+        tx_ring[head % PTY_RING] = b;
+        __atomic_store_n(&tx_head, head + 1, __ATOMIC_RELEASE);
+    } else {
+        __atomic_fetch_add(&bytes_lost, 1, __ATOMIC_RELAXED); /* the adapter is full */
+    }
 }
 
 static void on_xon(struct avr_irq_t *irq, uint32_t value, void *param)
@@ -821,26 +845,79 @@ static int open_pty(void)
     return 0;
 }
 
+/* The pty's side of the UART, in its own thread: a pty read or write can block in the
+ * kernel for tens of milliseconds (its locks are shared with the host's side, whose
+ * threads a busy machine holds up), and the board's clock must not wait for it. */
+static void *pty_thread(void *arg)
+{
+    (void)arg;
+    uint8_t buf[4096];
+    uint64_t drop;
+    while (!pty_stop) {
+        size_t head = __atomic_load_n(&tx_head, __ATOMIC_ACQUIRE);
+        size_t tail = __atomic_load_n(&tx_tail, __ATOMIC_RELAXED);
+        struct pollfd p[2] = {{.fd = pty_master, .events = POLLIN | (head != tail ? POLLOUT : 0)},
+                              {.fd = tx_event, .events = POLLIN}};
+        if (poll(p, 2, 100) < 0 && errno != EINTR) break;
+        if (p[1].revents & POLLIN) (void)!read(tx_event, &drop, sizeof drop);
+        for (;;) { /* host -> board */
+            size_t ih = __atomic_load_n(&in_head, __ATOMIC_RELAXED);
+            size_t room = PTY_RING - (ih - __atomic_load_n(&in_tail, __ATOMIC_ACQUIRE));
+            if (!room) break; /* the board reads them at the line rate: wait */
+            ssize_t n = read(pty_master, buf, room < sizeof buf ? room : sizeof buf);
+            if (n <= 0) break;
+            for (ssize_t k = 0; k < n; ++k) in_ring[(ih + (size_t)k) % PTY_RING] = buf[k];
+            __atomic_store_n(&in_head, ih + (size_t)n, __ATOMIC_RELEASE);
+            uint64_t one = 1;
+            (void)!write(in_event, &one, sizeof one);
+        }
+        while (tail != head) { /* board -> host */
+            size_t chunk = head - tail, at = tail % PTY_RING;
+            if (chunk > PTY_RING - at) chunk = PTY_RING - at;
+            ssize_t n = write(pty_master, tx_ring + at, chunk);
+            if (n <= 0) {
+                if (n < 0 && errno == EAGAIN) break; /* the host reads slowly: later */
+                __atomic_fetch_add(&bytes_lost, head - tail, __ATOMIC_RELAXED);
+                tail = head; /* nobody reads: a UART sends into the void */
+                break;
+            }
+            tail += (size_t)n;
+            __atomic_fetch_add(&bytes_to_host, (uint64_t)n, __ATOMIC_RELAXED);
+        }
+        __atomic_store_n(&tx_tail, tail, __ATOMIC_RELEASE);
+    }
+    return NULL;
+}
+
+static int pty_thread_start(void)
+{
+    tx_event = eventfd(0, EFD_NONBLOCK);
+    in_event = eventfd(0, EFD_NONBLOCK);
+    if (tx_event < 0 || in_event < 0) return -1;
+    if (pthread_create(&pty_tid, NULL, pty_thread, NULL) != 0) return -1;
+    pty_thread_on = 1;
+    return 0;
+}
+
+/* The emulation's side: take the host's bytes, hand the board's over. */
 static void pty_io(void)
 {
-    if (pty_master < 0) return;
+    if (!pty_thread_on) return;
     uint8_t buf[4096];
-    for (;;) {
-        ssize_t n = read(pty_master, buf, sizeof buf);
-        if (n <= 0) break;
-        if (!line_cut) host_send(buf, (size_t)n);
+    size_t tail = __atomic_load_n(&in_tail, __ATOMIC_RELAXED);
+    size_t head = __atomic_load_n(&in_head, __ATOMIC_ACQUIRE);
+    while (tail != head) {
+        size_t n = head - tail, k;
+        if (n > sizeof buf) n = sizeof buf;
+        for (k = 0; k < n; ++k) buf[k] = in_ring[(tail + k) % PTY_RING];
+        tail += n;
+        if (!line_cut) host_send(buf, n);
     }
-    size_t off = 0;
-    while (off < tx_len) {
-        ssize_t n = write(pty_master, tx_buf + off, tx_len - off);
-        if (n <= 0) {
-            bytes_lost += tx_len - off; /* nobody reads: a UART sends into the void */
-            break;
-        }
-        off += (size_t)n;
-        bytes_to_host += (uint64_t)n;
+    __atomic_store_n(&in_tail, tail, __ATOMIC_RELEASE);
+    if (__atomic_load_n(&tx_head, __ATOMIC_RELAXED) != __atomic_load_n(&tx_tail, __ATOMIC_ACQUIRE)) {
+        uint64_t one = 1;
+        (void)!write(tx_event, &one, sizeof one);
     }
-    tx_len = 0;
 }
 
 /* ---- set-up ---------------------------------------------------------------------------------- */
@@ -922,7 +999,8 @@ static void write_stats(double wall_s)
             " \"samples_pin\": %llu, \"sample_max_us\": %.2f, \"rx_max_us\": %.2f,\n"
             " \"timing\": {\"capture_late_us\": {\"n\": %llu, \"mean\": %.2f, \"min\": %.2f, "
             "\"max\": %.2f}, \"start_late_us\": {\"n\": %llu, \"mean\": %.2f, \"min\": %.2f, "
-            "\"max\": %.2f}},\n"
+            "\"max\": %.2f}, \"bridge_after_capture_us\": {\"n\": %llu, \"mean\": %.2f, "
+            "\"min\": %.2f, \"max\": %.2f}},\n"
             " \"realtime\": {\"sched\": \"%s\", \"behind_max_s\": %.4f, \"behind_s\": %.3f},\n"
             " \"adc\": {\"conversions\": %llu, \"prescaler\": %u, \"conversion_us\": %.3f},\n"
             " \"latency_us\": {\"n\": %llu, \"mean\": %.2f, \"max\": %.2f},\n"
@@ -941,7 +1019,10 @@ static void write_stats(double wall_s)
             late_cap.n ? late_cap.sum / late_cap.n : 0.0, late_cap.n ? late_cap.min : 0.0,
             late_cap.n ? late_cap.max : 0.0, (unsigned long long)late_start.n,
             late_start.n ? late_start.sum / late_start.n : 0.0, late_start.n ? late_start.min : 0.0,
-            late_start.n ? late_start.max : 0.0, sched_text, behind_max_s, behind_total_s,
+            late_start.n ? late_start.max : 0.0, (unsigned long long)bridge_after.n,
+            bridge_after.n ? bridge_after.sum / bridge_after.n : 0.0,
+            bridge_after.n ? bridge_after.min : 0.0, bridge_after.n ? bridge_after.max : 0.0,
+            sched_text, behind_max_s, behind_total_s,
             (unsigned long long)adc_conversions, adc_prescaler,
             13.0 * adc_prescaler / 16.0, (unsigned long long)lat_n,
             lat_n ? lat_sum / 16.0 / lat_n : 0.0, lat_max / 16.0, opt.counts_per_rev,
@@ -1128,7 +1209,6 @@ int main(int argc, char **argv)
     pmdc_parser_init(&host_parser);
     pmdc_parser_init(&mon_parser);
     register_timers();
-    reserve_cpu(opt.cpu_share);
 
     if (!opt.host_period_us) {
         if (open_pty() != 0) {
@@ -1142,9 +1222,14 @@ int main(int argc, char **argv)
                 return 1;
             }
         }
+        if (pty_thread_start() != 0) {
+            fprintf(stderr, "pmdc_emu: cannot start the pty thread: %s\n", strerror(errno));
+            return 1;
+        }
         printf("pty %s\n", pty_name);
         fflush(stdout);
     }
+    reserve_cpu(opt.cpu_share); /* after the pty thread: a SCHED_DEADLINE task cannot clone */
 
     const uint64_t slice = 4096; /* 256 us of board time between I/O and pacing */
     double wall0 = wall_now(), wall_start = wall0, sim0 = 0.0, last_parent = wall0;
@@ -1223,12 +1308,16 @@ int main(int argc, char **argv)
                 }
             }
             last_wall = wall;
-            if (ahead > 0.0005) {
-                struct pollfd p = {.fd = pty_master, .events = POLLIN};
+            if (ahead > 0.0005) { /* wait, for host bytes at most */
+                struct pollfd p = {.fd = in_event, .events = POLLIN};
                 int ms = (int)(ahead * 1000.0);
                 if (ms > 5) ms = 5;
-                if (pty_master >= 0) poll(&p, 1, ms);
-                else usleep((useconds_t)(ahead * 1e6));
+                if (in_event >= 0) {
+                    uint64_t drop;
+                    if (poll(&p, 1, ms) > 0) (void)!read(in_event, &drop, sizeof drop);
+                } else {
+                    usleep((useconds_t)(ahead * 1e6));
+                }
             }
         }
         if (opt.parent > 0 && wall - last_parent > 0.1) {
@@ -1237,6 +1326,13 @@ int main(int argc, char **argv)
         }
     }
 out:
+    if (pty_thread_on) { /* its counters are final once it ends */
+        uint64_t one = 1;
+        pty_stop = 1;
+        (void)!write(tx_event, &one, sizeof one);
+        pthread_join(pty_tid, NULL);
+        pty_thread_on = 0;
+    }
     write_stats(wall_now() - wall_start);
     if (profile) {
         FILE *f = fopen(opt.profile, "w");

@@ -73,6 +73,10 @@ def test_the_sketch_streams_1khz_at_1mbaud_without_a_drop_or_a_missed_count(
     assert cap["n"] >= 1450 and start["n"] >= 1450
     assert cap["max"] - cap["min"] < 30 and -5 < cap["min"] and cap["max"] < 40
     assert start["max"] < 150
+    # a new setpoint reaches the bridge at the sample after it, once that sample's current
+    # is in: applied_v is what the bridge holds over the period (the host's ZOH)
+    bridge = s["timing"]["bridge_after_capture_us"]
+    assert bridge["n"] >= 10 and 50 < bridge["min"] and bridge["max"] < 300
     # the telemetry's count is the shaft's (a few samples behind the end)
     behind = enc["emitted"] - host["last_encoder_count"]
     assert 0 <= behind < 0.01 * enc["emitted"]

@@ -102,6 +102,10 @@ static const int16_t SUPPLY_NOMINAL_Q = (int16_t)(SUPPLY_NOMINAL_V / VOLTAGE_LSB
 static const uint8_t ADC_CURRENT = 0, ADC_SUPPLY = 1, ADC_TERM_P = 2, ADC_TERM_N = 3;
 /* Timer1 fast PWM, TOP = ICR1: 16 MHz / 800 = 20 kHz, 800 duty steps. */
 static const uint16_t PWM_PERIOD = 800;
+/* Faults that open the bridge at once, not at the next sample. */
+static const uint8_t TRIP_FAULTS = PMDC_FAULT_OVER_CURRENT | PMDC_FAULT_OVER_SPEED |
+                                   PMDC_FAULT_WATCHDOG | PMDC_FAULT_SUPPLY |
+                                   PMDC_FAULT_BAD_COMMAND;
 
 /* ---- state --------------------------------------------------------------------- */
 static pmdc_board_t board;
@@ -412,12 +416,20 @@ static void take_sample(uint32_t t, int16_t raw)
     encoder_seen = raw;
     int32_t count = encoder_total;
     int16_t raw_i = (int16_t)current_sum();
+    /* The bridge takes a new setpoint here, once this sample's current is in: the
+     * applied_v this sample reports is what the bridge holds until the next one (the
+     * zero-order hold the host models), not a change somewhere inside the period. */
+    int32_t mv;
+    int driven = pmdc_board_setpoint_mv(&board, &mv);
+    if (driven) {
+        bridge_apply(mv, supply_q > SUPPLY_MIN_Q ? supply_q : SUPPLY_NOMINAL_Q);
+    } else if (bridge_top >= 0) {
+        bridge_open();
+    }
     supply_q = volts_q((int16_t)adc_read(ADC_SUPPLY));
     int16_t term_p = (int16_t)adc_read(ADC_TERM_P), term_n = (int16_t)adc_read(ADC_TERM_N);
     int16_t current_q =
         (int16_t)(((int32_t)(raw_i - (int16_t)current_zero_adc4) * CURRENT_Q15 + 16384) >> 15);
-    int32_t mv;
-    int driven = pmdc_board_setpoint_mv(&board, &mv);
     /* An open winding floats: its dividers cannot measure it against ground. */
     int16_t terminal_q = driven ? volts_q((int16_t)(term_p - term_n)) : (int16_t)PMDC_NOT_MEASURED;
     if (current_q > CURRENT_MAX_Q || current_q < -CURRENT_MAX_Q) {
@@ -483,12 +495,13 @@ void loop()
         PORTB &= (uint8_t)~RX_BUSY_BIT;
     }
 
-    /* 3. board-side watchdog, then the bridge follows the setpoint */
+    /* 3. board-side watchdog, then the bridge follows the setpoint: while streaming at
+     * the next sample (take_sample), but a trip opens it at once */
     pmdc_board_check_watchdog(&board, now);
     int32_t mv;
     if (pmdc_board_setpoint_mv(&board, &mv)) {
-        bridge_apply(mv, supply_q > SUPPLY_MIN_Q ? supply_q : SUPPLY_NOMINAL_Q);
-    } else if (bridge_top >= 0) {
+        if (!sampling) bridge_apply(mv, supply_q > SUPPLY_MIN_Q ? supply_q : SUPPLY_NOMINAL_Q);
+    } else if (bridge_top >= 0 && (!sampling || (board.faults & TRIP_FAULTS))) {
         bridge_open();
     }
 }
