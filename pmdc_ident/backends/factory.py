@@ -56,7 +56,19 @@ def make_backend(
         msg = f"backend 'serial' is not available ({exc})"
         raise BackendConfigError(msg) from None
     try:
-        return SerialBackend(cfg["port"], int(cfg["baud"]), limits, dt_s, safe_mode, log)
+        # The host's link timeout tolerates at least the stall the driver's own watchdog
+        # tolerates (a busy machine raises both: see the demo).
+        timeout = max(100.0 * dt_s, 0.5, float(cfg["watchdog_s"]))
+        return SerialBackend(
+            cfg["port"],
+            int(cfg["baud"]),
+            limits,
+            dt_s,
+            safe_mode,
+            log,
+            telemetry_timeout_s=timeout,
+            timeout_name="raise the driver's watchdog_s",
+        )
     except (OSError, PmdcError) as exc:
         msg = f"cannot open the driver board on {cfg['port']}: {exc}"
         raise BackendConfigError(msg) from None

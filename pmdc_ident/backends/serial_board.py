@@ -158,6 +158,7 @@ class SerialBackend:
         reconnect: bool = True,
         reconnect_interval_s: float = 0.5,
         max_catch_up_s: float = 0.25,
+        timeout_name: str = "telemetry_timeout_s",
     ) -> None:
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             msg = f"sample period dt_s must be a positive number of seconds, got {dt_s}"
@@ -178,6 +179,7 @@ class SerialBackend:
         self._timeout_s = (
             telemetry_timeout_s if telemetry_timeout_s is not None else max(100 * self._dt_s, 0.5)
         )
+        self._timeout_name = timeout_name  # what a user raises (the driver: its watchdog_s)
         self._board_wd_ms = int(board_watchdog_ms)
         self._handshake_s = float(handshake_timeout_s)
         self._reconnect = reconnect
@@ -671,7 +673,8 @@ class SerialBackend:
         if silent > self._timeout_s:
             msg = (
                 f"no telemetry from the board on {self.port} for {silent:.2f} s "
-                f"({silent / self._dt_s:.0f} sample periods)"
+                f"({silent / self._dt_s:.0f} sample periods; timeout {self._timeout_s:g} s, "
+                f"{self._timeout_name})"
             )
             raise _LinkLostError(msg)
 
