@@ -404,6 +404,11 @@ void setup()
     pmdc_board_init(&board, &info);
 
     uart_begin(BAUD);
+    /* A lone delimiter first: a reset may have cut a frame on the line, and the host's
+     * parser would join its bytes to the BOOT frame and drop both (bad CRC); it then
+     * learns of the reset only when its link times out. */
+    const uint8_t delimiter = 0;
+    uart_write(&delimiter, 1);
     size_t n = pmdc_board_boot(&board, tx);
     uart_write(tx, n);
 }
