@@ -1,6 +1,7 @@
 """The reference sketch on an emulated Uno: what it sustains, measured.
 
     nice .venv/bin/python benchmarks/bench_emulated_board.py [--long-s 60] [--quick]
+        [--no-session]
 
 1. rate x baud: the rig's scripted host (free-running, exact) streams at each period
    for 2 s of board time with 12 V steps every 50 ms: frames, dropped samples, CPU
@@ -10,23 +11,35 @@
    edge rate of the first missed count;
 3. the watchdog: the host falls silent while driving; armature open after ...;
 4. the long run: the real host (SerialBackend) over the pty at 1 kHz / 1 Mbaud for
-   --long-s seconds in real time: dropped samples, and the emulator's CPU time per
-   simulated second (the naive reference: one simulated second per wall second).
-Needs the Debian packages of .ci/run.
+   --long-s seconds in real time: dropped samples, when each count was latched and when
+   the bridge took a new setpoint (after the sample instant), and the emulator's CPU
+   time per simulated second (the naive reference: one simulated second per wall
+   second) and how far it fell behind the wall clock;
+5. a whole identification session (bringup: driver with backend serial, recorder,
+   identification; the default sequence) over the emulated board at 1 kHz / 1 Mbaud:
+   the bag, and the parameters against the motor part's truth.
+Needs the Debian packages of .ci/run (and the ROS wheels of the .venv for 5).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from pmdc_ident.backends.base import BackendError
-from pmdc_ident.backends.emulated_board import EmulatedBoard, build_firmware, tools_missing
+from pmdc_ident.backends.emulated_board import (
+    EmulatedBoard,
+    build_firmware,
+    counts_for_motor,
+    tools_missing,
+)
 from pmdc_ident.backends.serial_board import SerialBackend
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.protocol import min_period_us
@@ -46,6 +59,10 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--long-s", type=float, default=60.0)
     ap.add_argument("--quick", action="store_true", help="0.5 s per table cell")
+    ap.add_argument("--no-session", action="store_true", help="skip the bringup session")
+    ap.add_argument(
+        "--out", default="out/bench_emulated_session", help="the session's bag and logs"
+    )
     args = ap.parse_args()
     missing = tools_missing()
     if missing:
@@ -55,7 +72,7 @@ def main() -> int:
     print("rate x baud (scripted host, 12 V steps every 50 ms, board time", dur, "s)")
     print(
         f"{'baud':>8} {'period us':>9} {'rate Hz':>8} {'frames':>7} {'dropped':>7} "
-        f"{'idle %':>6} {'sample max us':>13} {'latency max us':>14}"
+        f"{'idle %':>6} {'sample max us':>13} {'latch after us':>14} {'bridge after us':>15}"
     )
     rigs = {}
     for baud in BAUDS:
@@ -67,11 +84,12 @@ def main() -> int:
             s = scripted(
                 elf, emu, baud, "--host", str(period), "--step", "12,0.05", "--duration", dur
             )
-            h = s["host"]
+            h, tm = s["host"], s["timing"]
+            cap, br = tm["capture_late_us"], tm["bridge_after_capture_us"]
             print(
                 f"{baud:>8} {period:>9} {1e6 / period:>8.0f} {h['frames']:>7} {h['dropped']:>7} "
                 f"{100 * s['cpu']['idle']:>6.1f} {s['sample_max_us']:>13.0f} "
-                f"{s['latency_us']['max']:>14.0f}"
+                f"{cap['min']:>6.0f}..{cap['max']:<6.0f} {br['min']:>7.0f}..{br['max']:<6.0f}"
             )
         s = scripted(elf, emu, baud, "--host", str(board_min - 10), "--duration", "0.2")
         print(
@@ -111,36 +129,136 @@ def main() -> int:
         f"conversion, {s['adc']['conversions'] / max(1, s['samples_pin']):.1f} a sample"
     )
 
-    print(f"\nlong run: real host over the pty, 1 kHz at 1 Mbaud, {args.long_s:g} s")
+    long_run(args.long_s)
+    if not args.no_session:
+        session(Path(args.out))
+    return 0
+
+
+def long_run(seconds: float) -> None:
+    from pmdc_ident.nodes.priority import realtime_thread
+
+    print(f"\nlong run: real host over the pty, 1 kHz at 1 Mbaud, {seconds:g} s")
     board = EmulatedBoard(load_motor("seed000_ebike"), baud=1000000).start()
-    be = SerialBackend(board.port, 1000000, dt_s=0.001)
-    be.start()
     n = 0
     losses: list[str] = []
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < args.long_s:
-        k = int((time.monotonic() - t0) / 0.5)
-        try:
-            be.command_voltage((6.0, 12.0, 18.0, 0.0)[k % 4])
-        except BackendError:
-            pass  # reconnecting: reported below
-        try:
-            n += len(be.poll())
-        except BackendError as exc:
-            losses.append(str(exc))
-        time.sleep(0.01)
-    st = be.link_stats
-    be.close()
+    # the host polls at a driver node's priority (its reader thread inherits it)
+    with realtime_thread():
+        be = SerialBackend(board.port, 1000000, dt_s=0.001)
+        be.start()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            k = int((time.monotonic() - t0) / 0.5)
+            try:
+                be.command_voltage((6.0, 12.0, 18.0, 0.0)[k % 4])
+            except BackendError:
+                pass  # reconnecting: reported below
+            try:
+                n += len(be.poll())
+            except BackendError as exc:
+                losses.append(str(exc))
+            time.sleep(0.01)
+        st = be.link_stats
+        be.close()
     board.close()
     es = board.stats() or {}
     board.cleanup()
+    tm, rt = es.get("timing", {}), es.get("realtime", {})
+    cap, br = tm.get("capture_late_us", {}), tm.get("bridge_after_capture_us", {})
     print(
         f"samples {n}, dropped {st.dropped_samples}, crc {st.crc_errors}, host-skipped "
-        f"{be.skipped_samples}; emulator: "
-        f"{es.get('cpu_s', 0) / max(1e-9, es.get('sim_s', 1)):.3f} "
-        f"s CPU per simulated second (real time = 1.000), {es.get('stalled_s', 0):.2f} s stalled"
+        f"{be.skipped_samples}, link losses {len(losses)}, bytes the host did not take "
+        f"{es.get('uart', {}).get('lost', 0)}"
     )
-    return 0
+    print(
+        f"counts latched {cap.get('min', 0):.0f}..{cap.get('max', 0):.0f} us after the "
+        f"sample instant; bridge reprogrammed {br.get('min', 0):.0f}..{br.get('max', 0):.0f} "
+        f"us after it (trips open it at once)"
+    )
+    print(
+        f"emulator: {es.get('cpu_s', 0) / max(1e-9, es.get('sim_s', 1)):.3f} s CPU per "
+        f"simulated second (real time = 1.000; {rt.get('sched', '?')}), at most "
+        f"{rt.get('behind_max_s', 0):.3f} s behind the wall clock, "
+        f"{es.get('stalled_s', 0):.2f} s stalled"
+    )
+
+
+def session(out: Path) -> None:
+    """One bringup session over the emulated board; the parameters against the truth."""
+    from pmdc_ident.nodes.bringup import run_session
+    from pmdc_ident.nodes.dds_domain import allocate_domain
+
+    spec = load_motor("seed000_ebike")
+    counts, why = counts_for_motor(spec)
+    print(
+        f"\nsession: bringup --backend serial over the emulated board, 1 kHz at 1 Mbaud, "
+        f"default sequence, encoder {counts} counts/rev{f' ({why})' if why else ''}"
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    board = EmulatedBoard(spec, baud=1000000, counts_per_rev=counts).start()
+    link = out / "board"
+    if link.is_symlink():
+        link.unlink()
+    os.symlink(board.port, link)
+    lock = allocate_domain(purpose="bench_emulated_board session")
+    try:
+        res = run_session(
+            output_dir=out,
+            motor=spec.name,
+            domain_id=lock.domain_id,
+            driver_params={
+                "backend": "serial",
+                "port": str(link),
+                "baud": 1000000,
+                "rate_hz": 1000.0,
+                "watchdog_s": 1.5,  # this shared machine's stalls, as the demo's
+            },
+            identification_params={"safety.data_timeout_s": 1.5},
+            log_dir=out / "logs",
+            quiet=True,
+            timeout_s=300.0,
+        )
+    finally:
+        lock.release()
+        link.unlink()
+        board.close()
+    es = board.stats() or {}
+    board.cleanup()
+    rt = es.get("realtime", {})
+    print(
+        f"session took {res.wall_s:.1f} s, identification exit {res.identification_rc}; "
+        f"bag {res.bag}; emulator {es.get('cpu_s', 0) / max(1e-9, es.get('sim_s', 1)):.3f} s "
+        f"CPU per simulated second, at most {rt.get('behind_max_s', 0):.3f} s behind"
+    )
+    if res.result is None:
+        print(f"no parameters: see {out / 'logs'}")
+        return
+    _against_truth(res.result, spec)
+
+
+def _against_truth(result: dict[str, Any], spec: Any) -> None:
+    p = spec.model.params
+    tc = next((e.torque_nm for e in spec.model.effects if hasattr(e, "torque_nm")), None)
+    truth = {
+        "R": (p.R, "R"),
+        "L": (p.L, "L"),
+        "Ke": (p.Ke, "Ke"),
+        "Kt": (p.Kt, "Kt (identified as Ke: Kt = Ke assumed)"),
+        # Kt = Ke closes the (Kt, J, B) scale: the part's J, B, Tc show times Ke/Kt
+        "J": (p.J * p.Ke / p.Kt, "J * Ke/Kt"),
+        "B": (p.B * p.Ke / p.Kt, "B * Ke/Kt"),
+        "coulomb_friction.torque_nm": (
+            (tc or 0.0) * p.Ke / p.Kt,
+            "Tc * Ke/Kt",
+        ),
+    }
+    print(f"model {result.get('model')}")
+    print(f"{'parameter':<28} {'identified':>12} {'truth':>12} {'error %':>8}  compared with")
+    for name, (ref, what) in truth.items():
+        got = (result.get("parameters") or {}).get(name, {}).get("value")
+        if got is None:
+            continue
+        print(f"{name:<28} {got:>12.6g} {ref:>12.6g} {100 * (got / ref - 1):>+8.2f}  {what}")
 
 
 if __name__ == "__main__":
