@@ -16,8 +16,9 @@
    time per simulated second (the naive reference: one simulated second per wall
    second) and how far it fell behind the wall clock;
 5. a whole identification session (bringup: driver with backend serial, recorder,
-   identification; the default sequence) over the emulated board at 1 kHz / 1 Mbaud:
-   the bag, and the parameters against the motor part's truth.
+   identification; the default sequence) over the emulated board at 1 kHz / 1 Mbaud,
+   host stalls up to --stall-s tolerated: the bag, and the parameters against the motor
+   part's truth.
 Needs the Debian packages of .ci/run (and the ROS wheels of the .venv for 5).
 """
 
@@ -60,6 +61,14 @@ def main() -> int:
     ap.add_argument("--long-s", type=float, default=60.0)
     ap.add_argument("--quick", action="store_true", help="0.5 s per table cell")
     ap.add_argument("--no-session", action="store_true", help="skip the bringup session")
+    ap.add_argument("--session-only", action="store_true", help="only the bringup session")
+    ap.add_argument(
+        "--stall-s",
+        type=float,
+        default=3.0,
+        help="host stalls the session tolerates (driver watchdog_s, identification "
+        "safety.data_timeout_s; the demo's 1.5 s is not always enough here)",
+    )
     ap.add_argument(
         "--out", default="out/bench_emulated_session", help="the session's bag and logs"
     )
@@ -68,6 +77,9 @@ def main() -> int:
     if missing:
         print(f"bench_emulated_board: {missing}", file=sys.stderr)
         return 3
+    if args.session_only:
+        session(Path(args.out), args.stall_s)
+        return 0
     dur = "0.5" if args.quick else "2"
     print("rate x baud (scripted host, 12 V steps every 50 ms, board time", dur, "s)")
     print(
@@ -131,7 +143,7 @@ def main() -> int:
 
     long_run(args.long_s)
     if not args.no_session:
-        session(Path(args.out))
+        session(Path(args.out), args.stall_s)
     return 0
 
 
@@ -183,7 +195,7 @@ def long_run(seconds: float) -> None:
     )
 
 
-def session(out: Path) -> None:
+def session(out: Path, stall_s: float) -> None:
     """One bringup session over the emulated board; the parameters against the truth."""
     from pmdc_ident.nodes.bringup import run_session
     from pmdc_ident.nodes.dds_domain import allocate_domain
@@ -192,7 +204,8 @@ def session(out: Path) -> None:
     counts, why = counts_for_motor(spec)
     print(
         f"\nsession: bringup --backend serial over the emulated board, 1 kHz at 1 Mbaud, "
-        f"default sequence, encoder {counts} counts/rev{f' ({why})' if why else ''}"
+        f"default sequence, host stalls up to {stall_s:g} s tolerated, encoder {counts} "
+        f"counts/rev{f' ({why})' if why else ''}"
     )
     out.mkdir(parents=True, exist_ok=True)
     board = EmulatedBoard(spec, baud=1000000, counts_per_rev=counts).start()
@@ -211,9 +224,9 @@ def session(out: Path) -> None:
                 "port": str(link),
                 "baud": 1000000,
                 "rate_hz": 1000.0,
-                "watchdog_s": 1.5,  # this shared machine's stalls, as the demo's
+                "watchdog_s": stall_s,  # this shared machine's stalls
             },
-            identification_params={"safety.data_timeout_s": 1.5},
+            identification_params={"safety.data_timeout_s": stall_s},
             log_dir=out / "logs",
             quiet=True,
             timeout_s=300.0,

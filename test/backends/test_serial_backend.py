@@ -445,3 +445,26 @@ def test_a_host_held_up_inside_a_write_keeps_its_link(
         assert c.samples and c.samples[-1].voltage_cmd_v == pytest.approx(3.0)
     finally:
         be.close()
+
+
+def test_the_board_watchdog_and_the_link_timeout_follow_the_drivers_watchdog(
+    board: VirtualBoard, motor: MotorSpec
+) -> None:
+    """A driver told to tolerate 1.5 s of host stalls (watchdog_s, as the demo on a busy
+    machine) does not have its board open the armature after 0.5 s of the same stall."""
+    from pmdc_ident.backends.factory import make_backend
+
+    cfg = {"backend": "serial", "port": board.port, "baud": BAUD, "rate_hz": 500.0}
+    cfg |= {"safe_mode": "open", "watchdog_s": 1.5}
+    be = make_backend(cfg, motor, motor.limits, lambda _text: None)
+    assert isinstance(be, SerialBackend)
+    be.start()
+    try:
+        be.command_voltage(3.0)
+        time.sleep(1.0)  # held up: no poll, no keep-alive ping
+        samples = be.poll()
+        assert samples and samples[-1].voltage_cmd_v == pytest.approx(3.0)
+        assert not any(s.faults & Fault.WATCHDOG for s in samples)
+        assert be.state is LinkState.STREAMING
+    finally:
+        be.close()
