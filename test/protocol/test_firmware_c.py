@@ -209,3 +209,21 @@ def test_sketch_builds_and_links_for_an_arduino_uno_when_the_avr_core_is_install
     )
     assert again.returncode == 0 and json.loads(again.stdout)["elf"] == str(elf)
     assert json.loads(again.stdout)["cached"] is True
+
+
+def test_the_emulated_boards_constants_are_the_sketchs() -> None:
+    """virtual-board --emulated sizes its encoder and announces its rate from these."""
+    import re
+
+    from pmdc_ident.backends import emulated_board as eb
+
+    text = (FW / "arduino" / "pmdc_board" / "pmdc_board.ino").read_text()
+
+    def const(pattern: str) -> int:
+        m = re.search(pattern, text)
+        assert m is not None, pattern
+        return int(m.group(1))
+
+    assert const(r"HW_MIN_PERIOD_US = (\d+);") == eb.HW_MIN_PERIOD_US
+    assert const(r"MAX_EDGE_RATE = (\d+)UL;") == eb.MAX_EDGE_RATE
+    assert const(r"#define PMDC_COUNTS_PER_REV (\d+)UL") == eb.DEFAULT_COUNTS_PER_REV

@@ -27,7 +27,7 @@
  * into src/. Set PMDC_BAUD and PMDC_COUNTS_PER_REV below (or with -D).
  *
  * What this board can do, measured on the emulated Uno (firmware/emulator; the
- * command and the full table: docs/serial-protocol.md section 6):
+ * command and the full table: docs/serial-protocol.md section 8):
  *   - one sample costs ~370 us of CPU (seven ADC conversions at a 1 MHz ADC clock,
  *     91 us, a random 0..48 us wait, framing, CRC and the UART); 750 us streamed
  *     without a drop until the encoder ran near its limit, so the board refuses
@@ -39,6 +39,10 @@
  *     10..30 us after the grid instant the telemetry names, whatever the loop is doing
  *     (version 2 read it in the loop: up to 280 us late behind a host frame, a speed
  *     sample 28 % high at 1 kHz); the conversions start 30..100 us after it;
+ *   - a new setpoint reaches the bridge at the next sample, right after its current
+ *     conversions (150..240 us after the instant): applied_v is what the bridge holds
+ *     over the period, as the host models it (version 2 switched mid-period); trips
+ *     open it at once. A lone 0x00 precedes BOOT (a reset may cut a frame);
  *   - encoder: no missed count and no dropped sample up to MAX_EDGE_RATE = 100 000
  *     quadrature edges per second while streaming at 1000 us (the first missed count
  *     was at 106 000 edges/s). At the default 2048 counts/rev that is
@@ -63,7 +67,8 @@ extern "C" {
 #endif
 static const uint32_t BAUD = PMDC_BAUD;
 static const uint32_t COUNTS_PER_REV = PMDC_COUNTS_PER_REV;
-static const uint16_t FIRMWARE_VERSION = 3; /* 3: counts latched at the sample instant */
+/* 3: counts latched at the sample instant, setpoints applied at a sample, 0x00 before BOOT */
+static const uint16_t FIRMWARE_VERSION = 3;
 /* The CPU's own limit (see the header): seven conversions + framing + the UART. */
 static const uint32_t HW_MIN_PERIOD_US = 1000;
 /* Quadrature edges per second the encoder interrupt follows while streaming at
