@@ -34,6 +34,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -142,6 +143,26 @@ def _publish(tmp: Path, final: Path) -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def _cached(
+    root: Path, kind: str, digest: str, name: str, make: Callable[[Path], None]
+) -> tuple[Path, bool]:
+    """``root/<kind>-<digest>/<name>``: from the cache, else made by ``make(tmp)`` in a
+    temporary folder that is renamed into place; (path, True if it came from the cache)."""
+    final = root / f"{kind}-{digest[:20]}"
+    product = final / name
+    if product.is_file():
+        return product, True
+    root.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{kind}-", dir=root))
+    try:
+        make(tmp)
+        _publish(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return product, False
+
+
 def _core_objects(work: Path, core: Path, variant: Path) -> Path:
     """The Arduino core as an archive, as the IDE links it."""
     inc = [f"-I{core}", f"-I{variant}"]
@@ -177,13 +198,8 @@ def build_sketch(baud: int, counts_per_rev: int | None, root: Path) -> tuple[Pat
     h.update(_version("avr-gcc").encode())
     _hash_files(h, [SKETCH, *PROTOCOL.glob("pmdc_protocol.*"), Path(__file__).resolve()])
     _hash_files(h, [p for p in core.iterdir() if p.is_file()] + [variant / "pins_arduino.h"])
-    final = root / f"sketch-{h.hexdigest()[:20]}"
-    elf = final / "pmdc_board.elf"
-    if elf.is_file():
-        return elf, True
-    root.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".sketch-", dir=root))
-    try:
+
+    def make(tmp: Path) -> None:
         archive = _core_objects(tmp, core, variant)
         inc = [f"-I{core}", f"-I{variant}", f"-I{PROTOCOL}"]
         sketch_o, proto_o = tmp / "sketch.o", tmp / "pmdc_protocol.o"
@@ -204,11 +220,8 @@ def build_sketch(baud: int, counts_per_rev: int | None, root: Path) -> tuple[Pat
             raise BuildError(msg)
         for f in tmp.glob("*.o"):
             f.unlink()
-        _publish(tmp, final)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return elf, False
+
+    return _cached(root, "sketch", h.hexdigest(), "pmdc_board.elf", make)
 
 
 def build_emulator(root: Path) -> tuple[Path, bool]:
@@ -221,22 +234,14 @@ def build_emulator(root: Path) -> tuple[Path, bool]:
     h.update(_version(cc).encode())
     _hash_files(h, [EMULATOR_SRC, Path(__file__).resolve(), *SIMAVR_INCLUDE.glob("*.h")])
     _hash_files(h, list(PROTOCOL.glob("pmdc_protocol.*")))
-    final = root / f"emu-{h.hexdigest()[:20]}"
-    exe = final / "pmdc_emu"
-    if exe.is_file():
-        return exe, True
-    root.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".emu-", dir=root))
-    try:
+
+    def make(tmp: Path) -> None:
         srcs = [str(EMULATOR_SRC), str(PROTOCOL / "pmdc_protocol.c")]
         inc = [f"-I{SIMAVR_INCLUDE}", f"-I{PROTOCOL}"]
         cmd = [cc, *EMU_CFLAGS, *inc, *srcs, "-o", str(tmp / "pmdc_emu")]
         _run([*cmd, "-lsimavr", "-lm", "-pthread"], tmp)
-        _publish(tmp, final)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return exe, False
+
+    return _cached(root, "emu", h.hexdigest(), "pmdc_emu", make)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -9,6 +9,9 @@ of the MCU would); stopping the process is the cable being pulled.
 the sketch built for an Uno at ``--baud`` executes on simavr's ATmega328P against
 the motor part of ``firmware/emulator`` (built on first use, then cached).
 ``kill -USR2 <pid>`` then cuts or reconnects its serial line with the board powered.
+Its encoder has the motor file's counts per turn, halved until the motor's speed
+limit fits the edges the sketch follows (``--counts-per-rev`` overrides), and the
+emulator keeps the board's time with a bounded CPU reservation (``--cpu-share``).
 """
 
 from __future__ import annotations
