@@ -40,6 +40,7 @@ import collections
 import enum
 import math
 import os
+import select
 import threading
 import time
 from collections.abc import Callable
@@ -73,6 +74,8 @@ from pmdc_ident.protocol import Telemetry as WireTelemetry
 from pmdc_ident.protocol.messages import NOT_MEASURED
 
 __all__ = ["LinkState", "LinkStats", "SerialBackend"]
+
+WRITE_STALL_S = 0.5  # a port that accepts no byte for this long (while waited for) failed
 
 _STICKY_REPORTED = Fault.OVER_CURRENT | Fault.OVER_SPEED | Fault.WATCHDOG | Fault.BAD_COMMAND
 
@@ -155,6 +158,7 @@ class SerialBackend:
         reconnect: bool = True,
         reconnect_interval_s: float = 0.5,
         max_catch_up_s: float = 0.25,
+        timeout_name: str = "telemetry_timeout_s",
     ) -> None:
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             msg = f"sample period dt_s must be a positive number of seconds, got {dt_s}"
@@ -175,6 +179,7 @@ class SerialBackend:
         self._timeout_s = (
             telemetry_timeout_s if telemetry_timeout_s is not None else max(100 * self._dt_s, 0.5)
         )
+        self._timeout_name = timeout_name  # what a user raises (the driver: its watchdog_s)
         self._board_wd_ms = int(board_watchdog_ms)
         self._handshake_s = float(handshake_timeout_s)
         self._reconnect = reconnect
@@ -380,12 +385,33 @@ class SerialBackend:
             self._seq = (self._seq + 1) & 0xFF
             seq = self._seq
             try:
-                ser.write(frame_message(msg, seq))
-            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                self._write_all(ser, frame_message(msg, seq))
+            except (serial.SerialException, OSError, TypeError, AttributeError, ValueError) as exc:
                 text = f"serial port {self.port} write failed: {_reason(exc)}"
                 raise BackendError(text) from None
             self._last_write = time.monotonic()
         return seq
+
+    def _write_all(self, ser: serial.Serial, data: bytes) -> None:
+        """Write every byte; time out only while the port itself refuses bytes.
+
+        Not ``ser.write``: pyserial 3.5 raises 'Write timeout' after a complete write
+        whenever the call as a whole took longer than its timeout, which a host starved
+        of CPU for half a second (a busy machine) turns into a lost link. Here the
+        port's file descriptor (non-blocking, as pyserial opens it) takes what it can,
+        and only a port that takes nothing for ``WRITE_STALL_S`` of waiting is a
+        failure (a wedged adapter)."""
+        fd = ser.fileno()
+        view = memoryview(data)
+        while view:
+            try:
+                n = os.write(fd, view)
+            except BlockingIOError:
+                n = 0
+            view = view[n:]
+            if view and not select.select([], [fd], [], WRITE_STALL_S)[1]:
+                msg = f"the port took no byte for {WRITE_STALL_S:g} s"
+                raise serial.SerialTimeoutException(msg)
 
     def _ping(self) -> None:
         token = int(time.monotonic_ns() // 1000) & 0xFFFFFFFF
@@ -417,9 +443,7 @@ class SerialBackend:
             )
             raise _LinkLostError(msg, fatal=True)
         try:
-            self._ser = serial.Serial(
-                self.port, self.baud, timeout=0.02, write_timeout=0.5, exclusive=True
-            )
+            self._ser = serial.Serial(self.port, self.baud, timeout=0.02, exclusive=True)
         except (serial.SerialException, OSError, ValueError) as exc:
             msg = f"cannot open serial port {self.port!r}: {_reason(exc)}"
             raise _LinkLostError(msg) from None
@@ -649,7 +673,8 @@ class SerialBackend:
         if silent > self._timeout_s:
             msg = (
                 f"no telemetry from the board on {self.port} for {silent:.2f} s "
-                f"({silent / self._dt_s:.0f} sample periods)"
+                f"({silent / self._dt_s:.0f} sample periods; timeout {self._timeout_s:g} s, "
+                f"{self._timeout_name})"
             )
             raise _LinkLostError(msg)
 
