@@ -128,7 +128,7 @@ class Driver:
             if value > cap:
                 return (
                     f"parameter {name} {value:g} {unit} is above the limit of motor "
-                    f"{self.spec.name} ({cap:g} {unit}; 0 = the motor's limit)"
+                    f"{self.spec.name} ({cap:g} {unit}); 0 = the motor's limit"
                 )
         if name == "watchdog_s" and runtime and not value > 0:
             return (

@@ -232,7 +232,7 @@ IDENTIFICATION = ParameterTable(
           "current abort)", 0.0, 1e5),
         P("safety.stall_speed_rad_s", 1.0, "stall: while |speed| below this, rad/s", 0.0, 1e4),
         P("safety.stall_time_s", 0.0, "stall: for this long, s (0 = 3 tau_m)", 0.0, 60.0),
-        P("safety.data_timeout_s", 1.5, "abort when no driver sample came for this long, s",
+        P("safety.data_timeout_s", 3.0, "abort when no driver sample came for this long, s",
           0.01, 60.0),
         P("max_start_latency_s", 0.05, "start only once driver samples arrive within this of "
           "their stamp, s", 0.001, 10.0),
