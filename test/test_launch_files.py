@@ -374,3 +374,12 @@ def test_launch_files_name_no_default_of_their_own():
         }
         assert found == set(), f"{path.name}: {found}"
         assert not re.search(r"\bdriver_node:", path.read_text())
+
+
+def test_the_integration_guide_names_every_launch_argument():
+    from pmdc_ident.nodes.launching import DRIVER_ARGUMENTS, SESSION_ARGUMENTS
+
+    guide = (REPO / "docs" / "integration.md").read_text()
+    names = {a.name for a in (*SESSION_ARGUMENTS, *DRIVER_ARGUMENTS)} | {"namespace"}
+    missing = sorted(n for n in names | set(LAUNCH_DEFAULTS) if f"`{n}`" not in guide)
+    assert missing == [], f"docs/integration.md does not describe {missing}"

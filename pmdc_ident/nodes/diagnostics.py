@@ -31,7 +31,8 @@ def hardware_id(namespace: str, given: str = "") -> str:
 
 
 class LevelLog:
-    """One line when a status's level changes (starting at OK is not news)."""
+    """One line when a status's level changes (starting at OK is not news; another first
+    level is said at info)."""
 
     def __init__(self, what: str) -> None:
         self.what = what
@@ -44,5 +45,6 @@ class LevelLog:
             return None
         was = "start" if old is None else LEVEL_NAMES.get(old, str(old))
         now = LEVEL_NAMES.get(level, str(level))
-        severity = "info" if level == 0 else ("error" if level == 2 else "warning")
+        # the first status is not a change (a monitor started before its driver is STALE)
+        severity = "info" if level == 0 or old is None else ("error" if level == 2 else "warning")
         return severity, f"{self.what}: {was} -> {now}: {message}"

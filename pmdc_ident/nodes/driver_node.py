@@ -48,6 +48,7 @@ import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -69,6 +70,7 @@ __all__ = ["DriverNode", "main"]
 
 NODE_NAME = "driver_node"
 FINAL_SAMPLES_S = 0.05  # published after the safe mode is applied on the way out
+FINAL_ACK_S = 0.5  # at most this long for the readers to acknowledge them
 _LEVEL = {
     Level.OK: DiagnosticStatus.OK,
     Level.WARN: DiagnosticStatus.WARN,
@@ -152,6 +154,10 @@ class DriverNode(Node):
         end = self._clock_s() + FINAL_SAMPLES_S
         while self._clock_s() < end:
             spin_once(0.01)
+        end = time.monotonic() + FINAL_ACK_S  # and let them reach those readers
+        for pub in (self._pub_current, self._pub_encoder, self._pub_voltage):
+            left = max(0.0, end - time.monotonic())
+            pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
 
     def close(self) -> list[str]:
         if self._driver is None:

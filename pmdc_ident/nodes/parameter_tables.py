@@ -138,9 +138,9 @@ DRIVER = ParameterTable(
           0.0, 100000.0, runtime=True),
         P("watchdog_s", 1.5, "open the armature if no voltage_cmd came for this long, s (0 = "
           "off, at start only: never switched off at run time)", 0.0, 60.0, runtime=True),
-        P("stop_wait_s", 3.0, "on Ctrl-C/SIGTERM: hold 0 V while a node still commands this "
-          "driver (its own safe state first), at most this long, then the safe mode, s",
-          0.0, 60.0),
+        P("stop_wait_s", 6.0, "on Ctrl-C/SIGTERM: hold 0 V while a node still commands this "
+          "driver (its own safe state first), at most this long, then the safe mode, s "
+          "(below ros2 launch's 10 s before SIGKILL)", 0.0, 60.0),
         P("safe_mode", "open",
           "safe state on faults and exit: 'open' (disconnect the winding) or 'zero' (0 V, "
           "brakes)", choices=("open", "zero")),

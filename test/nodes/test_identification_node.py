@@ -355,6 +355,14 @@ def test_the_node_writes_the_exports_beside_the_bag(short_session):
     else:
         robot = URDF.from_xml_string(urdf_path.read_text())
         assert robot.joints[0].dynamics is not None
+        assert robot.joints[0].name == "motor_joint"  # the driver's joint_name
+    # the file beside the bag loads in a node with --params-file (issue 24)
+    import rclpy
+    from rclpy.context import Context
+
+    ctx = Context()
+    rclpy.init(args=["--ros-args", "--params-file", str(control)], context=ctx)
+    rclpy.shutdown(context=ctx)
 
 
 # ---------------------------------------------------------------------------
@@ -675,8 +683,17 @@ def test_a_larger_stack_asks_for_a_run_by_service_and_a_late_joiner_gets_the_res
             state["call"] = helper("call")
         if "identified from" in log and "late" not in state:
             state["late"] = helper("late")  # starts after the result was published
-        late = state.get("late")
-        if late is not None and late.poll() is not None and "stopped" not in state:
+            # and the integration guide's consumer, a node of another package
+            state["example"] = subprocess.Popen(
+                [sys.executable, str(REPO / "examples" / "result_listener.py"), "--timeout", "60"],
+                env=env,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+        waiting = [state[k] for k in ("late", "example") if k in state]
+        done = len(waiting) == 2 and all(w.poll() is not None for w in waiting)
+        if done and "stopped" not in state:
             procs["identification"].send_signal(signal.SIGINT)
             state["stopped"] = True
 
@@ -693,6 +710,13 @@ def test_a_larger_stack_asks_for_a_run_by_service_and_a_late_joiner_gets_the_res
     assert late["result"] is not None, _logs(res)
     assert json.loads(late["result"]) == res.result
     assert res.result["parameters"]["R"]["value"] == pytest.approx(3.0484, rel=0.02)
+    out, err = state["example"].communicate(timeout=30)
+    assert state["example"].returncode == 0, err
+    r = res.result["parameters"]["R"]
+    (r_line,) = [ln.split() for ln in out.splitlines() if ln.split()[:1] == ["R"]]
+    assert r_line[1:3] == [f"{r['value']:.6g}", "ohm"], out
+    assert "NOT MEASURED: assumed equal to Ke" in out
+    assert f"identified_parameters/R: [{r['value']!r}," in out, out
 
 
 def test_a_plan_above_the_driver_limit_is_refused_before_anything_moves(tmp_path, ros_domain):

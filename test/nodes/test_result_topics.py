@@ -100,3 +100,7 @@ def test_level_changes_are_said_once():
     assert log.update(1, "resistance WARN") is None
     assert log.update(3, "no samples") == ("warning", "motor drift: WARN -> STALE: no samples")
     assert log.update(0, "back") == ("info", "motor drift: STALE -> OK: back")
+    assert LevelLog("x").update(3, "no samples yet") == (
+        "info",
+        "x: start -> STALE: no samples yet",
+    )
