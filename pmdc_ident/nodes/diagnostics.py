@@ -32,10 +32,13 @@ def hardware_id(namespace: str, given: str = "") -> str:
 
 class LevelLog:
     """One line when a status's level changes (starting at OK is not news; another first
-    level is said at info)."""
+    level is said at info). ``causes_logged``: the node logs each cause itself when it
+    happens (the driver: a trip, a link lost, the watchdog), so the change is said at
+    info, without repeating the cause (one event, one warning or error line)."""
 
-    def __init__(self, what: str) -> None:
+    def __init__(self, what: str, *, causes_logged: bool = False) -> None:
         self.what = what
+        self.causes_logged = causes_logged
         self.level: int | None = None
 
     def update(self, level: int, message: str) -> tuple[str, str] | None:
@@ -45,6 +48,8 @@ class LevelLog:
             return None
         was = "start" if old is None else LEVEL_NAMES.get(old, str(old))
         now = LEVEL_NAMES.get(level, str(level))
+        if self.causes_logged:
+            return "info", f"{self.what}: {was} -> {now}"
         # the first status is not a change (a monitor started before its driver is STALE)
         severity = "info" if level == 0 or old is None else ("error" if level == 2 else "warning")
         return severity, f"{self.what}: {was} -> {now}: {message}"

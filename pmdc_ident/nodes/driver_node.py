@@ -103,7 +103,7 @@ class DriverNode(Node):
         self._msg_encoder = JointState(name=[joint], position=[0.0], velocity=[0.0])
         self._msg_voltage = JointState(name=list(self._names[0]), effort=[0.0])
         self._hardware_id = hardware_id(self.get_namespace(), str(cfg["hardware_id"]))
-        self._levels = LevelLog("driver status")
+        self._levels = LevelLog("driver status", causes_logged=True)
         self._driver = Driver(cfg, self._log, clock_s)
         self._t0_ns = self.get_clock().now().nanoseconds  # ROS time of backend sample 0
         try:

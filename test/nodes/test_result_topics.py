@@ -104,3 +104,6 @@ def test_level_changes_are_said_once():
         "info",
         "x: start -> STALE: no samples yet",
     )
+    driver = LevelLog("driver status", causes_logged=True)  # each cause has its own line
+    assert driver.update(0, "running") is None
+    assert driver.update(2, "over-current: ...") == ("info", "driver status: OK -> ERROR")
