@@ -15,8 +15,13 @@ confidence (one-sided: the estimate's lower bound against the threshold):
 
 The overall level is the worst one. A re-identification is suggested, and the
 suggestion latched until :meth:`DriftMonitor.reset_suggestion`, when any level
-reaches ERROR or stays at WARN for ``suggest_after_s``. The winding temperature
-rise follows from R with the copper coefficient: ``dT = (R/R0 - 1)/alpha``.
+reaches ERROR or stays at WARN for ``suggest_after_s``. The reset also starts the
+estimates over from the identified values (their prior intervals) and the levels at
+OK, so the suggestion latches again only on evidence gathered after it, never from
+the estimate that raised it. :func:`diagnostic_status` is what ``/diagnostics`` says:
+STALE before the first report and whenever no driver sample came for a while. The
+winding temperature rise follows from R with the copper coefficient:
+``dT = (R/R0 - 1)/alpha``.
 
 The delay's interval includes half a sample period: the current's path between
 samples is not observed (on the simulator the estimate reads about 0.35 ms at
@@ -40,11 +45,13 @@ from pmdc_ident.core.motors import MotorSpec
 __all__ = [
     "COPPER_COEFF_PER_K",
     "QUANTITIES",
+    "STALE",
     "DriftLevel",
     "DriftMonitor",
     "DriftReport",
     "MonitorConfig",
     "QuantityEstimate",
+    "diagnostic_status",
 ]
 
 COPPER_COEFF_PER_K = 3.93e-3  # resistance temperature coefficient of copper at 20 degC
@@ -65,6 +72,9 @@ class DriftLevel(enum.IntEnum):
     OK = 0
     WARN = 1
     ERROR = 2
+
+
+STALE = 3  # diagnostic_msgs/DiagnosticStatus.STALE: no data to judge the motor by
 
 
 @dataclass(frozen=True)
@@ -170,7 +180,8 @@ class DriftMonitor:
             ]
         )
         self._prior_var_m = (2.0 * f_warn) ** 2
-        self._state = new_state(np.array([p.R, p.Ke, d0]), self._prior_var, tc, self._prior_var_m)
+        self._prior = (np.array([p.R, p.Ke, d0]), self._prior_var, tc, self._prior_var_m)
+        self._state = new_state(*self._prior)
         deadband = tn.speed_deadband_rad_s or 0.02 * spec.limits.speed_max_rad_s
         q_tf = (tn.friction_rate_nm or 0.01 * rated) ** 2
         self._consts = np.array(
@@ -231,10 +242,19 @@ class DriftMonitor:
         return self._suggest
 
     def reset_suggestion(self) -> None:
-        """Clear the latched suggestion (after a re-identification)."""
+        """Clear the latched suggestion (after a re-identification) and start over: the
+        estimates from the identified values with their prior intervals, every level
+        at OK. A drift must then be proven again on samples that come after the reset
+        (``hold_s`` apart), so the suggestion cannot re-latch from the old estimate."""
         self._suggest = False
         self._suggest_reason = ""
         self._warn_since = None
+        self._levels = dict.fromkeys(QUANTITIES, DriftLevel.OK)
+        self._pending.clear()
+        fresh = new_state(*self._prior)  # the signal filters keep their state
+        for key in ("th_e", "p_e", "th_m", "p_m"):
+            self._state[key][...] = fresh[key]
+        self._next_report = -math.inf
 
     # -- internals -----------------------------------------------------------
     def _adapt_filter(self, t: np.ndarray) -> None:  # noqa: D401
@@ -332,6 +352,22 @@ class DriftMonitor:
         if self._suggest:
             text += f"; re-identify suggested: {self._suggest_reason}"
         return text
+
+
+def diagnostic_status(
+    report: DriftReport | None, since_sample_s: float | None, stale_after_s: float
+) -> tuple[int, str]:
+    """The ``/diagnostics`` level (0-3, :data:`STALE` = 3) and message: STALE before the
+    first report, and when no driver sample came for ``stale_after_s`` (the last level
+    is named in the message: it describes the motor as it was), else the report's."""
+    if report is None:
+        return STALE, "no driver samples yet"
+    if since_sample_s is not None and since_sample_s > stale_after_s:
+        return STALE, (
+            f"no driver samples for {since_sample_s:.1f} s; last report "
+            f"{report.level.name}: {report.message}"
+        )
+    return int(report.level), report.message
 
 
 def _current_gate(spec: MotorSpec, tau_s: float) -> float:

@@ -1,6 +1,8 @@
 """Identification results: parameter estimates, method comparison, JSON and motor YAML.
 
-JSON (docs/design.md §4): ``parameters.{R,L,Ke,Kt,J,B}`` each ``{value, ci95: [lo, hi] |
+JSON (docs/design.md §4, schema in docs/integration.md): ``schema_version``
+(:data:`pmdc_ident.core.schema.SCHEMA_VERSION`), ``sources``,
+``parameters.{R,L,Ke,Kt,J,B}`` each ``{value, ci95: [lo, hi] |
 null, unit, identifiable}`` (plus ``stderr``, ``reason``), effect parameters as
 ``parameters["<effect>.<name>"]``; then ``assumptions``, ``warnings``,
 ``methods`` (each method's estimates, for comparison), ``validation``
@@ -24,6 +26,7 @@ from pmdc_ident.core.estimate import ParameterEstimate, finite_or_none
 from pmdc_ident.core.estimators.output_error import FitResult
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec, motor_to_yaml
+from pmdc_ident.core.schema import SCHEMA_VERSION
 
 __all__ = [
     "IdentificationResult",
@@ -158,6 +161,7 @@ class IdentificationResult:
     def to_json_dict(self) -> dict[str, Any]:
         return _jsonable(
             {
+                "schema_version": SCHEMA_VERSION,
                 "sources": list(self.sources),
                 "model": self.model_kind,
                 "parameters": {k: p.to_json() for k, p in self.parameters.items()},

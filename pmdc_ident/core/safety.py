@@ -49,7 +49,7 @@ class SafetyConfig:
     stall_current_a: float = math.inf
     stall_speed_rad_s: float = 1.0
     stall_time_s: float = 1.0
-    data_timeout_s: float = 0.5
+    data_timeout_s: float = 3.0
     watchdog_s: float = 0.0
     non_finite_trips: bool = True
 
@@ -73,7 +73,7 @@ class SafetyConfig:
         *,
         stall_current_fraction: float = 0.5,
         stall_speed_rad_s: float = 1.0,
-        data_timeout_s: float = 0.5,
+        data_timeout_s: float = 3.0,  # the identification node's default (busy hosts)
     ) -> SafetyConfig:
         """Defaults from motor limits: stall after 3 tau_m (a free rotor is at 95 %)."""
         return cls(

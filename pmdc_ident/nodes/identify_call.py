@@ -116,6 +116,7 @@ def write_session_exports(
             folder,
             stem=EXPORT_STEM,
             reduction=request.reduction,
+            joint=request.joint or "motor_joint",
             sample_rate_hz=request.sample_rate_hz,
             speed_bandwidth_hz=request.speed_bandwidth_hz or None,
             phase_margin_deg=request.phase_margin_deg,

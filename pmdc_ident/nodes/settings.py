@@ -42,9 +42,10 @@ def _dataclass(cls: Any, prefix: str, values: Mapping[str, Any]) -> Any:
 
 
 def controller_config(
-    values: Mapping[str, Any], flush_timeout_s: float = FLUSH_TIMEOUT_S
+    values: Mapping[str, Any], flush_timeout_s: float = FLUSH_TIMEOUT_S, namespace: str = ""
 ) -> ControllerConfig:
-    """The controller's configuration from the node's parameter values (by table name)."""
+    """The controller's configuration from the node's parameter values (by table name);
+    ``namespace`` is the node's (it names the sessions)."""
     try:
         nominal = load_motor(values["motor"])
     except PmdcError as exc:
@@ -86,6 +87,7 @@ def controller_config(
         flush_timeout_s=flush_timeout_s,
         fixed=fixed,
         exports=_exports(v),
+        namespace=namespace,
     )
 
 

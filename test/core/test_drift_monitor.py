@@ -8,7 +8,13 @@ import pytest
 from pmdc_ident.cli import main
 from pmdc_ident.core.control_design import GainDesign, design_gains
 from pmdc_ident.core.data import Run, Segment
-from pmdc_ident.core.drift_monitor import DriftLevel, DriftMonitor, DriftReport
+from pmdc_ident.core.drift_monitor import (
+    STALE,
+    DriftLevel,
+    DriftMonitor,
+    DriftReport,
+    diagnostic_status,
+)
 from pmdc_ident.core.effects import CoulombFriction, Delay, ResistanceDrift
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import MotorSpec, load_motor
@@ -140,3 +146,43 @@ def test_monitor_command_replays_a_csv_and_writes_a_report(design, tmp_path, cap
         )
         == 2
     )
+
+
+def test_a_reset_suggestion_does_not_relatch_from_the_old_estimate(design: GainDesign) -> None:
+    """After reset_suggestion the estimates start over from the identified values: the
+    still-hot motor must prove its drift again on new samples (hold_s apart) before the
+    suggestion latches again; it used to re-latch at the very next report (issue 24)."""
+    hot = MotorSpec(
+        "hot", Model(P.replace(R=1.3 * P.R), SPEC.model.effects), SPEC.sensors, SPEC.limits
+    )
+    run = simulate_service(hot, design, 14.0, seed=1, setpoints=STEPS)
+    first = run.t < 7.0
+    mon = DriftMonitor(SPEC)
+    mon.process(run.t[first], run.voltage[first], run.current[first], run.speed[first])
+    assert mon.suggest_reidentify
+    mon.reset_suggestion()
+    later: list[DriftReport] = []
+    idx = np.flatnonzero(~first)
+    for a in range(0, idx.size, 20):  # as the node feeds it
+        k = idx[a : a + 20]
+        later += mon.process(run.t[k], run.voltage[k], run.current[k], run.speed[k])
+        if mon.suggest_reidentify:
+            break
+    t_reset = run.t[idx[0]]
+    assert later[0].level == DriftLevel.OK and not later[0].suggest_reidentify
+    assert later[0].quantity("resistance").value == pytest.approx(P.R, rel=0.02)
+    # ... and the motor is still 30 % hot: proven again, from new evidence only
+    relatched = next(r for r in later if r.suggest_reidentify)
+    assert relatched.t_s - t_reset >= mon.config.hold_s
+    assert relatched.quantity("resistance").value > 1.2 * P.R
+
+
+def test_diagnostics_go_stale_when_samples_stop() -> None:
+    report = DriftMonitor(SPEC).process(
+        np.arange(200) * 1e-3, np.full(200, 5.0), np.full(200, 0.5), np.full(200, 60.0)
+    )[0]
+    assert diagnostic_status(None, None, 2.0) == (STALE, "no driver samples yet")
+    assert diagnostic_status(report, 0.5, 2.0) == (int(report.level), report.message)
+    level, message = diagnostic_status(report, 3.25, 2.0)
+    assert level == STALE == 3
+    assert message.startswith("no driver samples for 3.2 s; last report OK")

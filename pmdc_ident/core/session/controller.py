@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import enum
 import json
+import re
+import secrets
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -28,6 +30,7 @@ from typing import Any
 
 from pmdc_ident.core.enums import AbortReason, SafeMode
 from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.schema import SCHEMA_VERSION
 from pmdc_ident.core.session.link import CommandPolicy, Latency, SafeConfirmation
 from pmdc_ident.core.session.machine import Session, SessionState, SessionStep
 from pmdc_ident.core.session.ports import (
@@ -37,6 +40,7 @@ from pmdc_ident.core.session.ports import (
     IdentificationOutcome,
 )
 from pmdc_ident.core.session.recording import Recording
+from pmdc_ident.core.session.remedy import abort_remedy
 from pmdc_ident.core.session.startup import (
     DRIVER_PARAMETERS,
     Peers,
@@ -53,6 +57,7 @@ __all__ = [
     "IdentificationJob",
     "Phase",
     "SessionController",
+    "default_session_name",
 ]
 
 EXIT_ABORTED = 3
@@ -89,6 +94,7 @@ class ControllerConfig:
     flush_timeout_s: float  # longest wait for a session's last samples (the QoS buffer)
     fixed: Mapping[str, float] = field(default_factory=dict)
     exports: ExportRequest | None = None  # write the exports beside the results
+    namespace: str = ""  # the node's namespace: part of the default session name
 
 
 class SessionController:
@@ -355,9 +361,7 @@ class SessionController:
 
     def _next_name(self) -> str:
         self._session_count += 1
-        name = self.config.session.session_name or (
-            "session_" + datetime.now(UTC).strftime("%Y%m%d_%H%M%S")
-        )
+        name = self.config.session.session_name or default_session_name(self.config.namespace)
         return f"{name}_{self._session_count}" if self._session_count > 1 else name
 
     def _fail(self, text: str) -> None:
@@ -449,11 +453,18 @@ class SessionController:
         assert s is not None
         self._make_safe(now_s)
         reason = s.abort_reason.value if s.abort_reason else "?"
+        remedy = abort_remedy(
+            s.abort_reason or AbortReason.INTERRUPTED,
+            s.monitor.config,
+            self.config.start.peer_timeout_s,
+        )
         self.ports.log(
-            "error", f"session {s.name} ABORTED ({reason}): {s.abort_detail}; safe command sent"
+            "error",
+            f"session {s.name} ABORTED ({reason}): {s.abort_detail}; safe command sent"
+            + (f"; {remedy}" if remedy else ""),
         )
         self.ports.publish_progress(s.progress().to_json())
-        self._publish_status("aborted", reason=reason, detail=s.abort_detail)
+        self._publish_status("aborted", reason=reason, detail=s.abort_detail, remedy=remedy)
         self.exit_code = EXIT_ABORTED
         self.phase = Phase.FINISHED
         self.confirmation.start(round(s.markers[-1].t_s * 1e9), now_s)
@@ -491,7 +502,7 @@ class SessionController:
             IdentificationJob(
                 samples=self.recording.samples(s.markers),
                 session=s.name,
-                source=self.peers.recorder_paths.get(s.name) or f"session {s.name}",
+                source=self._bag_path(s.name) or f"session {s.name}",
                 output_dir=self._output_dir(s.name),
                 fixed=dict(self.config.fixed),
                 exports=self._exports(s),
@@ -503,17 +514,37 @@ class SessionController:
         e = self.config.exports
         if e is None:
             return None
-        return replace(e, sample_rate_hz=e.sample_rate_hz or 1.0 / s.dt_s)
+        joint = e.joint or str((self.peers.driver or {}).get("joint_name") or "")
+        return replace(e, sample_rate_hz=e.sample_rate_hz or 1.0 / s.dt_s, joint=joint)
+
+    def _bag_path(self, session: str) -> str:
+        """The recorder's bag of ``session`` as an absolute path ('' without one): the
+        result's ``sources`` must name it wherever the document is read."""
+        path = self.peers.recorder_paths.get(session)
+        return str(Path(path).expanduser().absolute()) if path else ""
 
     def _output_dir(self, session: str) -> Path:
-        path = self.peers.recorder_paths.get(session)
+        path = self._bag_path(session)
         if path:
             return Path(path)
-        return Path(self.config.output_dir).expanduser() / session
+        return Path(self.config.output_dir).expanduser().absolute() / session
 
     def _publish_status(self, state: str, **extra: str) -> None:
-        d: dict[str, Any] = {"state": state, "session": self.session.name if self.session else ""}
+        d: dict[str, Any] = {
+            "schema_version": SCHEMA_VERSION,
+            "state": state,
+            "session": self.session.name if self.session else "",
+        }
         d.update(extra)
         if self.session is not None:
             d["bag"] = self.peers.recorder_paths.get(self.session.name, "")
         self.ports.publish_status(json.dumps(d))
+
+
+def default_session_name(namespace: str = "", now: datetime | None = None) -> str:
+    """``session_<UTC time>[_<namespace>]_<6 hex digits>``: unique even for two motors
+    started in the same second (``session_20261127_100501_left_wheel_3fa9c1``); the
+    namespace makes a robot's bags tell their motors apart at a glance."""
+    stamp = (now or datetime.now(UTC)).strftime("%Y%m%d_%H%M%S")
+    ns = re.sub(r"[^A-Za-z0-9_]+", "_", namespace).strip("_")
+    return "_".join(part for part in ("session", stamp, ns, secrets.token_hex(3)) if part)

@@ -12,6 +12,7 @@ from pmdc_ident.core.enums import AbortReason, SafeMode
 from pmdc_ident.core.errors import ParameterError, PmdcError
 from pmdc_ident.core.excitation import TestPlan
 from pmdc_ident.core.safety import SafetyConfig, SafetyMonitor
+from pmdc_ident.core.schema import SCHEMA_VERSION
 from pmdc_ident.core.session.markers import Marker, MarkerEvent
 from pmdc_ident.core.session.steady_state import SteadyStateConfig, SteadyStateDetector
 
@@ -49,7 +50,7 @@ class SessionProgress:
     abort_reason: AbortReason | None = None
 
     def to_json(self) -> str:
-        d = asdict(self)
+        d: dict[str, object] = {"schema_version": SCHEMA_VERSION, **asdict(self)}
         d["state"] = self.state.value
         d["abort_reason"] = self.abort_reason.value if self.abort_reason else None
         return json.dumps(d, separators=(",", ":"))

@@ -23,6 +23,7 @@ class ExportRequest:
     speed_bandwidth_hz: float = 0.0  # 0: a tenth of the current loop's crossover
     phase_margin_deg: float = 60.0
     sample_rate_hz: float = 0.0  # the gains' rate; 0 until the controller sets the session's
+    joint: str = ""  # the joint's name; '' until the controller sets the driver's joint_name
 
 
 @dataclass(frozen=True)
