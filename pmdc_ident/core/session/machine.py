@@ -239,10 +239,7 @@ class Session:
             return None
         gap = wall_s - self._last_wall_s
         if gap > timeout:
-            detail = (
-                f"no driver sample for {gap:.2f} s (safety.data_timeout_s {timeout:.2f} s; "
-                "raise it on a busy host)"
-            )
+            detail = f"no driver sample for {gap:.2f} s (timeout {timeout:.2f} s)"
             return self.abort(AbortReason.LOST_DRIVER_DATA, None, detail)
         return None
 
