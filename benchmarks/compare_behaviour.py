@@ -235,6 +235,12 @@ def _diff(a: object, b: object, where: str, rtol: float, atol: float, out: list[
     return 1
 
 
+def _load(path: Path, root: Path) -> object:
+    """The JSON at ``path`` with the recording's own folder written as ``<root>`` (the
+    inputs' paths differ between two recordings, not their content)."""
+    return json.loads(path.read_text().replace(str(root.resolve()), "<root>"))
+
+
 def compare(before: Path, after: Path, rtol: float, atol: float) -> int:
     files = sorted(p.relative_to(before) for p in before.rglob("*.json"))
     total_diffs = 0
@@ -245,14 +251,8 @@ def compare(before: Path, after: Path, rtol: float, atol: float) -> int:
             total_diffs += 1
             continue
         diffs: list[str] = []
-        n = _diff(
-            json.loads((before / rel).read_text()),
-            json.loads(other.read_text()),
-            "",
-            rtol,
-            atol,
-            diffs,
-        )
+        a, b = _load(before / rel, before), _load(other, after)
+        n = _diff(a, b, "", rtol, atol, diffs)
         status = "identical" if not diffs else f"{len(diffs)} difference(s)"
         print(f"{rel}: {n} values compared, {status}")
         for d in diffs[:40]:

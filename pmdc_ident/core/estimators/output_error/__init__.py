@@ -15,9 +15,9 @@ measurement noise. Parameters:
 
 Two simulators share one Levenberg-Marquardt solver:
 
-* the **fast path** (the linear model plus ``coulomb_friction``, ``stribeck_friction``,
-  ``quadratic_drag``, ``load_torque``,
-  ``current_offset``): one exact zero-order-hold step per sample, with the
+* the **fast path** (the linear model plus the effects whose ``SIM_PATH`` is
+  ``FAST``: ``coulomb_friction``, ``stribeck_friction``, ``quadratic_drag``,
+  ``load_torque``, ``current_offset``): one exact zero-order-hold step per sample, with the
   sensitivity equations propagated alongside the state in a numba kernel (the
   sensitivity equations are themselves linear ZOH systems; their matrices come
   from Van Loan block exponentials), so the Jacobian is analytic;
