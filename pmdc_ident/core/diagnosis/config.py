@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from pmdc_ident.core.diagnosis.verdict import Thresholds
 from pmdc_ident.core.effects import DEFAULT_CANDIDATES, EFFECT_NAMES
 from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.fixed import FixedValues
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
 
 __all__ = ["DiagnosisConfig"]
@@ -41,10 +42,8 @@ class DiagnosisConfig:
         if unknown:
             msg = f"unknown effect(s) {', '.join(unknown)}; known: {', '.join(EFFECT_NAMES)}"
             raise ParameterError(msg)
-        bad = [k for k in self.fixed if k not in PARAMETER_NAMES]
-        if bad:
-            msg = f"only motor parameters {PARAMETER_NAMES} can be fixed, not {', '.join(bad)}"
-            raise ParameterError(msg)
+        # the motor parameters only (the candidates' effect fields are what it fits)
+        object.__setattr__(self, "fixed", FixedValues(self.fixed, known=PARAMETER_NAMES))
         if self.max_effects < 1 or self.workers < 1 or self.max_nfev < 1:
             msg = "max_effects, workers and max_nfev must be >= 1"
             raise ParameterError(msg)

@@ -43,11 +43,11 @@ from pmdc_ident.core.estimators.frequency import FrequencyResponse, estimate_fre
 from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE, FitResult, fit_output_error
 from pmdc_ident.core.estimators.start import (
     COULOMB_TORQUE,
-    LOAD_TORQUE,
     start_model,
     start_values,
 )
 from pmdc_ident.core.estimators.validation import holdout_score, residual_tests
+from pmdc_ident.core.fixed import IDENTIFY_FIXABLE, FixedValues
 from pmdc_ident.core.model import Model, simulate_linear
 from pmdc_ident.core.motors import Limits
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
@@ -178,16 +178,7 @@ def identify(
 # 1. arguments and segments
 # ---------------------------------------------------------------------------
 def _checked_fixed(fixed: Mapping[str, float] | None) -> dict[str, float]:
-    out = {str(k): float(v) for k, v in (fixed or {}).items()}
-    known = set(PARAMETER_NAMES) | {TC, LOAD_TORQUE}
-    for k, v in out.items():
-        if k not in known:
-            msg = f"--fix {k}: unknown parameter (known: {', '.join(sorted(known))})"
-            raise ParameterError(msg)
-        if not math.isfinite(v) or (k in PARAMETER_NAMES and (v < 0 or (v == 0 and k != "B"))):
-            msg = f"--fix {k}={v:g}: must be a positive number in {parameter_unit(k)}"
-            raise ParameterError(msg)
-    return out
+    return dict(FixedValues(fixed or {}, known=IDENTIFY_FIXABLE))
 
 
 def _setup(
