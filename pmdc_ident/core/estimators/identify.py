@@ -98,6 +98,13 @@ class _Setup:
         )
 
 
+class WarningCode(enum.Enum):
+    """Warnings a later step of :func:`identify` looks for (by code, not by its text)."""
+
+    OUTPUT_ERROR_FAILED = "output-error-failed"  # a model's output-error fit failed
+    SEGMENTS_WITH_GAPS = "segments-with-gaps"  # segments left out for gaps in time
+
+
 @dataclass
 class _Report:
     """What the steps add to the result as they go."""
@@ -106,6 +113,12 @@ class _Report:
     warnings: list[str] = field(default_factory=list)
     methods: dict[str, dict[str, Any]] = field(default_factory=dict)
     validation: dict[str, Any] = field(default_factory=dict)
+    coded: dict[WarningCode, list[str]] = field(default_factory=dict)
+
+    def warn(self, code: WarningCode, text: str) -> None:
+        """A warning of the result that a later step may look for by ``code``."""
+        self.warnings.append(text)
+        self.coded.setdefault(code, []).append(text)
 
 
 def identify(
@@ -237,10 +250,11 @@ def _dynamic_segments(
             "left out)"
         )
     if skipped:
-        report.warnings.append(
+        report.warn(
+            WarningCode.SEGMENTS_WITH_GAPS,
             "segments with gaps in time (a sample period off the median by more than 25 %), "
             f"left out of the dynamic fit: {', '.join(s.label for s in skipped)} "
-            f"({_worst_gap(skipped)})"
+            f"({_worst_gap(skipped)})",
         )
     return dyn
 
@@ -446,9 +460,9 @@ def _output_error(
                 progress=lambda it, cost, k=kind: say(f"  {k}: iteration {it}, cost {cost:.6g}"),
             )
         except PmdcError as exc:
-            report.warnings.append(f"output error ({kind}) failed: {exc}")
+            report.warn(WarningCode.OUTPUT_ERROR_FAILED, f"output error ({kind}) failed: {exc}")
     if not fits:
-        why = "; ".join(w for w in report.warnings if w.startswith("output error ("))
+        why = "; ".join(report.coded.get(WarningCode.OUTPUT_ERROR_FAILED, []))
         msg = f"the output-error fit failed on every model: {why}"
         raise DataError(msg)
     _restart_coulomb(setup, fits, say)
@@ -745,7 +759,7 @@ def _classical_only(
     """The result when there is no time series: the classical chain's values, with
     placeholders for what the tables cannot give."""
     if classical is None or not classical.values:
-        gaps = [w for w in report.warnings if w.startswith("segments with gaps in time")]
+        gaps = report.coded.get(WarningCode.SEGMENTS_WITH_GAPS, [])
         if gaps:
             msg = f"no dynamic fit possible and no staircase/coast-down table: {gaps[0]}"
         else:
