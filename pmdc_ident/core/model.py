@@ -42,6 +42,7 @@ from pmdc_ident.core.effects.layout import (
     KR,
     KT,
     LAG,
+    MU,
     N_COEF,
     NCOG,
     PHCOG,
@@ -527,6 +528,7 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
     tcog, ncog, phcog, kr, isat = c[TCOG], c[NCOG], c[PHCOG], c[KR], c[ISAT]
     ds = c[DS]  # Stribeck shape exponent
     ib = c[IB]  # brush drop knee current (0: the hard sign)
+    mu = c[MU]  # torque-dependent friction: mu |Kt i| against the motion
     # winding heat q: dq/dt = i^2 - q/tau (tau = c[TAUQ]; 0 = no cooling, the integral)
     cool = math.exp(-h / c[TAUQ]) if c[TAUQ] > 0.0 else 1.0
     t_static = tc + ts
@@ -584,7 +586,8 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
                     i_inf = v_eff / r
                     i_held = i_inf + (i - i_inf) * math.exp(-r * h / lcur)
                     i_avg = i_inf + (i - i_inf) * (1.0 - math.exp(-r * h / lcur)) * lcur / (r * h)
-                    if abs(kt * i_avg - t_pos) <= t_static:
+                    hold = t_static + (mu * abs(kt * i_avg) if mu > 0.0 else 0.0)
+                    if abs(kt * i_avg - t_pos) <= hold:
                         q += i_held * i_held * h
                         i = i_held
                         continue
@@ -595,6 +598,8 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
                 sgn = 1.0 if w > 0.0 else (-1.0 if w < 0.0 else (1.0 if drive > 0.0 else -1.0))
             # (ts = 0: ts * exp(.) is 0 exactly, so the exp is skipped, same numbers)
             fric = sgn * (tc + ts * stribeck_fall(w, ws, ds)) if ts > 0.0 else sgn * tc
+            if mu > 0.0:
+                fric += sgn * mu * abs(kt * i)
             t_opp = t_pos + fric + cq * w * abs(w)
             if is_open:
                 w_new, th_new = _coast_step(w, th, t_opp, a_mech, j, h)
@@ -621,7 +626,8 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
                 i_c = i + frac * (i_new - i)
                 th_c = th + 0.5 * w * frac * h
                 held = -t_pos if is_open else kt * i_c - t_pos
-                if abs(held) <= t_static:
+                hold = t_static + (mu * abs(kt * i_c) if mu > 0.0 and not is_open else 0.0)
+                if abs(held) <= hold:
                     stuck = True
                     w_new, th_new = 0.0, th_c
                 elif is_open:
@@ -632,7 +638,7 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
                         i_c,
                         th_c,
                         v_eff,
-                        t_pos + (t_static if held > 0.0 else -t_static),
+                        t_pos + (hold if held > 0.0 else -hold),
                         r,
                         lcur,
                         ke,

@@ -8,7 +8,8 @@ enters the equations::
 
     applied voltage  Va = delay(dead_zone(V_cmd))
     L(i) di/dt = Va - R(t) i - Ke w - brush(Va - Ke w)
-    J dw/dt    = Kt i - B w - friction(w) - Cq w|w| - T_load - T_cog sin(N th + phi)
+    J dw/dt    = Kt i - B w - friction(w) - mu |Kt i| sign(w) - Cq w|w| - T_load
+                 - T_cog sin(N th + phi)
     measured current = i + I_offset
 
 with ``friction(w) = (Tc + Ts exp(-(|w|/ws)^d)) sign(w)`` (``d`` = 2 the Gaussian,
@@ -18,7 +19,8 @@ with ``dq/dt = i^2 - q/tau`` (first-order winding heating: ``q`` is the
 dissipated ``int i^2 dt`` that has not yet flowed away; ``tau`` -> infinity is the
 plain integral), ``Ke(t) = Ke (1 - r k q)`` and ``Kt`` likewise with the same heat
 (magnets losing flux as they warm; ``r`` = 0, none, unless fitted) and
-``L(i) = L / (1 + (i/I_sat)^2)``.
+``L(i) = L / (1 + (i/I_sat)^2)``; ``mu |Kt i|`` (a torque-dependent friction) also adds
+to what static friction can hold.
 
 :data:`EFFECT_TYPES` is the registry (name -> class, in vocabulary order): adding an
 effect is one module here, one line below, its kernel lines in
@@ -50,6 +52,7 @@ from pmdc_ident.core.effects.load_torque import LoadTorque
 from pmdc_ident.core.effects.quadratic_drag import QuadraticDrag
 from pmdc_ident.core.effects.resistance_drift import NO_COOLING_S, ResistanceDrift
 from pmdc_ident.core.effects.stribeck_friction import StribeckFriction
+from pmdc_ident.core.effects.torque_dependent_friction import TorqueDependentFriction
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.params import PARAMETER_UNITS
 
@@ -75,6 +78,7 @@ __all__ = [
     "ResistanceDrift",
     "SimPath",
     "StribeckFriction",
+    "TorqueDependentFriction",
     "effect_from_mapping",
     "effects_from_mapping",
     "effects_to_mapping",
@@ -97,6 +101,7 @@ EFFECT_TYPES: dict[str, type[Effect]] = {
         Delay,
         CurrentOffset,
         InductanceSaturation,
+        TorqueDependentFriction,
     )
 }
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECT_TYPES)

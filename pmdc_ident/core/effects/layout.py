@@ -44,7 +44,9 @@ I_OFF = 21
 V_DZ = 22
 # delay: transport delay and first-order lag (on the command)
 DELAY, LAG = 23, 24
-N_COEF = 25
+# torque_dependent_friction: the share of the motor's torque lost against the motion
+MU = 25
+N_COEF = 26
 
 # Sensitivity columns of the fast output-error kernel: R..B per log of the value,
 # then the torques it differentiates and the initial states.
