@@ -36,6 +36,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import time
@@ -236,9 +237,12 @@ def _diff(a: object, b: object, where: str, rtol: float, atol: float, out: list[
 
 
 def _load(path: Path, root: Path) -> object:
-    """The JSON at ``path`` with the recording's own folder written as ``<root>`` (the
-    inputs' paths differ between two recordings, not their content)."""
-    return json.loads(path.read_text().replace(str(root.resolve()), "<root>"))
+    """The JSON at ``path`` with the recording's own folder written as ``<root>`` and the
+    fixtures' as ``<fixtures>`` (the inputs' paths differ between two recordings, not
+    their content)."""
+    text = path.read_text().replace(str(root.resolve()), "<root>")
+    # the seed fixtures, read from whichever source tree recorded
+    return json.loads(re.sub(r'[^"\s]*/test/fixtures/', "<fixtures>/", text))
 
 
 def compare(before: Path, after: Path, rtol: float, atol: float) -> int:
