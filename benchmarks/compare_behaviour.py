@@ -3,8 +3,8 @@
 Written for refactorings that must not change behaviour (issue 26): record once on
 the base commit, once on the branch, and compare run by run::
 
-    # on the base tree (a clean checkout of the base commit, e.g. `git worktree add`)
-    nice .venv/bin/python benchmarks/compare_behaviour.py record /tmp/before --src BASE_TREE
+    # on the base tree (e.g. git archive 9f585c2 | tar -x -C /tmp/base)
+    nice .venv/bin/python benchmarks/compare_behaviour.py record /tmp/before --src /tmp/base
     # on the branch
     nice .venv/bin/python benchmarks/compare_behaviour.py record /tmp/after
     .venv/bin/python benchmarks/compare_behaviour.py compare /tmp/before /tmp/after
