@@ -31,6 +31,7 @@ ALLOWED = {
     "pmdc_ident.core.excitation",  # the session's test plan (the user's shapes)
     "pmdc_ident.core.motors",  # the plan's Limits
     "pmdc_ident.core._jit",  # numba compilation, no equation
+    "pmdc_ident.core.effects",  # the registry: the vocabulary's names and ladders
 }
 
 
@@ -45,6 +46,9 @@ def test_generator_imports_nothing_of_the_candidate_library():
                     assert {a.name for a in node.names} <= {"SequenceConfig", "default_plan"}
                 if node.module == "pmdc_ident.core.motors":
                     assert {a.name for a in node.names} == {"Limits"}
+                if node.module == "pmdc_ident.core.effects":
+                    # names and graded sizes only: the equations stay the generator's own
+                    assert {a.name for a in node.names} == {"EFFECT_TYPES"}
 
 
 def test_motors_span_three_decades_geared_and_direct_and_every_name_has_two_equations():

@@ -30,7 +30,8 @@ from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment, TestKind
 from pmdc_ident.core.errors import DataError
-from pmdc_ident.core.estimators.small_fit import levenberg_marquardt, t_quantile
+from pmdc_ident.core.estimators.solver import least_squares
+from pmdc_ident.core.estimators.student_t import t_quantile
 
 __all__ = [
     "ClassicalResult",
@@ -238,7 +239,7 @@ def _fit_j(t: FloatArray, w: FloatArray, Tc: float, B: float) -> tuple[float, fl
         # a = B/J and c = Tc/J: d/d(log J) = -a d/da - c d/dc
         return np.column_stack([-(B / J) * d[:, 1] - (Tc / J) * d[:, 2], d[:, 0]])
 
-    sol = levenberg_marquardt(resid, jac, [math.log(j_guess), float(w[0])])
+    sol = least_squares(resid, jac, [math.log(j_guess), float(w[0])])
     r = sol.fun
     dof = max(t.size - 2, 1)
     s2 = float(r @ r) / dof
@@ -263,7 +264,7 @@ def _free_shape(t: FloatArray, w: FloatArray, a0: float, c0: float) -> tuple[flo
         inside = np.abs(z[1:]) < 50.0  # the clip holds the log-rates at +-50
         return np.column_stack([d[:, 0], a * d[:, 1] * inside[0], c * d[:, 2] * inside[1]])
 
-    sol = levenberg_marquardt(resid, jac, [w[0], math.log(a0), math.log(c0)])
+    sol = least_squares(resid, jac, [w[0], math.log(a0), math.log(c0)])
     _, a, c = unpack(sol.x)
     return a, c
 

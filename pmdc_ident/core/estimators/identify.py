@@ -43,11 +43,11 @@ from pmdc_ident.core.estimators.frequency import FrequencyResponse, estimate_fre
 from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE, FitResult, fit_output_error
 from pmdc_ident.core.estimators.start import (
     COULOMB_TORQUE,
-    LOAD_TORQUE,
     start_model,
     start_values,
 )
 from pmdc_ident.core.estimators.validation import holdout_score, residual_tests
+from pmdc_ident.core.fixed import IDENTIFY_FIXABLE, FixedValues
 from pmdc_ident.core.model import Model, simulate_linear
 from pmdc_ident.core.motors import Limits
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
@@ -98,6 +98,13 @@ class _Setup:
         )
 
 
+class WarningCode(enum.Enum):
+    """Warnings a later step of :func:`identify` looks for (by code, not by its text)."""
+
+    OUTPUT_ERROR_FAILED = "output-error-failed"  # a model's output-error fit failed
+    SEGMENTS_WITH_GAPS = "segments-with-gaps"  # segments left out for gaps in time
+
+
 @dataclass
 class _Report:
     """What the steps add to the result as they go."""
@@ -106,6 +113,12 @@ class _Report:
     warnings: list[str] = field(default_factory=list)
     methods: dict[str, dict[str, Any]] = field(default_factory=dict)
     validation: dict[str, Any] = field(default_factory=dict)
+    coded: dict[WarningCode, list[str]] = field(default_factory=dict)
+
+    def warn(self, code: WarningCode, text: str) -> None:
+        """A warning of the result that a later step may look for by ``code``."""
+        self.warnings.append(text)
+        self.coded.setdefault(code, []).append(text)
 
 
 def identify(
@@ -178,16 +191,7 @@ def identify(
 # 1. arguments and segments
 # ---------------------------------------------------------------------------
 def _checked_fixed(fixed: Mapping[str, float] | None) -> dict[str, float]:
-    out = {str(k): float(v) for k, v in (fixed or {}).items()}
-    known = set(PARAMETER_NAMES) | {TC, LOAD_TORQUE}
-    for k, v in out.items():
-        if k not in known:
-            msg = f"--fix {k}: unknown parameter (known: {', '.join(sorted(known))})"
-            raise ParameterError(msg)
-        if not math.isfinite(v) or (k in PARAMETER_NAMES and (v < 0 or (v == 0 and k != "B"))):
-            msg = f"--fix {k}={v:g}: must be a positive number in {parameter_unit(k)}"
-            raise ParameterError(msg)
-    return out
+    return dict(FixedValues(fixed or {}, known=IDENTIFY_FIXABLE))
 
 
 def _setup(
@@ -246,10 +250,11 @@ def _dynamic_segments(
             "left out)"
         )
     if skipped:
-        report.warnings.append(
+        report.warn(
+            WarningCode.SEGMENTS_WITH_GAPS,
             "segments with gaps in time (a sample period off the median by more than 25 %), "
             f"left out of the dynamic fit: {', '.join(s.label for s in skipped)} "
-            f"({_worst_gap(skipped)})"
+            f"({_worst_gap(skipped)})",
         )
     return dyn
 
@@ -455,9 +460,9 @@ def _output_error(
                 progress=lambda it, cost, k=kind: say(f"  {k}: iteration {it}, cost {cost:.6g}"),
             )
         except PmdcError as exc:
-            report.warnings.append(f"output error ({kind}) failed: {exc}")
+            report.warn(WarningCode.OUTPUT_ERROR_FAILED, f"output error ({kind}) failed: {exc}")
     if not fits:
-        why = "; ".join(w for w in report.warnings if w.startswith("output error ("))
+        why = "; ".join(report.coded.get(WarningCode.OUTPUT_ERROR_FAILED, []))
         msg = f"the output-error fit failed on every model: {why}"
         raise DataError(msg)
     _restart_coulomb(setup, fits, say)
@@ -754,7 +759,7 @@ def _classical_only(
     """The result when there is no time series: the classical chain's values, with
     placeholders for what the tables cannot give."""
     if classical is None or not classical.values:
-        gaps = [w for w in report.warnings if w.startswith("segments with gaps in time")]
+        gaps = report.coded.get(WarningCode.SEGMENTS_WITH_GAPS, [])
         if gaps:
             msg = f"no dynamic fit possible and no staircase/coast-down table: {gaps[0]}"
         else:

@@ -17,7 +17,7 @@ from pmdc_ident.core.effects import parameter_unit
 from pmdc_ident.core.estimators.output_error.problem import Problem
 from pmdc_ident.core.estimators.output_error.segments import x0_from_data
 from pmdc_ident.core.estimators.output_error.simulators import predict
-from pmdc_ident.core.estimators.output_error.solver import LMState
+from pmdc_ident.core.estimators.solver import LMState
 from pmdc_ident.core.model import Model
 
 __all__ = ["FitResult", "Prediction", "build_result"]
