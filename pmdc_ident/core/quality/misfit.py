@@ -28,7 +28,7 @@ model, fixed values and closure).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -225,6 +225,28 @@ def _parts_flags(fit: FitResult, dyn: Sequence[Segment], refit: Refit, cover: Co
     except PmdcError:
         return []
     wa, wb = _widen(fa, a), _widen(fb, b)
+
+    def why(name: str, va: float, vb: float, z: float) -> str:
+        return (
+            f"the data disagree with themselves under this model: {name} = {va:.4g} and "
+            f"{vb:.4g} on {how} ({z:.1f} combined standard errors apart, the residuals not "
+            f"white); {_RECORD.get(name, _RECORD['*'])}"
+        )
+
+    return _pair_flags(fit, (fa, wa), (fb, wb), why, cover)
+
+
+def _pair_flags(
+    fit: FitResult,
+    first: tuple[FitResult, float],
+    second: tuple[FitResult, float],
+    why: Callable[[str, float, float, float], str],
+    cover: Cover,
+) -> list[Flag]:
+    """Two refits (each with its widening) compared parameter by parameter: the ones
+    both identify and that lie apart (:func:`_apart`) are flagged, ``why`` the reason;
+    both refits enter the cover."""
+    (fa, wa), (fb, wb) = first, second
     _collect(cover, fit, fa, wa)
     _collect(cover, fit, fb, wb)
     out = []
@@ -232,20 +254,11 @@ def _parts_flags(fit: FitResult, dyn: Sequence[Segment], refit: Refit, cover: Co
         if not fit.identifiable.get(name, True):
             continue
         if _rel(fa, name, wa) > NOT_IDENTIFIED or _rel(fb, name, wb) > NOT_IDENTIFIED:
-            continue  # a part that cannot see it cannot contradict it
+            continue  # a refit that cannot see it cannot contradict it
         va, vb = fa.values[name], fb.values[name]
         se = math.hypot(_se(fa, name, wa), _se(fb, name, wb))
-        if not _apart(va, vb, se):
-            continue
-        out.append(
-            Flag(
-                name,
-                "parts-agree",
-                f"the data disagree with themselves under this model: {name} = {va:.4g} and "
-                f"{vb:.4g} on {how} ({abs(va - vb) / se:.1f} combined standard errors "
-                f"apart, the residuals not white); {_RECORD.get(name, _RECORD['*'])}",
-            )
-        )
+        if _apart(va, vb, se):
+            out.append(Flag(name, "parts-agree", why(name, va, vb, abs(va - vb) / se)))
     return out
 
 
@@ -271,29 +284,16 @@ def _signals_flags(
     except PmdcError:
         return []
     wi, ww = _widen(fi, dyn), _widen(fw, dyn)
-    _collect(cover, fit, fi, wi)
-    _collect(cover, fit, fw, ww)
-    out = []
-    for name in fit.free:
-        if not fit.identifiable.get(name, True):
-            continue
-        if _rel(fi, name, wi) > NOT_IDENTIFIED or _rel(fw, name, ww) > NOT_IDENTIFIED:
-            continue
-        a, b = fi.values[name], fw.values[name]
-        se = math.hypot(_se(fi, name, wi), _se(fw, name, ww))
-        if not _apart(a, b, se):
-            continue
-        out.append(
-            Flag(
-                name,
-                "parts-agree",
-                f"the current and the {mech} tell different motors: {name} = {a:.4g} led by "
-                f"the current, {b:.4g} led by the {mech} ({abs(a - b) / se:.1f} combined "
-                "standard errors apart; a sensor's filter or lag, or a drive that shapes its "
-                f"voltage); {_RECORD.get(name, _RECORD['*'])}",
-            )
+
+    def why(name: str, a: float, b: float, z: float) -> str:
+        return (
+            f"the current and the {mech} tell different motors: {name} = {a:.4g} led by "
+            f"the current, {b:.4g} led by the {mech} ({z:.1f} combined standard errors "
+            "apart; a sensor's filter or lag, or a drive that shapes its voltage); "
+            f"{_RECORD.get(name, _RECORD['*'])}"
         )
-    return out
+
+    return _pair_flags(fit, (fi, wi), (fw, ww), why, cover)
 
 
 # ---------------------------------------------------------------------------
