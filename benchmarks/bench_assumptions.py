@@ -22,6 +22,12 @@ put an older checkout first: ``PYTHONPATH=/path/to/old/tree python THIS``):
 4. seed 000's tables, a demo-sized session bag of the seed-000 motor (the recorder's
    format; ``--bag`` for a recorded one) and the fixtures: every warning ``check`` and
    ``identify`` print, to compare before/after.
+
+The benchmark generator's verdicts on a reduced draw, before and after::
+
+    pmdc-ident benchmark --runs-per-effect 1 --clean 2 --oov 1 --pairs 1 --seed 1 \
+        --jobs 2 --json after.json            (and the old tree's, before.json)
+    python benchmarks/bench_assumptions.py --compare-draws before.json after.json
 """
 
 from __future__ import annotations
@@ -189,6 +195,24 @@ def warnings_on(paths: list[str], opts: list[str] = ()) -> dict[str, list[str]]:
     return out
 
 
+def compare_draws(before: Path, after: Path) -> int:
+    """Verdicts of two ``pmdc-ident benchmark --json`` files of one draw, run by run."""
+    a = {r["name"]: r for r in json.loads(before.read_text())}
+    b = {r["name"]: r for r in json.loads(after.read_text())}
+    changed = 0
+    for name in sorted(a.keys() & b.keys()):
+        va = (a[name]["status"], a[name]["effects"])
+        vb = (b[name]["status"], b[name]["effects"])
+        if va != vb:
+            changed += 1
+            print(f"  {name}: {va[0]} {'+'.join(va[1])} -> {vb[0]} {'+'.join(vb[1])}")
+    print(
+        f"benchmark draw: {len(a.keys() & b.keys())} runs in both, {changed} verdicts changed"
+        + (f"; only in one: {sorted(a.keys() ^ b.keys())}" if a.keys() ^ b.keys() else "")
+    )
+    return changed
+
+
 def demo_bag(folder: Path) -> Path:
     from pmdc_ident.core.excitation import plan_for_motor, synthesize_run
     from pmdc_ident.core.motors import load_motor
@@ -207,7 +231,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-diagnose", action="store_true")
     ap.add_argument("--generator-seeds", default="1,2,3")
     ap.add_argument("--bag", default=None, help="a recorded session bag to check as well")
+    ap.add_argument(
+        "--compare-draws",
+        nargs=2,
+        type=Path,
+        metavar=("BEFORE.json", "AFTER.json"),
+        help="only compare the verdicts of two `pmdc-ident benchmark --json` files of one draw",
+    )
     args = ap.parse_args(argv)
+    if args.compare_draws:
+        compare_draws(*args.compare_draws)
+        return 0
     from helpers.foreign import concatenated, corpus
 
     import pmdc_ident
