@@ -54,9 +54,17 @@ def run(args: argparse.Namespace) -> int:
     inputs = load_inputs(args)
     report = quality(args, inputs, fixed)
     show_quality(report, info=True, show=lambda line: print(line, file=text_out))
-    segment_inputs(args, inputs, show=lambda line: print(line, file=text_out))
+    inputs = segment_inputs(args, inputs, show=lambda line: print(line, file=text_out))
     if json_to is not None:
-        body = {"sources": [x.path for x in inputs], "quality": report.to_json()}
+        from pmdc_ident.core.assumptions import register_json
+        from pmdc_ident.core.data import unique_labels
+
+        segments = unique_labels(s for x in inputs for s in x.run.segments)
+        body = {
+            "sources": [x.path for x in inputs],
+            "quality": report.to_json(),
+            "assumptions_checked": register_json(report.findings, segments),
+        }
         document = json.dumps(body, indent=2, allow_nan=False) + "\n"
         if json_to == STDOUT:
             print(document, end="")

@@ -118,8 +118,13 @@ def run(args: argparse.Namespace) -> int:
     print("split: " + "; ".join(result.split.description), file=text_out)
     written: list[Path] = []
     if json_to is not None:
+        from pmdc_ident.core.assumptions import register_json
+        from pmdc_ident.core.data import unique_labels
+
         body = result.to_json()
         body.update(input_json(inputs, report))
+        segments = unique_labels(s for r in runs for s in r.segments)
+        body["assumptions_checked"] = register_json(report.findings, segments)
         document = json.dumps(body, indent=2) + "\n"
         if json_to == STDOUT:
             print(document, end="")

@@ -233,6 +233,14 @@ class DriftMonitor:
             self._last_row = row
         return reports
 
+    def restart_filters(self) -> None:
+        """The next sample starts a new run (the motor's state does not follow from the
+        last one: core/continuity.py): the signal filters restart there, as after a gap
+        in time; the parameter estimates carry on."""
+        from pmdc_ident.core import drift_estimator
+
+        self._state["st"][drift_estimator._INIT] = 0.0  # the estimator's 'initialised' flag
+
     def latest(self) -> DriftReport | None:
         """A report of the newest estimate (None before the first update)."""
         return None if self._last_row is None else self._report(self._last_row, update=False)

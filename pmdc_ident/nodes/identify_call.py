@@ -74,9 +74,18 @@ def identify_session_run(
     ``extra`` entries are added to the JSON document (the node adds how complete its
     driver samples were).
     """
+    from pmdc_ident.core.errors import DataError
     from pmdc_ident.core.estimators.identify import ModelChoice, identify, merge_runs
     from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
+    from pmdc_ident.core.quality import GateInput, check_inputs
 
+    # the data-quality gate and the assumption register, as `pmdc-ident identify` runs them
+    report = check_inputs([GateInput(run.source or "session", run)], fixed=dict(fixed or {}))
+    if report.errors:
+        first = report.errors[0]
+        fix = f"; fix: {first.fix}" if first.fix else ""
+        msg = f"data quality: {first.code}: {first.where}: {first.message}{fix}"
+        raise DataError(msg)
     result = identify(
         merge_runs([run]),
         sources=(run.source,),
@@ -85,12 +94,14 @@ def identify_session_run(
         model=ModelChoice.AUTO.value,
         holdout=True,
         bootstrap=0,
+        findings=report.findings,
+        expected_rsd=report.expected_rsd,
     )
     header = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
     spec = result.motor_spec(name)
+    doc = {**result.to_json_dict(), "quality": report.to_json(), **(extra or {})}
     return IdentifyOutput(
-        json_text=json.dumps({**result.to_json_dict(), **(extra or {})}, indent=2, allow_nan=False)
-        + "\n",
+        json_text=json.dumps(doc, indent=2, allow_nan=False) + "\n",
         yaml_text=header + motor_to_yaml(spec),
         table=result.text_report(),
         values={k: p.value for k, p in result.parameters.items()},

@@ -24,6 +24,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from pmdc_ident.core.assumptions import check_holdout
 from pmdc_ident.core.data import Run, Segment, check_excitation, unique_labels
 from pmdc_ident.core.diagnosis.candidates import (
     DataScales,
@@ -79,6 +80,7 @@ def diagnose(
     segments = _flatten(runs_or_segments)
     check_excitation(segments)  # a flat record: one line, not a singular fit
     split = split_segments(segments, cfg.holdout or None)
+    check_holdout(split.held_out, split.rule)  # the assumption register: exit 2 if empty
     noise = estimate_noise(segments)
     result = _diagnose_split(segments, split, noise, cfg, progress)
     if result.verdict.status is VerdictStatus.NO_GAP and split.rule == "default" and cfg.swap:

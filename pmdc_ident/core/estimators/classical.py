@@ -42,6 +42,7 @@ __all__ = [
     "coast_speed",
     "fit_coastdown",
     "fit_staircase",
+    "staircase_levels",
     "steady_state_points",
 ]
 
@@ -58,7 +59,11 @@ class SteadyPoint:
 
 
 def steady_state_points(segments: Sequence[Segment]) -> list[SteadyPoint]:
-    """Average of the last 30 % of each staircase segment (a table's constant rows)."""
+    """Average of the last 30 % of each staircase level (a table's constant rows).
+
+    A staircase segment is one level, or - a time series recorded as one labelled
+    segment - several: each hold of its voltage (at least :data:`MIN_LEVEL_SAMPLES`
+    samples) is a level of its own (the assumption register's ``staircase-levels``)."""
     pts: list[SteadyPoint] = []
     for s in segments:
         if s.kind is not TestKind.STAIRCASE:
@@ -66,16 +71,39 @@ def steady_state_points(segments: Sequence[Segment]) -> list[SteadyPoint]:
         if s.voltage is None or s.current is None:
             msg = f"staircase segment {s.label!r} needs voltage and current columns"
             raise DataError(msg)
-        k0 = min(int(s.n * (1.0 - STEADY_FRACTION)), s.n - 1)
-        v = s.voltage[k0:]
-        if np.isnan(v).any():
-            msg = f"staircase segment {s.label!r}: the armature is open in its steady part"
-            raise DataError(msg)
-        w = s.speed_or_derivative()[k0:]
-        pts.append(
-            SteadyPoint(s.label, float(v.mean()), float(s.current[k0:].mean()), float(w.mean()))
-        )
+        levels = staircase_levels(s)
+        for k, (a, b) in enumerate(levels):
+            k0 = min(a + int((b - a) * (1.0 - STEADY_FRACTION)), b - 1)
+            v = s.voltage[k0:b]
+            if np.isnan(v).any():
+                msg = f"staircase segment {s.label!r}: the armature is open in its steady part"
+                raise DataError(msg)
+            w = s.speed_or_derivative()[k0:b]
+            label = s.label if len(levels) == 1 else f"{s.label}[{k + 1}]"
+            pts.append(
+                SteadyPoint(label, float(v.mean()), float(s.current[k0:b].mean()), float(w.mean()))
+            )
     return pts
+
+
+MIN_LEVEL_SAMPLES = 10  # a voltage hold this long inside a staircase segment is a level
+
+
+def staircase_levels(s: Segment) -> list[tuple[int, int]]:
+    """Sample ranges of the voltage levels a staircase segment holds (one when it holds
+    one level, as a table's row group does)."""
+    v = s.voltage
+    if v is None or s.n < 2 * MIN_LEVEL_SAMPLES:
+        return [(0, s.n)]
+    finite = v[np.isfinite(v)]
+    span = float(np.ptp(finite)) if finite.size else 0.0
+    if span == 0.0:
+        return [(0, s.n)]
+    jumps = np.flatnonzero(np.abs(np.diff(np.nan_to_num(v))) > 0.02 * span) + 1
+    bounds = [0, *jumps.tolist(), s.n]
+    holds = [(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    long_ = [(a, b) for a, b in holds if b - a >= MIN_LEVEL_SAMPLES]
+    return long_ if len(long_) > 1 else [(0, s.n)]
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from pmdc_ident.core.assumptions import data_findings
 from pmdc_ident.core.data import Run, Segment, excitation_problem
 from pmdc_ident.core.quality.findings import Finding, QualityReport, Severity
 from pmdc_ident.core.quality.physics import (
@@ -101,6 +102,7 @@ def _per_input(x: GateInput) -> list[Finding]:
     ]
     for seg in segs:
         checks.append(lambda seg=seg: check_wrap(x.name, seg, position_declared="position" in d))
+    checks.append(lambda: data_findings(x.name, x.run))  # the assumption register's
     for check in checks:
         out += _guarded(check, x.name)
     return out
