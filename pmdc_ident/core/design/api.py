@@ -90,6 +90,7 @@ def plan_experiment(
     start_state: Sequence[float] | None = None,
     label_start: int = 1,
     limits: PlanLimits | None = None,
+    prior_rsd: Mapping[str, float] | None = None,
 ) -> DesignedPlan:
     """Design the shortest plan reaching ``target`` for the motor ``prior`` on a driver
     with ``driver`` limits at ``1 / dt_s`` Hz (see :func:`~.planner.design_plan`);
@@ -127,4 +128,5 @@ def plan_experiment(
         label_start=label_start,
         user_target=target is not None,
         extra=extra,
+        prior_rsd=prior_rsd,
     )

@@ -62,6 +62,8 @@ class Candidate:
                 f"chirp {s['offset']:+.3g} V +- {s['amplitude']:.3g} V, "
                 f"{s['f0']:.3g}-{s['f1']:.3g} Hz"
             )
+        if self.kind == "stop":
+            return f"ramp {s['v']:+.3g} V -> 0 V (to rest)"
         if self.kind == "square":
             return f"square +-{s['amplitude']:.3g} V, half period {s['half_s'] * 1e3:.3g} ms"
         return ", ".join(f"{k} {v:.3g}" for k, v in s.items()) or self.kind

@@ -238,11 +238,11 @@ def segment_information(
     ``current``, ``speed``, ``position`` the prior's trajectory on the same samples."""
     n = voltage.size
     traj = np.ascontiguousarray(np.column_stack([current, speed, position]))
-    nxt = np.r_[speed[1:], speed[-1:]]
+    nxt = np.concatenate([speed[1:], speed[-1:]])
     fric = np.sign(speed + nxt)  # the friction's sign over each sample
     fric = np.where(fric == 0.0, np.sign(speed), fric)
     stuck = (speed == 0.0) & (nxt == 0.0)
-    stuck = np.r_[stuck[:1], stuck[:-1]]  # sample k+1 is held when it and k are at rest
+    stuck = np.concatenate([stuck[:1], stuck[:-1]])  # sample k+1 held: it and k at rest
     noise = model.noise
     outs, wts, nuis = [], [], []
     driven = bool(np.isfinite(voltage).any())
@@ -282,7 +282,13 @@ def segment_information(
     del n
     k = model.n_par
     a, b, c = m[:k, :k], m[:k, k:], m[k:, k:]
-    return a - b @ np.linalg.pinv(c) @ b.T
+    # the initial state profiled out; a state the outputs do not see carries nothing
+    keep = np.diag(c) > 1e-12 * max(float(np.max(np.diag(c))), 1e-300)
+    b, c = b[:, keep], c[np.ix_(keep, keep)]
+    try:
+        return a - b @ np.linalg.solve(c, b.T)
+    except np.linalg.LinAlgError:
+        return a - b @ np.linalg.pinv(c) @ b.T
 
 
 def relative_sd(info: FloatArray, names: Sequence[str]) -> dict[str, float]:

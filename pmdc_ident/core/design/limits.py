@@ -3,10 +3,10 @@
 Voltage (never above the driver's limit), current and speed (a share of the session's
 abort thresholds, so a motor a little off its prior does not trip them), winding
 heating as ``int i^2 dt`` over the plan, motor time, and optionally the travel of a
-joint: the position stays inside the range minus a margin at every instant, and a
-stop commanded at any instant (the session's safe state: 0 V brakes, an open armature
-coasts) ends inside the range too, for the prior and for a motor that runs faster and
-farther than it (:meth:`Prior.pessimistic`).
+joint: the position stays inside the range minus a margin at every instant, and so
+does a stop commanded at any instant (the session's safe state: 0 V brakes, an open
+armature coasts); a motor that runs faster and farther than the prior
+(:meth:`Prior.pessimistic`) stays inside the range itself.
 """
 
 from __future__ import annotations
@@ -131,7 +131,9 @@ class PlanLimits:
             m = self.margin_rad
             if float(position.min()) < lo + m or float(position.max()) > hi - m:
                 return Violation("travel", f"{position.min():.3g}..{position.max():.3g} rad")
-            if stop is not None and (float(stop.min()) < lo or float(stop.max()) > hi):
+            # a stop at any instant ends inside the range with its margin too: from
+            # every state the plan reaches, braking is itself a feasible next segment
+            if stop is not None and (float(stop.min()) < lo + m or float(stop.max()) > hi - m):
                 return Violation("travel", f"stopping {stop.min():.3g}..{stop.max():.3g} rad")
         return None
 

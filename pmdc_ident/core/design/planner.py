@@ -46,7 +46,9 @@ __all__ = ["DesignedPlan", "PlanPiece", "design_plan", "evaluate_plan"]
 FloatArray = NDArray[np.float64]
 REG_SD = 100.0  # the design's own prior, 1e4 % relative sd: keeps one segment's criterion finite
 DESIGN_MARGIN = 0.9  # the plan aims at this fraction of each target
-UNREACHABLE_FACTOR = 3.0  # a default-target parameter 3x off at the budget is not pursued
+PRIOR_MARGIN_CAP = 0.1  # ... and lower by at most 1 / 1.1 for a parameter the prior knows badly
+UNREACHABLE_FACTOR = 10.0  # a default-target parameter 10x off at the budget is not pursued
+UNREACHABLE_L = 3.0  # ... L 3x off, when L/R is below the sample period
 MAX_ROUNDS = 200
 NUISANCE_TC = 1e-3  # A x Ke: a Coulomb torque the prior lacks, as a direction only
 # what pins each parameter down, for the reason a parameter is left short
@@ -207,6 +209,7 @@ class _Designer:
         criterion: str,
         prior_info: FloatArray | None,
         values: Mapping[str, float],
+        prior_rsd: Mapping[str, float] | None = None,
     ) -> None:
         self.prior = prior
         self.limits = limits
@@ -221,6 +224,14 @@ class _Designer:
         self.info0 = np.zeros((k, k)) if prior_info is None else np.asarray(prior_info, float)
         self.pessimistic = prior.pessimistic() if limits.travel_rad is not None else None
         self.lost: dict[str, float] = {}
+        # a prior known to +-r: the truth may lie r below it, and a parameter's relative
+        # sd grows as its value falls: aim lower by that much (at most by a tenth; a
+        # sequential session re-fits and re-designs where that is not enough)
+        rsd0 = dict(prior_rsd or {})
+        self.aim = {
+            n: DESIGN_MARGIN / (1.0 + min(max(rsd0.get(n, 0.0), 0.0), PRIOR_MARGIN_CAP))
+            for n in self.target
+        }
 
     # -- criterion ---------------------------------------------------------------------
     def rsd(self, info: FloatArray) -> dict[str, float]:
@@ -240,12 +251,12 @@ class _Designer:
         total = 0.0
         for k, n in enumerate(self.names):
             if n in self.target:
-                total += max(var[k] / (DESIGN_MARGIN * self.target[n]) ** 2, 1.0)
+                total += max(var[k] / (self.aim[n] * self.target[n]) ** 2, 1.0)
         return total
 
     def met(self, info: FloatArray) -> bool:
         rsd = self.rsd(info)
-        return all(rsd[n] <= DESIGN_MARGIN * t for n, t in self.target.items())
+        return all(rsd[n] <= self.aim[n] * t for n, t in self.target.items())
 
     # -- one segment -------------------------------------------------------------------
     def evaluate(self, cand: Candidate, st: _State, *, limits: PlanLimits | None = None) -> _Eval:
@@ -254,22 +265,25 @@ class _Designer:
         sim = simulate(self.prior.model, v, self.dt, x0=st.x)
         cur = np.where(np.isnan(v), 0.0, sim.current)
         heat = st.heat + float(np.sum(cur**2) * self.dt)
+        # the samples and the state the segment ends in (where the next one starts)
+        end = sim.final_state
+        pos = np.append(sim.position, end[2])
+        spd = np.append(sim.speed, end[1])
         stop = None
         if lim.travel_rad is not None:
-            stop = sim.position + stop_distance(self.prior.model, sim.speed, cur, lim.safe_mode)
-        viol = lim.check(v, cur, sim.speed, sim.position, heat, stop)
+            i_all = np.append(cur, end[0] if np.isfinite(v[-1]) else 0.0)
+            stop = pos + stop_distance(self.prior.model, spd, i_all, lim.safe_mode)
+        viol = lim.check(v, cur, spd, pos, heat, stop)
         if cand.probe and viol is None:
             viol = Violation(cand.probe, "probe")
         if viol is None and self.pessimistic is not None and lim.travel_rad is not None:
             ps = simulate(self.pessimistic, v, self.dt, x0=st.x)
-            pstop = ps.position + stop_distance(
-                self.pessimistic, ps.speed, ps.current, lim.safe_mode
-            )
+            ppos = np.append(ps.position, ps.final_state[2])
+            pspd = np.append(ps.speed, ps.final_state[1])
+            pcur = np.append(ps.current, ps.final_state[0])
+            pstop = ppos + stop_distance(self.pessimistic, pspd, pcur, lim.safe_mode)
             lo, hi = lim.travel_rad
-            if (
-                min(ps.position.min(), pstop.min()) < lo
-                or max(ps.position.max(), pstop.max()) > hi
-            ):
+            if min(ppos.min(), pstop.min()) < lo or max(ppos.max(), pstop.max()) > hi:
                 viol = Violation("travel", "a faster motor than the prior would leave the range")
         info = segment_information(self.im, v, cur, sim.speed, sim.position)
         return _Eval(
@@ -288,6 +302,7 @@ class _Designer:
         evals = []
         best_ok, best_ok_rate = None, 0.0
         best_any_rate, best_any_reason = 0.0, ""
+        gains: list[float] = []
         for cand in candidates(self.prior, self.limits, self.sc, float(st.x[1]), float(st.x[2])):
             dur = cand.n * self.dt
             ev = self.evaluate(cand, st)
@@ -295,6 +310,7 @@ class _Designer:
                 ev = replace(ev, violation=Violation("time", "beyond the budget"))
             evals.append(ev)
             gain = base - self.phi(info + ev.info)
+            gains.append(gain)
             rate = gain / dur
             if rate > best_any_rate:
                 best_any_rate = rate
@@ -304,8 +320,16 @@ class _Designer:
         if best_any_reason and best_ok is not None and best_ok_rate > 0:
             lost = math.log(best_any_rate / best_ok_rate) * best_ok.cand.n * self.dt
             self.lost[best_any_reason] = self.lost.get(best_any_reason, 0.0) + lost
-        elif best_any_reason and best_ok is None:
-            self.lost[best_any_reason] = self.lost.get(best_any_reason, 0.0) + 1.0
+        elif best_ok is None:
+            # nothing fits: the limit that turns most of the useful segments away ends it
+            why = [
+                e.violation.limit
+                for e, g in zip(evals, gains, strict=True)
+                if g > 0 and e.violation
+            ]
+            if why:
+                top = max(set(why), key=why.count)
+                self.lost[top] = self.lost.get(top, 0.0) + 1e3
         return (best_ok if best_ok_rate > 0 else None), evals
 
     # -- whole plans -------------------------------------------------------------------
@@ -344,6 +368,7 @@ def design_plan(
     label_start: int = 1,
     user_target: bool = False,
     extra: Sequence[Candidate] = (),
+    prior_rsd: Mapping[str, float] | None = None,
 ) -> DesignedPlan:
     """The shortest plan (greedy, see the module docs) reaching ``target`` (default
     :data:`~pmdc_ident.core.design.target.DEFAULT_TARGET`) under ``limits``.
@@ -352,7 +377,9 @@ def design_plan(
     free parameters); ``start_state``: ``[i, w, theta]`` the plan starts from (default
     at rest at ``limits.start_rad``); ``user_target``: the target was asked for, so a
     parameter out of reach is reported short rather than dropped; ``extra``: segments
-    that must run first (a reveal plan's), designed around.
+    that must run first (a reveal plan's), designed around; ``prior_rsd``: how well
+    the prior is known (relative sd per parameter, a pre-test's fit): the plan aims
+    lower for a parameter whose true value may lie below the prior's.
     """
     if criterion not in ("A", "D"):
         msg = f"criterion must be A or D, got {criterion!r}"
@@ -372,7 +399,7 @@ def design_plan(
                 "apart from B), not targeted"
             )
     aim = {k: v for k, v in requested.items() if k not in dropped}
-    d = _Designer(prior, limits, dt_s, names, aim, criterion, prior_info, values)
+    d = _Designer(prior, limits, dt_s, names, aim, criterion, prior_info, values, prior_rsd)
     x0 = (
         np.array([0.0, 0.0, limits.start_rad])
         if start_state is None
@@ -426,6 +453,10 @@ def design_plan(
         st = _State(best.end, best.heat, st.t + best.cand.n * dt_s)
     chosen = _shorten(d, forced, _merged(chosen), start)
     evs, info, st = d.replay(forced + chosen, start)
+    stop = _stop(d, st)
+    if stop is not None:
+        chosen.append(stop)
+        evs, info, st = d.replay(forced + chosen, start)
     return _result(
         d, forced + chosen, evs, info, requested, dropped, prior_seconds, label_start, notes
     )
@@ -456,7 +487,8 @@ def _unreachable(d: _Designer, evals: Sequence[_Eval], info: FloatArray) -> dict
         if n in ("R", "Ke", "J"):
             continue  # a motor model needs them: short, never dropped
         r = at_budget.get(n, math.inf)
-        if r > UNREACHABLE_FACTOR * t:
+        factor = UNREACHABLE_L if n == "L" and d.sc.tau_e_s < d.dt else UNREACHABLE_FACTOR
+        if r > factor * t:
             what = "not determined" if not math.isfinite(r) else f"about {100 * r:.2g} %"
             why = f"out of reach within {d.limits.budget_s:.3g} s ({what} at the family's average)"
             if n == "L" and d.sc.tau_e_s < d.dt:
@@ -508,6 +540,49 @@ def _shorten(
     if ev.violation is None and d.met(h_info + ev.info):
         chosen = chosen[:-1] + [_truncate(last, hi)]
     return chosen
+
+
+HOLD_TAU = 5.0  # after the plan the session holds 0 V (or opens): checked this long
+
+
+def _hold_ok(d: _Designer, st: _State) -> bool:
+    """Whether the session's safe state after the plan (0 V brakes, or open) keeps the
+    limits from ``st`` under the prior."""
+    n = max(MIN_SAMPLES, int(HOLD_TAU * d.sc.tau_m_s / d.dt))
+    fill = 0.0 if d.limits.safe_mode.value == "zero" else math.nan
+    hold = Candidate("hold", "hold", np.full(n, fill))
+    lim = replace(d.limits, heat_a2s=math.inf, budget_s=math.inf)
+    return d.evaluate(hold, st, limits=lim).violation is None
+
+
+def _stop(d: _Designer, st: _State) -> Candidate | None:
+    """A ramp down to rest when the session's safe state would break a limit from where
+    the plan ends (0 V at speed draws Ke w / R): the voltage from the back-EMF (the
+    current it draws then is the friction's) down to 0 V, as short as the limits allow."""
+    if _hold_ok(d, st):
+        return None
+    p = d.prior.model.params
+    w = float(st.x[1])
+    v0 = p.Ke * w + math.copysign(p.R * d.prior.coulomb_nm / p.Kt, w)
+    v0 = max(-d.limits.voltage_max_v, min(d.limits.voltage_max_v, v0))
+    for k in (1.0, 2.0, 4.0, 8.0, 16.0, 32.0):
+        n = max(MIN_SAMPLES, int(k * d.sc.tau_m_s / d.dt))
+        ramp = Candidate("stop", "stop", np.linspace(v0, 0.0, n), {"v": v0})
+        ev = d.evaluate(ramp, st, limits=replace(d.limits, budget_s=math.inf))
+        if ev.violation is None and _hold_ok(d, _State(ev.end, ev.heat, st.t)):
+            return ramp
+    return None
+
+
+def stop_segment(
+    prior: Prior, limits: PlanLimits, dt_s: float, state: Sequence[float], label: str
+) -> PlannedSegment | None:
+    """A ramp to rest from ``state`` ``[i, w, theta]`` when the session's hold (0 V, or
+    open) after it would break a limit under the prior (``None`` when it would not)."""
+    values, names = design_values(prior)
+    d = _Designer(prior, limits, dt_s, names, {}, "A", None, values)
+    ramp = _stop(d, _State(np.asarray(state, float), 0.0, 0.0))
+    return None if ramp is None else PlannedSegment(label, ramp.voltage.copy())
 
 
 def _merged(chosen: Sequence[Candidate]) -> list[Candidate]:

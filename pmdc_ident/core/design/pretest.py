@@ -3,9 +3,10 @@ none) into a prior the design can trust, and the prior identified from it.
 
 The pre-test is sized from a nominal motor (the node's ``motor`` parameter: its tau_m
 and its speed per volt) and the limits, never longer than ``MAX_PRETEST_S``: a step up
-held four tau_m and coasting two with the armature open, then the same down. With a
-travel range it is a square wave instead, its amplitude and half period shrunk until
-the nominal motor (and one faster than it) stays inside the range. What is identified
+held four tau_m, coasting one with the armature open and braked to rest at 0 V (a
+current no larger than the step's), then the same down. With a travel range it is a
+square wave instead, its amplitude and half period shrunk until the nominal motor
+(and one faster than it) stays inside the range, braked to rest at the end. What is identified
 from it (``identify``'s pipeline on the pre-test's segments) is the prior, with the
 noise levels the fit measured on the rig.
 """
@@ -36,6 +37,9 @@ _FRACTIONS = (0.4, 0.25, 0.12, 0.06)
 
 
 def _fits(nominal: Prior, limits: PlanLimits, v: np.ndarray, dt: float) -> bool:
+    # the session holds 0 V after it (while the design is made): that too
+    tail = int(5.0 * nominal.model.params.mechanical_time_constant_s / dt) + 2
+    v = np.concatenate([v, np.zeros(tail)])
     for model in (nominal.model, nominal.pessimistic()):
         sim = simulate(model, v, dt, x0=np.array([0.0, 0.0, limits.start_rad]))
         cur = np.where(np.isnan(v), 0.0, sim.current)
@@ -75,7 +79,7 @@ def pretest_plan(nominal: Prior, limits: PlanLimits, dt_s: float) -> TestPlan:
                 body += [
                     np.full(half, sign * v * (-1.0) ** (k + 1)) for k in range(2 * cycles - 1)
                 ]
-                body += [np.full(half - half // 2, sign * v)]
+                body += [np.full(half - half // 2, sign * v), np.zeros(sc.samples(2.0 * unit))]
                 one.append(np.concatenate(body))
             segs = [
                 PlannedSegment(f"{PRETEST_PREFIX}_up", one[0]),

@@ -35,6 +35,7 @@ class IdentificationJob:
     output_dir: Path
     fixed: Mapping[str, float]
     exports: ExportRequest | None = None  # None: no exports
+    extra: Mapping[str, object] | None = None  # entries added to the result (plan: auto)
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,11 @@ class ControllerPorts(Protocol):
     def prepare_identification(self, nominal: MotorSpec) -> None:
         """A session started: get the identification ready (imports, compiled kernels)
         while it runs, so that :meth:`start_identification` costs only the fit."""
+
+    def start_design(self, job: object) -> None:
+        """Run a ``plan: auto`` re-fit and design job (:class:`~.sequential.DesignJob`) off
+        the I/O callbacks; its outcome comes back through
+        :meth:`SessionController.on_design`."""
 
     def start_identification(self, job: IdentificationJob) -> None:
         """Run the job off the I/O callbacks; its outcome comes back through
