@@ -232,6 +232,7 @@ def fit(run: Run, fixed: dict[str, float] | None = None) -> dict[str, tuple[floa
 
 # --- one motor ----------------------------------------------------------------------
 HOLD_TAU = 5.0  # a sequential session holds 0 V this many tau_m while the worker designs
+REFIT_GROWTH = 0.25  # the node re-fits once this share more data is in (no worker latency here)
 
 
 @dataclass
@@ -266,17 +267,31 @@ def sequential_session(r: Rig, nominal: Prior, sim_name: str, seed: int) -> Sess
     hold = np.zeros(max(2, int(HOLD_TAU * r.motor.params.mechanical_time_constant_s / r.dt)))
     cmd = [np.concatenate([s.voltage for s in pre.segments]), hold]
     lab = [np.ones(pre.n_samples, bool), np.zeros(hold.size, bool)]
+    todo: list[PlannedSegment] = []  # handed out, not yet run
     while True:
+        plan_done = not todo
+        if todo:
+            # the node re-fits once a quarter more data are in: run that much more
+            n_now = sum(s.voltage.size for s in segs)
+            take, n = [], 0
+            while todo and (not take or n < REFIT_GROWTH * n_now):
+                take.append(todo.pop(0))
+                n += take[-1].voltage.size
+            segs += take
+            ext = np.concatenate([s.voltage for s in take])
+            cmd += [ext]
+            lab += [np.ones(ext.size, bool)]
+            plan_done = not todo
+            if plan_done:
+                cmd += [hold]
+                lab += [np.zeros(hold.size, bool)]
         plan = TestPlan(tuple(segs), r.dt)
-        command = np.concatenate(cmd)
-        run, load = _run_command(r, command, np.concatenate(lab), plan, sim_name, seed)
-        d = seq.decide(run.segments, plan_done=True, position_rad=load["pos_end"])
-        if d.action != "extend":
+        run, load = _run_command(r, np.concatenate(cmd), np.concatenate(lab), plan, sim_name, seed)
+        d = seq.decide(run.segments, plan_done=plan_done, position_rad=load["pos_end"])
+        if d.action == "stop":
             break
-        segs += list(d.segments)
-        ext = np.concatenate([s.voltage for s in d.segments])
-        cmd += [ext, hold]
-        lab += [np.ones(ext.size, bool), np.zeros(hold.size, bool)]
+        if d.action == "extend":
+            todo += list(d.segments)
     return Session(plan, np.concatenate(cmd), np.concatenate(lab), seq)
 
 

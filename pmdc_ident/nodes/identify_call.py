@@ -258,7 +258,8 @@ class IdentificationWorker:
         self._busy = True
         if self._process.pid is not None:
             _set_nice(WORKER_NICE, self._process.pid)  # were it still warming up
-            if self._rt_priority:
+            # a plan: auto re-fit runs while the motor does: never at real-time priority
+            if self._rt_priority and not isinstance(job, DesignJob):
                 _set_policy(self._process.pid, os.SCHED_RR, self._rt_priority)
         threading.Thread(
             target=self._send, args=(job,), name="pmdc_ident job", daemon=True

@@ -62,6 +62,8 @@ class Candidate:
                 f"chirp {s['offset']:+.3g} V +- {s['amplitude']:.3g} V, "
                 f"{s['f0']:.3g}-{s['f1']:.3g} Hz"
             )
+        if self.kind == "pattern":
+            return f"the last {s['segments']:.0f} segment(s) again, {s['times']:.0f} times"
         if self.kind == "stop":
             return f"ramp {s['v']:+.3g} V -> 0 V (to rest)"
         if self.kind == "square":

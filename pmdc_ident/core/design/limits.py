@@ -64,10 +64,10 @@ class PlanLimits:
             if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
                 msg = f"travel range must be MIN < MAX (rad), got {lo:g} {hi:g}"
                 raise ParameterError(msg)
-            if not lo + self.margin_rad < self.start_rad < hi - self.margin_rad:
+            if not lo < self.start_rad < hi:
                 msg = (
                     f"the start position {self.start_rad:g} rad is not inside the travel range "
-                    f"[{lo:g}, {hi:g}] rad with its margin {self.margin_rad:.3g} rad"
+                    f"[{lo:g}, {hi:g}] rad"
                 )
                 raise ParameterError(msg)
             object.__setattr__(self, "travel_rad", (lo, hi))
@@ -111,10 +111,13 @@ class PlanLimits:
         position: FloatArray,
         heat_a2s: float,
         stop: FloatArray | None = None,
+        from_rad: float | None = None,
     ) -> Violation | None:
         """The first limit the predicted samples break (``heat_a2s``: the plan's heat up
         to and with them; ``stop``: where the rotor would come to rest were the safe
-        state commanded at each sample)."""
+        state commanded at each sample; ``from_rad``: where the segment starts - a joint
+        already inside the margin, a real one a little off its prior, may not go farther
+        out, but may come back)."""
         v = voltage[np.isfinite(voltage)]
         if v.size and float(np.max(np.abs(v))) > self.voltage_max_v * (1 + 1e-9):
             return Violation("voltage", f"{float(np.max(np.abs(v))):.3g} V")
@@ -129,11 +132,14 @@ class PlanLimits:
         if self.travel_rad is not None:
             lo, hi = self.travel_rad
             m = self.margin_rad
-            if float(position.min()) < lo + m or float(position.max()) > hi - m:
+            a, b = lo + m, hi - m
+            if from_rad is not None:
+                a, b = min(a, from_rad), max(b, from_rad)
+            if float(position.min()) < a or float(position.max()) > b:
                 return Violation("travel", f"{position.min():.3g}..{position.max():.3g} rad")
             # a stop at any instant ends inside the range with its margin too: from
             # every state the plan reaches, braking is itself a feasible next segment
-            if stop is not None and (float(stop.min()) < lo + m or float(stop.max()) > hi - m):
+            if stop is not None and (float(stop.min()) < a or float(stop.max()) > b):
                 return Violation("travel", f"stopping {stop.min():.3g}..{stop.max():.3g} rad")
         return None
 

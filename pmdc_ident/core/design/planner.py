@@ -46,11 +46,13 @@ __all__ = ["DesignedPlan", "PlanPiece", "design_plan", "evaluate_plan"]
 FloatArray = NDArray[np.float64]
 REG_SD = 100.0  # the design's own prior, 1e4 % relative sd: keeps one segment's criterion finite
 DESIGN_MARGIN = 0.9  # the plan aims at this fraction of each target
-PRIOR_MARGIN_CAP = 0.1  # ... and lower by at most 1 / 1.1 for a parameter the prior knows badly
+PRIOR_MARGIN_CAP = 0.5  # ... and lower by at most 1 / 1.5 for a parameter the prior knows badly
 UNREACHABLE_FACTOR = 10.0  # a default-target parameter 10x off at the budget is not pursued
 UNREACHABLE_L = 3.0  # ... L 3x off, when L/R is below the sample period
 MAX_ROUNDS = 200
 NUISANCE_TC = 1e-3  # A x Ke: a Coulomb torque the prior lacks, as a direction only
+PATTERN_CAP_TAU = 40.0  # a repeated pattern at most this many tau_m long
+B_FLOOR = 0.01  # the design's B at least this share of the electrical damping Ke^2 / R
 # what pins each parameter down, for the reason a parameter is left short
 ADVICE = {
     "R": "the current at a step's start (V/R before the back-EMF builds)",
@@ -222,12 +224,14 @@ class _Designer:
         k = len(self.names)
         self.reg = np.eye(k) / REG_SD**2
         self.info0 = np.zeros((k, k)) if prior_info is None else np.asarray(prior_info, float)
-        self.pessimistic = prior.pessimistic() if limits.travel_rad is not None else None
+        self.pessimistic = prior.pessimistic()
+        self.history: list[Candidate] = []  # chosen so far (their patterns are candidates)
         self.lost: dict[str, float] = {}
         # a prior known to +-r: the truth may lie r below it, and a parameter's relative
-        # sd grows as its value falls: aim lower by that much (at most by a tenth; a
-        # sequential session re-fits and re-designs where that is not enough)
+        # sd grows as its value falls: aim lower by that much (at most by a third: a
+        # sequential session re-fits as data come and stops once the target is met)
         rsd0 = dict(prior_rsd or {})
+        self.prior_rsd = rsd0
         self.aim = {
             n: DESIGN_MARGIN / (1.0 + min(max(rsd0.get(n, 0.0), 0.0), PRIOR_MARGIN_CAP))
             for n in self.target
@@ -238,8 +242,10 @@ class _Designer:
         return relative_sd(info, self.names)
 
     def _var(self, info: FloatArray) -> FloatArray:
-        try:
-            return np.diag(np.linalg.inv(info + self.reg))
+        m = info + self.reg
+        d = np.sqrt(np.clip(np.diag(m), 1e-300, None))
+        try:  # scaled to a unit diagonal: the parameters' information spans decades
+            return np.diag(np.linalg.inv(m / np.outer(d, d))) / d**2
         except np.linalg.LinAlgError:
             return np.full(len(self.names), REG_SD**2)
 
@@ -273,18 +279,11 @@ class _Designer:
         if lim.travel_rad is not None:
             i_all = np.append(cur, end[0] if np.isfinite(v[-1]) else 0.0)
             stop = pos + stop_distance(self.prior.model, spd, i_all, lim.safe_mode)
-        viol = lim.check(v, cur, spd, pos, heat, stop)
+        viol = lim.check(v, cur, spd, pos, heat, stop, from_rad=float(st.x[2]))
         if cand.probe and viol is None:
             viol = Violation(cand.probe, "probe")
-        if viol is None and self.pessimistic is not None and lim.travel_rad is not None:
-            ps = simulate(self.pessimistic, v, self.dt, x0=st.x)
-            ppos = np.append(ps.position, ps.final_state[2])
-            pspd = np.append(ps.speed, ps.final_state[1])
-            pcur = np.append(ps.current, ps.final_state[0])
-            pstop = ppos + stop_distance(self.pessimistic, pspd, pcur, lim.safe_mode)
-            lo, hi = lim.travel_rad
-            if min(ppos.min(), pstop.min()) < lo or max(ppos.max(), pstop.max()) > hi:
-                viol = Violation("travel", "a faster motor than the prior would leave the range")
+        if viol is None:
+            viol = self._pessimistic(v, st, lim)
         info = segment_information(self.im, v, cur, sim.speed, sim.position)
         return _Eval(
             cand,
@@ -297,13 +296,52 @@ class _Designer:
             (float(sim.position.min()), float(sim.position.max())),
         )
 
+    def _pessimistic(self, v: FloatArray, st: _State, lim: PlanLimits) -> Violation | None:
+        """The aborts (not their share) and the travel range for a motor that draws more
+        and runs farther than the prior (:meth:`Prior.pessimistic`)."""
+        ps = simulate(self.pessimistic, v, self.dt, x0=st.x)
+        pcur = np.where(np.isnan(v), 0.0, ps.current)
+        if float(np.max(np.abs(pcur))) > lim.current_max_a:
+            return Violation("current", "a motor drawing more than the prior would trip it")
+        pspd = np.append(ps.speed, ps.final_state[1])
+        if float(np.max(np.abs(pspd))) > lim.speed_max_rad_s:
+            return Violation("speed", "a motor faster than the prior would trip it")
+        if lim.travel_rad is None:
+            return None
+        ppos = np.append(ps.position, ps.final_state[2])
+        pi = np.append(pcur, ps.final_state[0] if np.isfinite(v[-1]) else 0.0)
+        pstop = ppos + stop_distance(self.pessimistic, pspd, pi, lim.safe_mode)
+        lo, hi = lim.travel_rad
+        if min(ppos.min(), pstop.min()) < lo or max(ppos.max(), pstop.max()) > hi:
+            return Violation("travel", "a faster motor than the prior would leave the range")
+        return None
+
+    def patterns(self) -> list[Candidate]:
+        """The last one, two or four segments chosen, repeated two or four times as one
+        segment: a plan that needs many of the same runs grows by doubling, not by one
+        short segment per round (and one initial state instead of many to fit)."""
+        out = []
+        cap = max(int(PATTERN_CAP_TAU * self.sc.unit_s / self.dt), 4 * MIN_SAMPLES)
+        for k in (1, 2, 4):
+            if len(self.history) < k:
+                break
+            unit = np.concatenate([c.voltage for c in self.history[-k:]])
+            for m in (2, 4):
+                if unit.size * m > cap:
+                    break
+                out.append(
+                    Candidate("pattern", "pattern", np.tile(unit, m), {"segments": k, "times": m})
+                )
+        return out
+
     def choose(self, info: FloatArray, st: _State) -> tuple[_Eval | None, list[_Eval]]:
         base = self.phi(info)
         evals = []
         best_ok, best_ok_rate = None, 0.0
         best_any_rate, best_any_reason = 0.0, ""
         gains: list[float] = []
-        for cand in candidates(self.prior, self.limits, self.sc, float(st.x[1]), float(st.x[2])):
+        family = candidates(self.prior, self.limits, self.sc, float(st.x[1]), float(st.x[2]))
+        for cand in family + self.patterns():
             dur = cand.n * self.dt
             ev = self.evaluate(cand, st)
             if ev.violation is None and st.t + dur > self.limits.budget_s + 1e-9:
@@ -398,6 +436,20 @@ def design_plan(
                 "the prior has no Coulomb friction: fitted as a nuisance (the plan keeps it "
                 "apart from B), not targeted"
             )
+    if (
+        "L" in requested
+        and target is None
+        and prior_rsd is not None
+        and prior_rsd.get("L", 0.0) > 3.0 * requested["L"]
+        and prior.model.params.electrical_time_constant_s < dt_s
+    ):
+        # a pre-test's L: where L/R is below the sample period its own fit hardly knows
+        # it, and the plan would chase it with the whole budget
+        dropped["L"] = (
+            f"L/R ({prior.model.params.electrical_time_constant_s * 1e6:.3g} us, known to "
+            f"{100 * prior_rsd['L']:.2g} %) is below the sample period {dt_s * 1e6:.3g} us: "
+            "sample faster or fix L from an LCR meter"
+        )
     aim = {k: v for k, v in requested.items() if k not in dropped}
     d = _Designer(prior, limits, dt_s, names, aim, criterion, prior_info, values, prior_rsd)
     x0 = (
@@ -449,6 +501,7 @@ def design_plan(
             if best is None:
                 break
         chosen.append(best.cand)
+        d.history.append(best.cand)
         info = info + best.info
         st = _State(best.end, best.heat, st.t + best.cand.n * dt_s)
     chosen = _shorten(d, forced, _merged(chosen), start)
@@ -470,6 +523,10 @@ def design_values(prior: Prior, fixed: Sequence[str] = ()) -> tuple[dict[str, fl
     values = prior.fitted_values()
     if values["Tc"] <= 0:
         values["Tc"] = NUISANCE_TC * prior.model.params.Ke
+    # a B fitted to ~0 (a short pre-test: friction took it all) leaves its relative sd
+    # without meaning; design for a small viscous friction instead (the safe side)
+    p = prior.model.params
+    values["B"] = max(values["B"], B_FLOOR * p.Ke**2 / p.R)
     names = [n for n in DESIGN_PARAMETERS if n not in fixed]
     return values, names
 
@@ -486,6 +543,8 @@ def _unreachable(d: _Designer, evals: Sequence[_Eval], info: FloatArray) -> dict
     for n, t in d.target.items():
         if n in ("R", "Ke", "J"):
             continue  # a motor model needs them: short, never dropped
+        if d.prior_rsd.get(n, 0.0) > 0.3:
+            continue  # the prior hardly knows it: the data will say, not this prior
         r = at_budget.get(n, math.inf)
         factor = UNREACHABLE_L if n == "L" and d.sc.tau_e_s < d.dt else UNREACHABLE_FACTOR
         if r > factor * t:

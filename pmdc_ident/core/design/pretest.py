@@ -22,9 +22,9 @@ from pmdc_ident.core.design.family import Candidate, Scales
 from pmdc_ident.core.design.information import Noise
 from pmdc_ident.core.design.limits import PlanLimits, stop_distance
 from pmdc_ident.core.design.prior import Prior
-from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.errors import ParameterError, PmdcError
 from pmdc_ident.core.excitation import PlannedSegment, TestPlan
-from pmdc_ident.core.model import simulate
+from pmdc_ident.core.model import Model, simulate
 
 if TYPE_CHECKING:
     from pmdc_ident.core.results import IdentificationResult
@@ -112,7 +112,27 @@ def prior_from_result(
             f"{source}: the pre-test's fit measured no noise levels (current {cur}, speed {speed})"
         )
         raise ParameterError(msg)
-    return Prior(result.model, Noise(cur, speed, pos if speed <= 0 else 0.0), source)
+    return Prior(_with_friction(result), Noise(cur, speed, pos if speed <= 0 else 0.0), source)
+
+
+def _with_friction(result: IdentificationResult) -> Model:
+    """The fitted model, with its Coulomb friction even where a short record could not
+    prove it: a linear fit's B takes the friction's torque at the speeds it saw, and a
+    plan designed for that B (too large) misses B's target on the real motor."""
+    from pmdc_ident.core.effects import CoulombFriction
+    from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
+
+    if result.model.effect("coulomb_friction") is not None:
+        return result.model
+    values = result.methods.get("output_error_coulomb", {}).get("values") or {}
+    tc = float(values.get("coulomb_friction.torque_nm", 0.0))
+    if tc <= 0 or not all(k in values for k in PARAMETER_NAMES):
+        return result.model
+    try:
+        params = MotorParams(**{k: float(values[k]) for k in PARAMETER_NAMES})
+    except PmdcError:
+        return result.model
+    return Model(params, (CoulombFriction(tc),))
 
 
 def pretest_candidates(plan: TestPlan) -> list[Candidate]:

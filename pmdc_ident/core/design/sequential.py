@@ -3,10 +3,11 @@
 1. **Pre-test** (:mod:`.pretest`, at most 2 s), sized from the nominal motor.
 2. **Design**: the pre-test is identified; its model and the noise its fit measured
    are the prior; the plan is designed counting the pre-test's information as already
-   in hand (:func:`~.api.plan_experiment`). Where the pre-test leaves a targeted
-   parameter far from its target (its relative sd above ``UNCERTAIN`` times it), only
-   the plan's first half runs before the next design: the prior is then the fit of
-   everything so far, and the rest of the plan is designed from it.
+   in hand (:func:`~.api.plan_experiment`); a parameter the pre-test knows badly is
+   aimed lower (its true value may lie below the prior's), so the plan is on the safe
+   side and the re-fits end it early. With a travel range the plan runs in parts of
+   about ``TRAVEL_CHUNK_TAU`` tau_m, each designed from the measured angle (the angle
+   integrates every difference between the motor and its prior).
 3. **Run and re-fit**: as segments finish, everything recorded so far is identified
    again; the session stops as soon as the fit's own relative sd of every targeted
    parameter is at its target.
@@ -43,8 +44,7 @@ from pmdc_ident.core.motors import Limits
 __all__ = ["Decision", "SequentialDesign", "SequentialSettings"]
 
 KEYS = {"Tc": "coulomb_friction.torque_nm"}
-UNCERTAIN = 3.0  # a prior rsd above this times the target: run half the plan, then re-design
-FIRST_SHARE = 0.5
+TRAVEL_CHUNK_TAU = 20.0  # with a travel range, at most about this many tau_m per design
 
 
 @dataclass(frozen=True)
@@ -60,7 +60,7 @@ class SequentialSettings:
     fixed: Mapping[str, float] = field(default_factory=dict)
     use_fraction: float = 0.8
     safe_mode: SafeMode = SafeMode.ZERO
-    max_designs: int = 4
+    max_designs: int = 40
 
 
 @dataclass(frozen=True)
@@ -141,6 +141,7 @@ class SequentialDesign:
         """What to do after the recorded ``segments`` (everything so far): ``plan_done``
         when every segment handed out has run; ``position_rad`` where the joint rests
         now (an extension starts there)."""
+        self.seen_s = sum(s.n for s in segments) * self.dt
         try:
             fitted, achieved = self._fit(segments)
         except PmdcError as exc:
@@ -157,7 +158,7 @@ class SequentialDesign:
                 Decision(
                     "stop",
                     achieved=achieved,
-                    message=f"target met after {self.run_s:.3g} s of motor time: "
+                    message=f"target met after {self.seen_s:.3g} s of motor time: "
                     + _sds(achieved, self.target),
                 )
             )
@@ -178,18 +179,19 @@ class SequentialDesign:
                     + "; ".join(f"{public_name(k)}: {v}" for k, v in short.items()),
                 )
             )
-        prior = prior_from_result(fitted, f"fit of the first {self.run_s:.3g} s")
-        self.prior = prior
-        plan_so_far = TestPlan(
-            tuple(PlannedSegment(s.label, _voltage(s)) for s in segments), self.dt
-        )
-        _, info, _ = evaluate_plan(prior, plan_so_far, fixed=self._fixed_names())
-        lim = replace(
-            self.limits(prior, position_rad),
-            budget_s=max(left, 20 * self.dt),
-            heat_a2s=_left(self.settings.heat_a2s, heat_a2s, self.limits(prior, position_rad)),
-        )
         try:
+            prior = prior_from_result(fitted, f"fit of the first {self.run_s:.3g} s")
+            self.prior = prior
+            plan_so_far = TestPlan(
+                tuple(PlannedSegment(s.label, _voltage(s)) for s in segments), self.dt
+            )
+            _, info, _ = evaluate_plan(prior, plan_so_far, fixed=self._fixed_names())
+            base = self.limits(prior, position_rad)
+            lim = replace(
+                base,
+                budget_s=max(left, 20 * self.dt),
+                heat_a2s=_left(self.settings.heat_a2s, heat_a2s, base),
+            )
             designed = plan_experiment(
                 prior,
                 self.driver,
@@ -223,13 +225,14 @@ class SequentialDesign:
         if self.designs == 1:
             self.planned_s = self.run_s + designed.duration_s
         segs = designed.plan.segments
-        uncertain = [
-            n
-            for n, t in self.target.items()
-            if self._prior_rsd(fitted).get(n, 0.0) > UNCERTAIN * t
-        ]
-        if uncertain and len(segs) > 1 and self.designs < self.settings.max_designs:
-            segs = _first_part(designed, FIRST_SHARE, self.dt)
+        if self.settings.travel_rad is not None and len(segs) > 1:
+            # a joint: the angle integrates every difference between the motor and its
+            # prior, so a plan runs in short parts, each designed from the measured angle
+            tau = designed.prior.model.params.mechanical_time_constant_s
+            share = TRAVEL_CHUNK_TAU * tau / max(designed.duration_s, 1e-9)
+            if share < 1.0:
+                part = _first_part(designed, share, self.dt)
+                segs = part if len(part) < len(segs) else segs
         self.run_s += sum(s.voltage.size for s in segs) * self.dt
         return self._log(
             Decision(
@@ -304,8 +307,10 @@ class SequentialDesign:
         self.rounds.append(r)
         return d
 
-    def report(self) -> dict[str, object]:
-        """The session's record: target, pre-test, designs, decisions (for the result)."""
+    def report(self, motor_s: float | None = None) -> dict[str, object]:
+        """The session's record: target, pre-test, designs, decisions (for the result);
+        ``motor_s``: the motor time the session really ran (default: what was handed out
+        to run, which a session stopped at its target does not finish)."""
 
         def pct(d: Mapping[str, float]) -> dict[str, float | None]:
             return {public_name(k): (float(v) if math.isfinite(v) else None) for k, v in d.items()}
@@ -315,7 +320,8 @@ class SequentialDesign:
             "target": describe_target(self.target),
             "pretest_s": self.pretest.duration_s if self.pretest else 0.0,
             "planned_s": self.planned_s,
-            "motor_s": self.run_s,
+            "motor_s": self.run_s if motor_s is None else motor_s,
+            "handed_out_s": self.run_s,
             "designs": self.designs,
             "not_targeted": {public_name(k): v for k, v in self.dropped.items()},
             "plan": self.last_plan.to_json() if self.last_plan is not None else None,

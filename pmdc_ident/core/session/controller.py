@@ -132,6 +132,7 @@ class SessionController:
         self.design: Any = None
         self._design_pending = False
         self._design_seen = 0  # segment ends already re-fitted
+        self._design_samples = 0  # samples recorded at the last re-fit
         self._last_position = 0.0
 
     # -- state ---------------------------------------------------------------------------
@@ -357,7 +358,7 @@ class SessionController:
                     self._next_name(),
                     self._last_position,
                 )
-                self._design_pending, self._design_seen = False, 0
+                self._design_pending, self._design_seen, self._design_samples = False, 0, 0
         except PmdcError as exc:
             self._fail(str(exc))
             return
@@ -519,7 +520,11 @@ class SessionController:
                 fixed=dict(self.config.fixed),
                 exports=self._exports(s),
                 extra=(
-                    {"experiment_design": self.design.report()}
+                    {
+                        "experiment_design": self.design.report(
+                            sum(s.held_samples.values()) * s.dt_s
+                        )
+                    }
                     if self.design is not None
                     else None
                 ),
@@ -540,10 +545,13 @@ class SessionController:
             return
         if not s.holding and self.design.designs == 0:
             return  # the pre-test: designed once it is over
+        if not s.holding and self.recording.encoder.n < 1.25 * self._design_samples:
+            return  # a re-fit while the plan runs: once a quarter more data is in
         end_ns = round(ends[-1].t_s * 1e9)
         if not self.recording.complete_until(end_ns) and now_s - self.peers.last_sample_s < 1.0:
             return  # its last samples are still arriving
         self._design_seen = len(ends)
+        self._design_samples = self.recording.encoder.n
         self._design_pending = True
         self.ports.start_design(
             DesignJob(
