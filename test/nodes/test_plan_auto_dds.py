@@ -70,7 +70,8 @@ def test_a_travel_limited_joint_is_identified_to_the_target_without_leaving_its_
     assert res.identification_rc == 0, logs
     design = res.result["experiment_design"]
     rounds = design["rounds"]
-    assert rounds[-1]["action"] == "stop" and rounds[-1]["message"].startswith("target met"), rounds
+    assert rounds[-1]["action"] == "stop", rounds
+    assert rounds[-1]["message"].startswith("target met"), rounds
     # the node stopped when the plan said it would (or earlier, the target met sooner)
     assert design["motor_s"] <= 1.1 * design["planned_s"], design
     arrays = read_driver_arrays(res.bag)
