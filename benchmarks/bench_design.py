@@ -39,8 +39,9 @@ import json
 import math
 import os
 import sys
+import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -51,7 +52,7 @@ from pmdc_ident.benchmark import plant as pl  # noqa: E402
 from pmdc_ident.benchmark.motors import MOTORS, BenchMotor  # noqa: E402
 from pmdc_ident.benchmark.sensors import SensorSetup, measure  # noqa: E402
 from pmdc_ident.core.data import Run, Segment, link_history  # noqa: E402
-from pmdc_ident.core.design import Prior, session_limits  # noqa: E402
+from pmdc_ident.core.design import Prior, plan_experiment, session_limits  # noqa: E402
 from pmdc_ident.core.design.baselines import (  # noqa: E402
     default_sequence,
     prbs_plan,
@@ -432,6 +433,11 @@ def main() -> int:
     ap.add_argument("--reveal", action="store_true")
     ap.add_argument("--runs", type=int, default=10)
     ap.add_argument("--plot", default=None)
+    ap.add_argument("--out", default=None, help="--travel: folder for the session and plot")
+    ap.add_argument("--seed", type=int, default=7, help="--reveal: the draw (default 7)")
+    ap.add_argument(
+        "--compare-default", action="store_true", help="--reveal: the default sequence too"
+    )
     args = ap.parse_args()
     if args.travel:
         return travel_case(args)
@@ -471,12 +477,221 @@ def summary(rows: list[dict]) -> None:
             )
 
 
-def travel_case(args: argparse.Namespace) -> int:  # pragma: no cover - defined below
-    raise NotImplementedError
+def travel_case(args: argparse.Namespace) -> int:
+    """A geared joint within +-2 rad over ROS (plan: auto) and its position trace."""
+    from pmdc_ident.dataio.bagio import read_driver_arrays
+    from pmdc_ident.nodes.bringup import run_session
+
+    out = Path(args.out or tempfile.mkdtemp(prefix="bench_design_travel_"))
+    out.mkdir(parents=True, exist_ok=True)
+    motor = joint_motor_file(out / "joint.yaml")
+    t0 = time.monotonic()
+    if True:  # run_session takes a free DDS domain of its own
+        res = run_session(
+            output_dir=out / "sessions",
+            motor=str(motor),
+            identification_params={
+                "plan": "auto",
+                "plan_travel_rad": [-2.0, 2.0],
+                "plan_budget_s": 10.0,
+                "plan_heat_a2s": 1.0,
+                "safety.data_timeout_s": 1.5,
+            },
+            driver_params={"watchdog_s": 1.5},
+            log_dir=out / "logs",
+            timeout_s=300.0,
+        )
+    print(
+        f"session: exit {res.identification_rc}, {time.monotonic() - t0:.1f} s wall, bag {res.bag}"
+    )
+    if res.result is None or res.bag is None:
+        print("no result")
+        return 1
+    d = res.result["experiment_design"]
+    for r in d["rounds"]:
+        print(f"  {r['motor_s']:.3f} s {r['action']}: {r['message'][:160]}")
+    print(
+        f"motor time {d['motor_s']:.3f} s, planned {d['planned_s']:.3f} s (ratio "
+        f"{d['motor_s'] / d['planned_s']:.2f}), pre-test {d['pretest_s']:.3f} s"
+    )
+    truth = MOTORS["gearmotor_12v"].params
+    for name in ("R", "Ke", "J", "B", "coulomb_friction.torque_nm"):
+        e = res.result["parameters"][name]
+        tv = {"coulomb_friction.torque_nm": joint_tc()}.get(name, getattr(truth, name, math.nan))
+        print(
+            f"  {name:<28} {e['value']:.5g}  sd {100 * e['stderr'] / e['value']:.3g} %  "
+            f"error {100 * (e['value'] - tv) / tv:+.3g} %"
+        )
+    a = read_driver_arrays(res.bag)
+    t = (a.encoder_ns - a.encoder_ns[0]) * 1e-9
+    print(
+        f"position {a.position_rad.min():.3f} .. {a.position_rad.max():.3f} rad "
+        f"(range [-2, 2]); {a.encoder_ns.size} samples"
+    )
+    plot = Path(args.plot or out / "travel_position.png")
+    _plot_trace(t, a, plot)
+    print(f"wrote {plot}")
+    return 0
 
 
-def reveal_case(args: argparse.Namespace) -> int:  # pragma: no cover - defined below
-    raise NotImplementedError
+def joint_tc() -> float:
+    p = MOTORS["gearmotor_12v"].params
+    return 0.5 * p.Kt * (2.0 * p.B * MOTORS["gearmotor_12v"].speed_no_load_rad_s / p.Kt)
+
+
+def joint_motor_file(path: Path) -> Path:
+    """The 100:1 gearmotor at its output with Coulomb friction, as a motor file."""
+    import yaml
+
+    m = MOTORS["gearmotor_12v"]
+    p = m.params
+    doc = {
+        "name": "joint_gearmotor",
+        "parameters": p.as_dict(),
+        "effects": {"coulomb_friction": {"torque_nm": joint_tc()}},
+        "sensors": {"current_noise_a": 0.008, "speed_noise_rad_s": 0.02,
+                    "encoder_counts_per_rev": m.counts_per_rev},
+        "limits": {"voltage_max_v": m.voltage_rated_v,
+                   "current_max_a": 1.5 * m.voltage_rated_v / p.R,
+                   "speed_max_rad_s": 2.0 * m.speed_no_load_rad_s},
+    }  # fmt: skip
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def _plot_trace(t, a, path: Path) -> None:  # type: ignore[no-untyped-def]
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+    ax[0].plot(t, a.position_rad, lw=0.8)
+    for y in (-2.0, 2.0):
+        ax[0].axhline(y, color="r", ls="--", lw=0.8)
+    ax[0].set_ylabel("position, rad")
+    ax[0].set_title("plan: auto on a 100:1 gearmotor within +-2 rad (measured, over ROS)")
+    ax[1].plot(t, a.voltage_v, lw=0.6)
+    ax[1].set_ylabel("applied voltage, V")
+    ax[2].plot(t, a.current_a, lw=0.6)
+    ax[2].set_ylabel("current, A")
+    ax[2].set_xlabel("session time, s")
+    for m in a.markers:
+        if m.event.value == "start":
+            x = m.t_s - a.encoder_ns[0] * 1e-9
+            for axis in ax:
+                axis.axvline(x, color="0.85", lw=0.5, zorder=0)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+REVEAL_GOALS = {"cogging": 5.0, "stribeck_friction": 15.0}  # % of rated torque
+
+
+def reveal_case(args: argparse.Namespace) -> int:
+    """Reveal plans on the independent generator: cogging at 5 % and Stribeck friction at
+    15 % of rated torque, named (tie-honest) by diagnose from the file, against the
+    default sequence on the same motors, rates, equations and sensors."""
+    from pmdc_ident.benchmark import cases as bc
+    from pmdc_ident.benchmark.runner import write_recording
+    from pmdc_ident.benchmark.truth import EQUATIONS, LADDERS, _lugre, draw_effect
+    from pmdc_ident.core.diagnosis import diagnose
+    from pmdc_ident.dataio import load_data
+
+    rng = np.random.default_rng(args.seed)
+    rows = []
+    tmp = Path(tempfile.mkdtemp(prefix="bench_reveal_"))
+    for name, pct in REVEAL_GOALS.items():
+        eligible = [
+            (m, rt) for m in MOTORS.values() for rt in m.rates_hz if bc.eligible(name, m, rt)
+        ]
+        for k in range(args.runs):
+            motor, rate = eligible[(k * 7 + int(rng.integers(len(eligible)))) % len(eligible)]
+            eq = EQUATIONS[name][k % len(EQUATIONS[name])]
+            ctx = bc.context(motor, rate, False)
+            level = len(LADDERS[name][1]) - 1
+            eff = draw_effect(name, level, ctx, rng, eq)
+            f = pct / eff.size
+            t_new = pct / 100.0 * motor.torque_rated_nm
+            settings = []
+            for i, v in eff.settings:
+                if i in (pl.P_TS, pl.P_TCOG):
+                    v = v * f
+                settings.append((i, v))
+            if eq == "lugre_gauss":
+                drop = {pl.P_SIG0, pl.P_SIG1, pl.P_FRIC}
+                settings = [(i, v) for i, v in settings if i not in drop] + _lugre(t_new, motor)
+            eff = replace(eff, size=pct, settings=tuple(settings))
+            sensors = bc.draw_sensors(motor, rate, rng)
+            case = bc.Case(f"{name}_{k:02d}", "effect", motor.name, rate, False, (eff,), sensors,
+                           int(rng.integers(2**31)))  # fmt: skip
+            r = Rig(motor, rate, 0.0, _bench_limits(motor), sensors)
+            nominal = datasheet_prior(r, seed=k)
+            nominal = Prior(Model(nominal.model.params), nominal.noise, "datasheet prior")
+            lim = session_limits(nominal, r.limits, r.dt)
+            plans = {
+                "reveal": plan_experiment(
+                    nominal, r.limits, r.dt, limits=lim, reveal=(name,)
+                ).plan,
+            }
+            if args.compare_default:
+                plans["default"] = default_sequence(nominal, lim, r.dt)
+            for which, plan in plans.items():
+                v = np.concatenate([s.voltage for s in plan.segments])
+                p_eff = bc.sensor_vector(case, case.effects)
+                try:
+                    sim = pl.simulate_plant(v, r.dt, p_eff)
+                except ValueError as exc:
+                    print(f"{case.name} {which}: generator failed: {exc}")
+                    continue
+                m = measure(sim, sensors, np.random.default_rng(case.seed))
+                sizes = [s_.voltage.size for s_ in plan.segments]
+                stops = np.cumsum(sizes)
+                rec = bc.Recording(
+                    tuple(s_.label for s_ in plan.segments),
+                    tuple((int(b_ - n_), int(b_)) for b_, n_ in zip(stops, sizes, strict=True)),
+                    r.dt, v, m.current, m.position, m.speed,
+                )  # fmt: skip
+                path = write_recording(rec, tmp / f"{case.name}_{which}.csv")
+                t0 = time.process_time()
+                try:
+                    res = diagnose(load_data(path))
+                except PmdcError as exc:
+                    print(f"{case.name} {which}: {exc}")
+                    continue
+                v_ = res.verdict
+                named = bool(v_.effects) and (
+                    v_.effects[0] == name
+                    or any(name in t.effects and v_.effects[0] in t.effects and t.separating_test
+                           for t in v_.ties)
+                )  # fmt: skip
+                lim_ = next((d for d in res.detection_limits if d.effect == name), None)
+                rows.append({"effect": name, "plan": which, "case": case.name, "motor": motor.name,
+                             "rate": rate, "equation": eq, "named": named,
+                             "verdict": v_.status.value, "effects": list(v_.effects),
+                             "seconds": plan.duration_s, "cpu_s": time.process_time() - t0,
+                             "limit": None if lim_ is None or lim_.size is None
+                             else lim_.size / motor.torque_rated_nm * 100})  # fmt: skip
+                shown = rows[-1]["limit"]
+                shown = "-" if shown is None else f"{shown:.3g}"
+                print(f"{case.name:<22} {motor.name:<16} {rate:>6.0f} Hz {eq:<12} {which:<8} "
+                      f"{plan.duration_s:7.2f} s  {v_.status.value:<11} "
+                      f"{'+'.join(v_.effects) or '-':<24} {'NAMED' if named else 'missed'}  "
+                      f"limit {shown} % rated", flush=True)  # fmt: skip
+    print("\nnamed tie-honestly (reveal plan / default sequence):")
+    for name, pct in REVEAL_GOALS.items():
+        for which in ("reveal", "default"):
+            got = [r_ for r_ in rows if r_["effect"] == name and r_["plan"] == which]
+            n = sum(r_["named"] for r_ in got)
+            print(f"  {name} at {pct:g} % rated torque, {which}: {n}/{len(got)}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+def _bench_limits(m: BenchMotor) -> Limits:
+    p = m.params
+    return Limits(m.voltage_rated_v, 1.5 * m.voltage_rated_v / p.R, 2.0 * m.speed_no_load_rad_s)
 
 
 if __name__ == "__main__":

@@ -15,8 +15,9 @@ effect                      segments
 ``load_torque``             low speed
 ``stribeck_friction``       a staircase through the lowest speeds both ways (1.5 to 25 % of
                             the top speed), each level held to steady state
-``cogging``                 slow crawls over at least a turn (or what the travel allows) at
-                            two speeds, each way (``crawl``): torque periodic in the angle
+``cogging``                 slow crawls over up to a turn (or what the travel allows) at
+                            0.5, 2 and 8 % of the top speed, each way (``crawl``): torque
+                            periodic in the angle, at a period the rotor can follow
 ``quadratic_drag``          a staircase to the top speed both ways
 ``brush_drop``,             a low-voltage staircase both ways and a small sweep about 0 V
 ``dead_zone``               (the current reverses)
@@ -48,9 +49,9 @@ from pmdc_ident.core.excitation import log_chirp
 __all__ = ["REVEALABLE", "reveal_segments"]
 
 REVEALABLE: tuple[str, ...] = EFFECT_NAMES
-CRAWL_SPEEDS = (0.03, 0.08)  # of the top speed
+CRAWL_SPEEDS = (0.005, 0.02, 0.08)  # of the top speed
 STRIBECK_SPEEDS = (0.015, 0.03, 0.06, 0.12, 0.25)
-MAX_CRAWL_S = 10.0
+MAX_CRAWL_S = 6.0
 
 
 def _voltage_for_speed(prior: Prior, w: float) -> float:
@@ -115,6 +116,9 @@ def _stribeck(prior, limits, sc, w_top, tau):  # type: ignore[no-untyped-def]
 
 
 def _cogging(prior, limits, sc, w_top, tau):  # type: ignore[no-untyped-def]
+    """Crawls at three slow speeds, each way: cogging shows where its period passes the
+    shaft slower than the rotor can follow (torque ripple -> speed and current ripple);
+    the number of periods per turn is unknown, so the speeds span a decade and a half."""
     out = []
     travel = limits.travel_rad
     reach = math.inf
@@ -123,7 +127,7 @@ def _cogging(prior, limits, sc, w_top, tau):  # type: ignore[no-untyped-def]
         reach = 0.5 * (hi - lo - 2.0 * limits.margin_rad) * 0.8  # each crawl half the usable range
     for frac in CRAWL_SPEEDS:
         w = frac * w_top
-        v = max(_voltage_for_speed(prior, w), sc.v_crawl)
+        v = max(_voltage_for_speed(prior, w), 0.5 * sc.v_crawl)
         dist = min(2.0 * math.pi, reach)
         seconds = min(max(dist / w + 2.0 * tau, 10.0 * tau), MAX_CRAWL_S)
         if travel is not None:
