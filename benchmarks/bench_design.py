@@ -438,6 +438,7 @@ def main() -> int:
     ap.add_argument(
         "--compare-default", action="store_true", help="--reveal: the default sequence too"
     )
+    ap.add_argument("--effects", default=",".join(REVEAL_GOALS), help="--reveal: which")
     args = ap.parse_args()
     if args.travel:
         return travel_case(args)
@@ -601,7 +602,8 @@ def reveal_case(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(args.seed)
     rows = []
     tmp = Path(tempfile.mkdtemp(prefix="bench_reveal_"))
-    for name, pct in REVEAL_GOALS.items():
+    goals = {k: v for k, v in REVEAL_GOALS.items() if k in args.effects.split(",")}
+    for name, pct in goals.items():
         eligible = [
             (m, rt) for m in MOTORS.values() for rt in m.rates_hz if bc.eligible(name, m, rt)
         ]
@@ -679,7 +681,7 @@ def reveal_case(args: argparse.Namespace) -> int:
                       f"{'+'.join(v_.effects) or '-':<24} {'NAMED' if named else 'missed'}  "
                       f"limit {shown} % rated", flush=True)  # fmt: skip
     print("\nnamed tie-honestly (reveal plan / default sequence):")
-    for name, pct in REVEAL_GOALS.items():
+    for name, pct in goals.items():
         for which in ("reveal", "default"):
             got = [r_ for r_ in rows if r_["effect"] == name and r_["plan"] == which]
             n = sum(r_["named"] for r_ in got)

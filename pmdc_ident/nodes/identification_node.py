@@ -175,6 +175,10 @@ class IdentificationNode(Node):
             outcome = self._worker.poll()
             if isinstance(outcome, DesignOutcome):
                 self.controller.on_design(outcome, time.monotonic())
+            elif outcome is not None and self.controller.design_pending:
+                # the worker died under a plan: auto re-fit: end the session safely
+                stop = DesignOutcome("stop", message=f"re-fit failed: {outcome.error}")
+                self.controller.on_design(stop, time.monotonic())
             elif outcome is not None:
                 self.controller.on_identified(outcome)
         self.controller.tick(time.monotonic())

@@ -532,6 +532,10 @@ class SessionController:
         )
 
     # -- plan: auto (core.session.sequential) ----------------------------------------------
+    @property
+    def design_pending(self) -> bool:
+        return self._design_pending
+
     def _design_tick(self, now_s: float) -> None:
         """Hand the worker a re-fit when the pre-test or the plan has run out (the
         session holds meanwhile), or when a segment has ended since the last one."""
