@@ -91,6 +91,7 @@ def plan_experiment(
     label_start: int = 1,
     limits: PlanLimits | None = None,
     prior_rsd: Mapping[str, float] | None = None,
+    aim_scale: Mapping[str, float] | None = None,
 ) -> DesignedPlan:
     """Design the shortest plan reaching ``target`` for the motor ``prior`` on a driver
     with ``driver`` limits at ``1 / dt_s`` Hz (see :func:`~.planner.design_plan`);
@@ -129,4 +130,5 @@ def plan_experiment(
         user_target=target is not None,
         extra=extra,
         prior_rsd=prior_rsd,
+        aim_scale=aim_scale,
     )

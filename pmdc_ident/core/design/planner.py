@@ -407,6 +407,7 @@ def design_plan(
     user_target: bool = False,
     extra: Sequence[Candidate] = (),
     prior_rsd: Mapping[str, float] | None = None,
+    aim_scale: Mapping[str, float] | None = None,
 ) -> DesignedPlan:
     """The shortest plan (greedy, see the module docs) reaching ``target`` (default
     :data:`~pmdc_ident.core.design.target.DEFAULT_TARGET`) under ``limits``.
@@ -417,7 +418,9 @@ def design_plan(
     parameter out of reach is reported short rather than dropped; ``extra``: segments
     that must run first (a reveal plan's), designed around; ``prior_rsd``: how well
     the prior is known (relative sd per parameter, a pre-test's fit): the plan aims
-    lower for a parameter whose true value may lie below the prior's.
+    lower for a parameter whose true value may lie below the prior's; ``aim_scale``:
+    per parameter, a factor on what the plan aims at (a sequential session's fit found
+    a parameter worse known than this information predicts: it aims lower by as much).
     """
     if criterion not in ("A", "D"):
         msg = f"criterion must be A or D, got {criterion!r}"
@@ -426,7 +429,7 @@ def design_plan(
         msg = f"sample period must be > 0 s, got {dt_s}"
         raise ParameterError(msg)
     requested = dict(DEFAULT_TARGET if target is None else target)
-    values, names = design_values(prior, fixed)
+    values, names = design_values(prior, fixed, prior_rsd)
     dropped: dict[str, str] = {}
     for n in requested:
         if n in fixed:
@@ -452,6 +455,9 @@ def design_plan(
         )
     aim = {k: v for k, v in requested.items() if k not in dropped}
     d = _Designer(prior, limits, dt_s, names, aim, criterion, prior_info, values, prior_rsd)
+    for n, k in (aim_scale or {}).items():
+        if n in d.aim and k > 0:
+            d.aim[n] *= k
     x0 = (
         np.array([0.0, 0.0, limits.start_rad])
         if start_state is None
@@ -515,7 +521,9 @@ def design_plan(
     )
 
 
-def design_values(prior: Prior, fixed: Sequence[str] = ()) -> tuple[dict[str, float], list[str]]:
+def design_values(
+    prior: Prior, fixed: Sequence[str] = (), prior_rsd: Mapping[str, float] | None = None
+) -> tuple[dict[str, float], list[str]]:
     """The fitted model's values at the prior and its free parameters. Without a Coulomb
     friction in the prior, its torque is still a free nuisance (a real motor has one,
     and ``identify`` tries it): placed at a small value, which sets its column's
@@ -526,7 +534,9 @@ def design_values(prior: Prior, fixed: Sequence[str] = ()) -> tuple[dict[str, fl
     # a B fitted to ~0 (a short pre-test: friction took it all) leaves its relative sd
     # without meaning; design for a small viscous friction instead (the safe side)
     p = prior.model.params
-    values["B"] = max(values["B"], B_FLOOR * p.Ke**2 / p.R)
+    unknown_b = (prior_rsd or {}).get("B", 0.0) > 0.5 or values["B"] < 1e-3 * p.Ke**2 / p.R
+    if unknown_b:
+        values["B"] = max(values["B"], B_FLOOR * p.Ke**2 / p.R)
     names = [n for n in DESIGN_PARAMETERS if n not in fixed]
     return values, names
 

@@ -185,7 +185,14 @@ class SequentialDesign:
             plan_so_far = TestPlan(
                 tuple(PlannedSegment(s.label, _voltage(s)) for s in segments), self.dt
             )
-            _, info, _ = evaluate_plan(prior, plan_so_far, fixed=self._fixed_names())
+            pred, info, _ = evaluate_plan(prior, plan_so_far, fixed=self._fixed_names())
+            # where the fit knows a parameter worse than this information predicts (a
+            # widened interval, a value below the prior's), aim lower by as much
+            calib = {
+                n: min(1.0, pred[n] / achieved[n])
+                for n in self.target
+                if n in achieved and n in pred and 0 < achieved[n] < math.inf and pred[n] > 0
+            }
             base = self.limits(prior, position_rad)
             lim = replace(
                 base,
@@ -206,6 +213,7 @@ class SequentialDesign:
                 label_start=len(segments) + 1,
                 limits=lim,
                 prior_rsd=self._prior_rsd(fitted),
+                aim_scale=calib,
             )
         except PmdcError as exc:
             return self._log(
