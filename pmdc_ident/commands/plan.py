@@ -276,7 +276,7 @@ def run(args: argparse.Namespace) -> int:
     if args.compare:
         doc["compare"] = _compare(prior, limits, dt, designed)
     if reveal:
-        doc["reveal"] = list(reveal)
+        doc["reveal"] = _reveal_limits(prior, designed, reveal)
     written = []
     if targets["--csv"] is not None:
         comments = [
@@ -301,6 +301,37 @@ def run(args: argparse.Namespace) -> int:
     for p in written:
         print(f"wrote {p}")
     return 0 if designed.met else 3
+
+
+def _reveal_limits(prior, designed, reveal) -> dict[str, Any]:  # type: ignore[no-untyped-def]
+    """The smallest size of each revealed effect the planned record would show under the
+    prior (diagnose's detection limits on a simulated run of the plan)."""
+    from pmdc_ident.core.design.information import Noise
+    from pmdc_ident.core.diagnosis.detection import detection_limits
+    from pmdc_ident.core.diagnosis.holdout import split_segments
+    from pmdc_ident.core.diagnosis.scoring import estimate_noise
+    from pmdc_ident.core.diagnosis.verdict import Thresholds
+    from pmdc_ident.core.excitation import synthesize_run
+    from pmdc_ident.core.model import Model
+    from pmdc_ident.core.motors import SensorSpec
+
+    n: Noise = prior.noise
+    counts = 2 * math.pi / (n.position_sd * math.sqrt(12.0)) if n.position_sd > 0 else 0.0
+    signals = ("current", "speed") if n.uses_speed else ("current", "position")
+    run = synthesize_run(
+        prior.model, designed.plan, SensorSpec(n.current_sd, n.speed_sd, counts), signals=signals
+    )
+    limits = detection_limits(
+        split_segments(run.segments),
+        Model(prior.model.params),
+        estimate_noise(run.segments),
+        Thresholds(),
+        reveal,
+    )
+    print("shown on this plan (predicted, under the prior): the smallest sizes diagnose sees")
+    for lim in limits:
+        print(f"  {lim.text()}")
+    return {lim.effect: lim.to_json() for lim in limits}
 
 
 def _compare(prior, limits, dt, designed) -> dict[str, Any]:  # type: ignore[no-untyped-def]

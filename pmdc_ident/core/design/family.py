@@ -68,6 +68,8 @@ class Candidate:
             return f"ramp {s['v']:+.3g} V -> 0 V (to rest)"
         if self.kind == "square":
             return f"square +-{s['amplitude']:.3g} V, half period {s['half_s'] * 1e3:.3g} ms"
+        if "v" in s:
+            return f"level {s['v']:+.3g} V ({self.kind})"
         return ", ".join(f"{k} {v:.3g}" for k, v in s.items()) or self.kind
 
 
