@@ -225,7 +225,7 @@ class IdentificationNode(Node):
         self._param_names = names
         return True
 
-    def prepare_identification(self, nominal: MotorSpec) -> None:
+    def prepare_identification(self, nominal: MotorSpec | None) -> None:
         if self._worker is None or not self._worker.alive:
             self._worker = IdentificationWorker(nominal)
 

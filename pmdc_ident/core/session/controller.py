@@ -73,6 +73,9 @@ LATE_TICK_S = 0.1  # a timer this late means the node itself was held up
 # can drain a backlog of encoder samples before the current samples of the same stamps
 CURRENT_WAIT_S = 0.1
 LATE_TICK_GRACE_S = 0.05
+# plan: auto starts its pre-test once the driver has applied this session's 0 V this long
+RELEASE_AFTER_NS = 100_000_000
+RELEASE_TIMEOUT_S = 10.0
 
 
 class Phase(enum.Enum):
@@ -133,6 +136,8 @@ class SessionController:
         self._design_pending = False
         self._design_seen = 0  # segment ends already re-fitted
         self._design_samples = 0  # samples recorded at the last re-fit
+        self._applied_since = 0  # plan: auto: the driver applies our command since (stamp)
+        self._running_since_s = 0.0
         self._last_position = 0.0
 
     # -- state ---------------------------------------------------------------------------
@@ -199,6 +204,13 @@ class SessionController:
         self.peers.on_stamp("voltage_applied", stamp_ns)
         if self.recording_samples:
             self.recording.voltage.append(stamp_ns, voltage_v, terminal_v)
+            s = self.session
+            if s is not None and s.awaiting_release and voltage_v == voltage_v:
+                # plan: auto: the driver applies this session's command (not NaN: the
+                # armature closed on it): the pre-test may start
+                self._applied_since = self._applied_since or stamp_ns
+                if stamp_ns - self._applied_since >= RELEASE_AFTER_NS:
+                    self._apply(s.release(), self._last_tick_s or 0.0)
         elif self.confirmation.pending:
             state = self.confirmation.on_voltage(stamp_ns, voltage_v)
             if state:
@@ -359,6 +371,7 @@ class SessionController:
                     self._last_position,
                 )
                 self._design_pending, self._design_seen, self._design_samples = False, 0, 0
+                self._applied_since, self._running_since_s = 0, now_s
         except PmdcError as exc:
             self._fail(str(exc))
             return
@@ -368,7 +381,10 @@ class SessionController:
         session.start()
         self.phase = Phase.RUNNING
         # the identification warms up while the motor runs: the end costs only the fit
-        self.ports.prepare_identification(self.config.session.nominal)
+        # (plan: auto needs its worker at once, for the pre-test: no warm-up run first)
+        self.ports.prepare_identification(
+            None if self.design is not None else self.config.session.nominal
+        )
         self.ports.log(
             "info",
             f"session {session.name}: {len(session.plan.segments)} segments, nominal "
@@ -541,6 +557,14 @@ class SessionController:
         session holds meanwhile), or when a segment has ended since the last one."""
         s = self.session
         if self.design is None or s is None or self._design_pending or not s.active:
+            return
+        if s.awaiting_release:
+            if now_s - self._running_since_s > RELEASE_TIMEOUT_S:
+                detail = (
+                    f"the driver did not apply this session's commands within "
+                    f"{RELEASE_TIMEOUT_S:g} s (voltage_cmd not reaching it?)"
+                )
+                self._apply(s.abort(AbortReason.DRIVER_FAULT, None, detail), now_s)
             return
         ends = [m for m in s.markers if m.event is MarkerEvent.END]
         if not ends:

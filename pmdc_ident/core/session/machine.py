@@ -87,6 +87,7 @@ class Session:
         safe_mode: SafeMode = SafeMode.ZERO,
         name: str = "session",
         open_ended: bool = False,
+        hold_first: bool = False,
     ) -> None:
         if not plan.segments:
             msg = "the plan holds no segment"
@@ -112,7 +113,9 @@ class Session:
         # plan: auto: when the plan runs out the session holds the safe command (no
         # segment open) until more segments come (extend) or it is told to end (finish)
         self.open_ended = open_ended
-        self.holding = False
+        # hold_first: the safe command until release() (the driver shown to apply it)
+        self.holding = hold_first
+        self.awaiting_release = hold_first
 
     # -- public -----------------------------------------------------------------
     @property
@@ -187,6 +190,8 @@ class Session:
             self.state = SessionState.RUNNING
             t_next = t_s + self.dt_s
             markers.append(self._mark(MarkerEvent.SESSION_START, "", t_next))
+            if self.holding:  # until release(): 0 V at rest (closes the armature)
+                return SessionStep(Command(0.0), tuple(markers))
             markers.append(self._mark(MarkerEvent.START, self.plan.segments[0].label, t_next))
             self.detector.reset()
             return SessionStep(Command(self._next_voltage()), tuple(markers))
@@ -196,7 +201,7 @@ class Session:
         self._t_last_s = t_s
         self.skipped_samples += steps - 1
         if self.holding:
-            return SessionStep(self.safe_command)
+            return SessionStep(Command(0.0) if self.awaiting_release else self.safe_command)
         for j in range(steps):
             t = t_prev + (j + 1) * self.dt_s
             if self._advance(t, current_a, speed_rad_s, markers, real=j == steps - 1):
@@ -251,7 +256,7 @@ class Session:
     def extend(self, segments: tuple[PlannedSegment, ...]) -> SessionStep:
         """More segments for an open-ended session (``plan: auto``): they run after the
         current plan; from a hold, the first starts at the next driver sample."""
-        if not self.active or not segments:
+        if not self.active or not segments or self.awaiting_release:
             return SessionStep(None)
         known = set(self.plan_labels)
         clash = [s.label for s in segments if s.label in known]
@@ -264,6 +269,17 @@ class Session:
         self.holding = False
         t_next = self._t_last_s + self.dt_s
         mark = self._mark(MarkerEvent.START, self.plan.segments[self._c.seg].label, t_next)
+        return SessionStep(Command(self._next_voltage()), (mark,))
+
+    def release(self) -> SessionStep:
+        """Start the plan of a session built with ``hold_first``, at the next sample."""
+        if not self.awaiting_release or self.state is not SessionState.RUNNING:
+            return SessionStep(None)
+        self.awaiting_release = False
+        self.holding = False
+        t_next = self._t_last_s + self.dt_s
+        mark = self._mark(MarkerEvent.START, self.plan.segments[0].label, t_next)
+        self.detector.reset()
         return SessionStep(Command(self._next_voltage()), (mark,))
 
     def finish(self, detail: str = "") -> SessionStep:

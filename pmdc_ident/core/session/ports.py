@@ -71,7 +71,7 @@ class ControllerPorts(Protocol):
         """Ask the driver node for ``names``; False when it is not reachable yet. The
         answer comes back through :meth:`SessionController.on_driver_parameters`."""
 
-    def prepare_identification(self, nominal: MotorSpec) -> None:
+    def prepare_identification(self, nominal: MotorSpec | None) -> None:
         """A session started: get the identification ready (imports, compiled kernels)
         while it runs, so that :meth:`start_identification` costs only the fit."""
 

@@ -168,6 +168,10 @@ def build_planned_session(
         safe_mode=settings.safe_mode,
         name=name,
         open_ended=setting.auto,
+        # the pre-test switches fast: it starts once the driver is seen to apply the
+        # session's own (safe) command, so none of it is lost to a command topic that
+        # matched late
+        hold_first=setting.auto,
     )
     return session, design
 
