@@ -407,7 +407,7 @@ def advice_for(name: str, rsd: float, *, tau_e: float, dt_s: float) -> str:
     if not (math.isfinite(tau_e) and tau_e > 0):
         return "fix L from an LCR meter (--fix L=...)"
     rate = math.inf
-    if math.isfinite(rsd):
+    if math.isfinite(rsd) and math.exp(-1.96 * rsd) > 0.0:  # else as unbounded as inf
         # The rate must pin down every L the data allow, down to the low end of its 95 %
         # interval (L is fitted in log: L exp(-1.96 rsd)), not the estimate alone: an L
         # the data do not bound (relative sd 87 % on L/R = 0.7 us, fitted 5x too large)
