@@ -153,23 +153,8 @@ def test_a_reset_suggestion_does_not_relatch_from_the_old_estimate(design: GainD
     intervals that admit the last estimates): the still-hot motor must prove its drift
     again on new samples (hold_s apart) before the suggestion latches again; it used to
     re-latch at the very next report (issue 24)."""
-    hot = MotorSpec(
-        "hot", Model(P.replace(R=1.3 * P.R), SPEC.model.effects), SPEC.sensors, SPEC.limits
-    )
-    run = simulate_service(hot, design, 14.0, seed=1, setpoints=STEPS)
-    first = run.t < 7.0
-    mon = DriftMonitor(SPEC)
-    mon.process(run.t[first], run.voltage[first], run.current[first], run.speed[first])
-    assert mon.suggest_reidentify
-    mon.reset_suggestion()
-    later: list[DriftReport] = []
-    idx = np.flatnonzero(~first)
-    for a in range(0, idx.size, 20):  # as the node feeds it
-        k = idx[a : a + 20]
-        later += mon.process(run.t[k], run.voltage[k], run.current[k], run.speed[k])
-        if mon.suggest_reidentify:
-            break
-    t_reset = run.t[idx[0]]
+    mon, later = _latched_then_reset(design, 1.3, STEPS[:14000])
+    t_reset = 7.0
     assert later[0].level == DriftLevel.OK and not later[0].suggest_reidentify
     # restarted at the identified value, with an interval that still admits it: the few
     # new samples before the first report have not proven anything yet
@@ -191,17 +176,8 @@ def test_a_reset_on_a_hot_motor_at_one_operating_point_claims_no_back_emf_drift(
     (V = R i + Ke w, one equation) the filter put that misfit on Ke and proved a
     back-EMF drift of 8-15 % the motor does not have (the drift monitor node's test saw
     'back_emf ERROR ... 0.0797 vs identified 0.0662' after its reset)."""
-    hot = MotorSpec(
-        "hot", Model(P.replace(R=1.6 * P.R), SPEC.model.effects), SPEC.sensors, SPEC.limits
-    )
     setpoints = np.concatenate([STEPS[:7000], np.full(4000, 50.0)])  # then one speed
-    run = simulate_service(hot, design, 11.0, seed=1, setpoints=setpoints)
-    first = run.t < 7.0
-    mon = DriftMonitor(SPEC)
-    mon.process(run.t[first], run.voltage[first], run.current[first], run.speed[first])
-    assert mon.suggest_reidentify
-    mon.reset_suggestion()
-    later = _monitor_from(mon, run, np.flatnonzero(~first))
+    mon, later = _latched_then_reset(design, 1.6, setpoints)
     ke = [r.quantity("back_emf") for r in later]
     assert max(q.level for q in ke) == DriftLevel.OK
     assert max(abs(q.value / P.Ke - 1.0) for q in ke) < mon.config.ke_warn_rel
@@ -211,12 +187,27 @@ def test_a_reset_on_a_hot_motor_at_one_operating_point_claims_no_back_emf_drift(
     assert later[-1].quantity("resistance").value == pytest.approx(1.6 * P.R, rel=0.05)
 
 
-def _monitor_from(mon: DriftMonitor, run: ServiceRun, idx: np.ndarray) -> list[DriftReport]:
-    out: list[DriftReport] = []
-    for a in range(0, idx.size, 20):  # as the node feeds it
+def _latched_then_reset(
+    design: GainDesign, r_factor: float, setpoints: np.ndarray
+) -> tuple[DriftMonitor, list[DriftReport]]:
+    """A motor whose R is ``r_factor`` times the identified one, under the speed
+    set-points (1 kHz): the suggestion latched over its first 7 s, then reset; the
+    reports on the samples after the reset, fed as the node feeds them."""
+    hot = MotorSpec(
+        "hot", Model(P.replace(R=r_factor * P.R), SPEC.model.effects), SPEC.sensors, SPEC.limits
+    )
+    run = simulate_service(hot, design, setpoints.size * 1e-3, seed=1, setpoints=setpoints)
+    first = run.t < 7.0
+    mon = DriftMonitor(SPEC)
+    mon.process(run.t[first], run.voltage[first], run.current[first], run.speed[first])
+    assert mon.suggest_reidentify
+    mon.reset_suggestion()
+    later: list[DriftReport] = []
+    idx = np.flatnonzero(~first)
+    for a in range(0, idx.size, 20):
         k = idx[a : a + 20]
-        out += mon.process(run.t[k], run.voltage[k], run.current[k], run.speed[k])
-    return out
+        later += mon.process(run.t[k], run.voltage[k], run.current[k], run.speed[k])
+    return mon, later
 
 
 def test_diagnostics_go_stale_when_samples_stop() -> None:
