@@ -25,7 +25,7 @@ OMP_NUM_THREADS ?= 1
 export OPENBLAS_NUM_THREADS MKL_NUM_THREADS OMP_NUM_THREADS
 
 # Only the paths that exist (benchmarks/ and launch/ may not yet).
-LINT_PATHS := $(wildcard pmdc_ident test benchmarks launch setup.py)
+LINT_PATHS := $(wildcard pmdc_ident test benchmarks launch examples setup.py)
 BENCHES := $(sort $(wildcard benchmarks/bench_*.py))
 
 .PHONY: venv demo test lint bench clean

@@ -27,6 +27,7 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         *_tree("config"),
         *_tree("launch"),
+        *_tree("firmware"),  # virtual-board --emulated builds the sketch from here
     ],
     # Only the numerics. ROS (rclpy, message packages) comes from the ROS
     # distribution on a robot, or from requirements-dev.txt in the .venv.

@@ -3,18 +3,24 @@
     ros2 launch pmdc_ident session.launch.py motor:=seed000_ebike backend:=sim
     ros2 launch pmdc_ident session.launch.py backend:=serial port:=/dev/ttyACM0 \
         motor:=/path/to/nominal.yaml output_dir:=$HOME/pmdc_sessions
-    ros2 launch pmdc_ident session.launch.py export_models:=true   # + MJCF, URDF, gains
+    ros2 launch pmdc_ident session.launch.py params_file:=my_rig.yaml namespace:=left_wheel
+    ros2 launch pmdc_ident session.launch.py data_timeout_s:=3.0 rate_hz:=500.0
 
-The same graph as the ``bringup`` command (which needs no ``ros2 launch``): the
-parameters files in ``share/pmdc_ident/config/`` give the defaults (keyed ``/**``,
-so they reach the nodes under any namespace), the launch arguments override the
-most used ones; their defaults are the nodes', from their parameter tables
-(``pmdc_ident/nodes/parameter_tables.py``), except ``exit_when_done``: with
-``exit_when_done:=true`` (the launch's default) the launch ends when the session is
-over; the driver makes the motor safe and the recorder closes its bag on the way out.
+The same graph as the ``bringup`` command (which needs no ``ros2 launch``). Every
+node reads its defaults from ``share/pmdc_ident/config/`` (generated from the node's
+parameter table, keyed ``/**`` so they reach the nodes under any namespace), then
+``params_file:=`` (one file for the three nodes), then the launch arguments given here
+(an argument left at ``''`` changes nothing; ``ros2 launch ... --show-args`` lists them
+with the value the file gives). ``exit_when_done`` defaults to ``true`` here: the
+session ends when its identification node exits, which stops this session's recorder
+(bag closed) and driver (0 V while the identification node still commands it, then
+the armature open), and nothing else of an including launch, so several sessions run
+side by side (``two_motors.launch.py``). ``ros2 launch`` exits with status 1 when a
+session did not complete (refused, aborted, interrupted), after every session is over.
 For a larger stack that asks for runs on demand, use ``exit_when_done:=false
 autostart:=false`` and call the ``run_session`` service; the result stays latched on
-``identified_parameters``.
+``identified_parameters``. See ``pmdc_ident/nodes/launching.py`` and
+``docs/integration.md``.
 """
 
 from __future__ import annotations
@@ -22,88 +28,39 @@ from __future__ import annotations
 import os
 
 from ament_index_python.packages import get_package_share_directory
-from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandler
-from launch.event_handlers import OnProcessExit
-from launch.events import Shutdown
-from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
-from launch_ros.parameter_descriptions import ParameterValue
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
 
 from launch import LaunchDescription
-from pmdc_ident.nodes.parameter_tables import (
-    DRIVER,
-    IDENTIFICATION,
-    RECORDER,
-    ParameterTable,
-)
+from pmdc_ident.nodes.launching import LAUNCH_DEFAULTS, SESSION_ARGUMENTS, session_actions
+from pmdc_ident.nodes.parameter_tables import DRIVER, IDENTIFICATION, RECORDER
 
 
 def generate_launch_description() -> LaunchDescription:
-    share = get_package_share_directory("pmdc_ident")
-    config = os.path.join(share, "config")
-    arg = LaunchConfiguration
-
-    def declare(name: str, table: ParameterTable) -> DeclareLaunchArgument:
-        p = table[name]
-        default = str(p.default).lower() if isinstance(p.default, bool) else str(p.default)
-        return DeclareLaunchArgument(name, default_value=default, description=p.description)
-
+    config = os.path.join(get_package_share_directory("pmdc_ident"), "config")
     args = [
-        declare("backend", DRIVER),
-        declare("port", DRIVER),
-        declare("motor", DRIVER),  # the driver's motor, and the nominal motor of the plan
-        declare("output_dir", RECORDER),  # the bags, and the results beside them
-        declare("safe_mode", IDENTIFICATION),
-        declare("autostart", IDENTIFICATION),
-        declare("export_models", IDENTIFICATION),  # MJCF, URDF, ... beside the bag
-        DeclareLaunchArgument(
-            "exit_when_done", default_value="true", description="end the launch after one run"
-        ),
-        DeclareLaunchArgument("namespace", default_value="", description="node namespace"),
+        DeclareLaunchArgument(a.name, default_value="", description=a.description)
+        for a in SESSION_ARGUMENTS
     ]
-    driver = Node(
-        package="pmdc_ident",
-        executable="driver_node",
-        name=DRIVER.node,
-        namespace=arg("namespace"),
-        output="screen",
-        emulate_tty=True,
-        parameters=[
-            os.path.join(config, DRIVER.config),
-            {"backend": arg("backend"), "port": arg("port"), "motor": arg("motor")},
-        ],
+    args += [
+        DeclareLaunchArgument(
+            "exit_when_done",
+            default_value=LAUNCH_DEFAULTS["exit_when_done"],
+            description="end the session (and its nodes) after one run",
+        ),
+        DeclareLaunchArgument("namespace", default_value="", description="the nodes' namespace"),
+        DeclareLaunchArgument(
+            "params_file",
+            default_value="",
+            description="a parameters file for the session's nodes (keyed /** or by node "
+            "name), applied over the package's defaults",
+        ),
+    ]
+    nodes = OpaqueFunction(
+        function=session_actions,
+        kwargs={
+            "tables": (DRIVER, RECORDER, IDENTIFICATION),
+            "arguments": SESSION_ARGUMENTS,
+            "config_dir": config,
+        },
     )
-    recorder = Node(
-        package="pmdc_ident",
-        executable="recorder_node",
-        name=RECORDER.node,
-        namespace=arg("namespace"),
-        output="screen",
-        emulate_tty=True,
-        parameters=[os.path.join(config, RECORDER.config), {"output_dir": arg("output_dir")}],
-    )
-    identification = Node(
-        package="pmdc_ident",
-        executable="identification_node",
-        name=IDENTIFICATION.node,
-        namespace=arg("namespace"),
-        output="screen",
-        emulate_tty=True,
-        parameters=[
-            os.path.join(config, IDENTIFICATION.config),
-            {
-                "motor": arg("motor"),
-                "output_dir": arg("output_dir"),
-                "safe_mode": arg("safe_mode"),
-                "autostart": ParameterValue(arg("autostart"), value_type=bool),
-                "exit_when_done": ParameterValue(arg("exit_when_done"), value_type=bool),
-                "export_models": ParameterValue(arg("export_models"), value_type=bool),
-            },
-        ],
-    )
-    # identification ends (session over, or aborted): stop the others, which makes the
-    # motor safe (driver) and closes the bag (recorder)
-    stop_all = RegisterEventHandler(
-        OnProcessExit(target_action=identification, on_exit=[EmitEvent(event=Shutdown())])
-    )
-    return LaunchDescription([*args, driver, recorder, identification, stop_all])
+    return LaunchDescription([*args, nodes])

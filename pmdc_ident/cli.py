@@ -58,6 +58,7 @@ COMMANDS: dict[str, str] = {
     "monitor": "monitor",
     "virtual-board": "virtual_board",
     "benchmark": "benchmark",
+    "plan": "plan",
 }
 
 

@@ -22,8 +22,18 @@ import pytest
 
 from pmdc_ident.nodes.dds_domain import HELD_ENV, allocate_domain
 
+_LOOPBACK_PROFILE = os.path.join(
+    os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "config", "fastdds_localhost.xml"
+)
+
 
 def pytest_configure(config: pytest.Config) -> None:
+    # DDS stays on this machine even when pytest is run directly, not through make:
+    # the loopback-only Fast DDS profile (2.14 and 3 read different names) and
+    # localhost discovery, unless the caller already chose.
+    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", _LOOPBACK_PROFILE)
+    os.environ.setdefault("FASTDDS_DEFAULT_PROFILES_FILE", _LOOPBACK_PROFILE)
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     # A suite started as a background job of a non-interactive shell (`make test &`)
     # inherits SIGINT ignored, and every process it starts would ignore Ctrl-C too:
     # the tests that send SIGINT (CLI interrupts, nodes, bring-up) would then test

@@ -3,6 +3,9 @@
 
 #include <math.h>
 #include <string.h>
+#if defined(__AVR__)
+#include <util/crc16.h> /* avr-libc's hand-written CRC-16 (poly 0x1021, MSB first) */
+#endif
 
 /* -- little-endian helpers -------------------------------------------------------- */
 static void put_u16(uint8_t *p, uint16_t v) { p[0] = (uint8_t)v; p[1] = (uint8_t)(v >> 8); }
@@ -38,6 +41,10 @@ uint16_t pmdc_crc16(const uint8_t *data, size_t n)
 {
     uint16_t crc = 0xFFFFu;
     size_t i;
+#if defined(__AVR__)
+    /* The XMODEM update is CRC-16/CCITT-FALSE's step; ~5x faster than the loop below. */
+    for (i = 0; i < n; ++i) crc = _crc_xmodem_update(crc, data[i]);
+#else
     int bit;
     for (i = 0; i < n; ++i) {
         crc ^= (uint16_t)((uint16_t)data[i] << 8);
@@ -45,6 +52,7 @@ uint16_t pmdc_crc16(const uint8_t *data, size_t n)
             crc = (crc & 0x8000u) ? (uint16_t)((crc << 1) ^ 0x1021u) : (uint16_t)(crc << 1);
         }
     }
+#endif
     return crc;
 }
 
@@ -354,6 +362,16 @@ int pmdc_board_setpoint_mv(const pmdc_board_t *b, int32_t *mv)
     return b->driven;
 }
 
+static int16_t quantize(double value, double lsb)
+{
+    double q;
+    if (isnan(value)) return (int16_t)PMDC_NOT_MEASURED;
+    q = floor(value / lsb + 0.5);
+    if (q > 32767.0) return 32767;
+    if (q < -32767.0) return -32767;
+    return (int16_t)q;
+}
+
 static void drive_mv(pmdc_board_t *b, int32_t mv)
 {
     double vmax = b->info.voltage_max_v < b->info.supply_nominal_v ? b->info.voltage_max_v
@@ -365,6 +383,7 @@ static void drive_mv(pmdc_board_t *b, int32_t mv)
         mv = mv > 0 ? limit_mv : -limit_mv;
     }
     b->setpoint_mv = mv;
+    b->applied_q = quantize((double)mv / 1000.0, (double)b->info.voltage_lsb_v);
     b->driven = 1;
 }
 
@@ -473,32 +492,32 @@ void pmdc_board_check_watchdog(pmdc_board_t *b, uint32_t now_us)
     }
 }
 
-static int16_t quantize(double value, double lsb)
-{
-    double q;
-    if (isnan(value)) return (int16_t)PMDC_NOT_MEASURED;
-    q = floor(value / lsb + 0.5);
-    if (q > 32767.0) return 32767;
-    if (q < -32767.0) return -32767;
-    return (int16_t)q;
-}
+void pmdc_board_skip_sample(pmdc_board_t *b) { b->counter++; }
+
 
 size_t pmdc_board_telemetry(pmdc_board_t *b, uint32_t now_us, int32_t encoder_count,
                             double current_a, double terminal_v, double supply_v, uint8_t *out)
 {
+    double lsb_v = (double)b->info.voltage_lsb_v;
+    return pmdc_board_telemetry_q(b, now_us, encoder_count,
+                                  quantize(current_a, (double)b->info.current_lsb_a),
+                                  quantize(terminal_v, lsb_v), quantize(supply_v, lsb_v), out);
+}
+
+size_t pmdc_board_telemetry_q(pmdc_board_t *b, uint32_t now_us, int32_t encoder_count,
+                              int16_t current, int16_t terminal, int16_t supply, uint8_t *out)
+{
     pmdc_msg_t m;
     pmdc_telemetry_t *t = &m.u.telemetry;
-    double lsb_v = (double)b->info.voltage_lsb_v;
     memset(&m, 0, sizeof m);
     m.type = PMDC_TELEMETRY;
     t->counter = b->counter;
     t->time_us = now_us;
     t->encoder_count = encoder_count;
-    t->current = quantize(current_a, (double)b->info.current_lsb_a);
-    t->applied_v = b->driven ? quantize((double)b->setpoint_mv / 1000.0, lsb_v)
-                             : (int16_t)PMDC_NOT_MEASURED;
-    t->terminal_v = quantize(terminal_v, lsb_v);
-    t->supply_v = quantize(supply_v, lsb_v);
+    t->current = current;
+    t->applied_v = b->driven ? b->applied_q : (int16_t)PMDC_NOT_MEASURED;
+    t->terminal_v = terminal;
+    t->supply_v = supply;
     t->faults = b->faults;
     b->counter++;
     b->faults &= (uint8_t)~PMDC_FAULT_LINK;

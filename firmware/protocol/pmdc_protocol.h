@@ -167,6 +167,7 @@ typedef struct {
     uint16_t watchdog_ms;
     uint32_t counter;
     int32_t setpoint_mv;
+    int16_t applied_q;       /* setpoint_mv in voltage LSBs (computed once per command) */
     uint32_t last_host_us;
     uint32_t seen_errors;
 } pmdc_board_t;
@@ -185,10 +186,17 @@ void pmdc_board_check_watchdog(pmdc_board_t *b, uint32_t now_us);
 void pmdc_board_trip(pmdc_board_t *b, uint8_t fault_bit);
 /* 1 and *mv set while the armature is driven, 0 while it is open. */
 int pmdc_board_setpoint_mv(const pmdc_board_t *b, int32_t *mv);
+/* A sample instant passed without a frame (the CPU was late): the counter still
+ * advances, so the host sees the gap as dropped samples. */
+void pmdc_board_skip_sample(pmdc_board_t *b);
 /* One telemetry frame (current/terminal/supply in A and V; NaN = not measured). */
 size_t pmdc_board_telemetry(pmdc_board_t *b, uint32_t now_us, int32_t encoder_count,
                             double current_a, double terminal_v, double supply_v,
                             uint8_t *out);
+/* The same with the three measurements already in LSB counts (PMDC_NOT_MEASURED for
+ * none): a microcontroller without an FPU converts its ADC readings in fixed point. */
+size_t pmdc_board_telemetry_q(pmdc_board_t *b, uint32_t now_us, int32_t encoder_count,
+                              int16_t current, int16_t terminal, int16_t supply, uint8_t *out);
 
 #ifdef __cplusplus
 }

@@ -10,6 +10,19 @@ that gets no command. The node turns its callbacks into these calls and publishe
 what :meth:`Driver.poll` returns. Logs go through ``log(level, text)``; a repeated
 warning about commands (refused, clamped, not finite) is written at most once a
 second per kind.
+
+Limits never rise above the motor file's: ``voltage_limit_v``, ``current_limit_a``
+and ``speed_limit_rad_s`` above it are refused at start and at run time
+(:meth:`Driver.check_value`, the node's one set-parameters callback), and the
+watchdog cannot be switched off while the driver runs.
+
+Stopping (Ctrl-C, SIGTERM, ``ros2 launch`` ending) is ordered so that the motor sees
+0 V before the armature opens, whichever process gets the signal first:
+:meth:`Driver.begin_stop` applies 0 V to a closed armature and from then on takes only
+0 V or an opening; the node keeps publishing samples until no node commands it any
+more (the identification node has confirmed its safe state and left) or
+``stop_wait_s`` has passed (:meth:`Driver.stop_complete`); then
+:meth:`Driver.shutdown_safe` applies the safe mode (``open`` by default).
 """
 
 from __future__ import annotations
@@ -31,6 +44,12 @@ __all__ = ["Driver", "Log"]
 Log = Callable[[str, str], None]  # (level 'info'/'warning'/'error', text)
 THROTTLE_S = 1.0
 _TRIP_BITS = Fault.OVER_CURRENT | Fault.OVER_SPEED
+# limit parameters capped at the motor file's: name -> (cap, unit) of the motor's limits
+_CAPPED: dict[str, Callable[[Limits], tuple[float, str]]] = {
+    "voltage_limit_v": lambda lim: (lim.voltage_max_v, "V"),
+    "current_limit_a": lambda lim: (lim.current_max_a, "A"),
+    "speed_limit_rad_s": lambda lim: (lim.speed_max_rad_s, "rad/s"),
+}
 
 
 class Driver:
@@ -43,9 +62,10 @@ class Driver:
             self.spec: MotorSpec = load_motor(cfg["motor"])
         except PmdcError as exc:
             raise BackendConfigError(f"parameter motor: {exc}") from None
-        reason = self.check_value("voltage_limit_v", cfg["voltage_limit_v"])
-        if reason:
-            raise BackendConfigError(reason)
+        for name in _CAPPED:
+            reason = self.check_value(name, cfg[name], runtime=False)
+            if reason:
+                raise BackendConfigError(reason)
         self.name = str(cfg["backend"])
         self.rate_hz = float(cfg["rate_hz"])
         self.safe_mode = SafeMode(cfg["safe_mode"])
@@ -60,6 +80,9 @@ class Driver:
                 non_finite_trips=False,  # a sensor may report 'not measured'
             )
         )
+        self.stop_wait_s = float(cfg.get("stop_wait_s", 0.0))
+        self.stopping = False  # begin_stop: only 0 V or an opening from now on
+        self._stop_deadline_s = math.inf
         self.driving = False  # a user command is being applied (the watchdog guards it)
         self.clamped = False
         self.link_error = ""
@@ -97,13 +120,20 @@ class Driver:
         )
 
     # -- parameters ----------------------------------------------------------------------
-    def check_value(self, name: str, value: Any) -> str:
-        """Why a value is refused beyond the table's range ('' if it is fine): the voltage
-        limit is never above the motor's."""
-        if name == "voltage_limit_v" and value > self.spec.limits.voltage_max_v:
+    def check_value(self, name: str, value: Any, *, runtime: bool = True) -> str:
+        """Why a value is refused beyond the table's range ('' if it is fine): no limit
+        above the motor file's, and (at run time) no watchdog switched off."""
+        if name in _CAPPED:
+            cap, unit = _CAPPED[name](self.spec.limits)
+            if value > cap:
+                return (
+                    f"parameter {name} {value:g} {unit} is above the limit of motor "
+                    f"{self.spec.name} ({cap:g} {unit}); 0 = the motor's limit"
+                )
+        if name == "watchdog_s" and runtime and not value > 0:
             return (
-                f"parameter voltage_limit_v {value:g} V is above the limit of motor "
-                f"{self.spec.name} ({self.spec.limits.voltage_max_v:g} V)"
+                "parameter watchdog_s 0 would switch the watchdog off while the driver runs: "
+                "refused (give a timeout in seconds, e.g. 1.5 on a busy machine)"
             )
         return ""
 
@@ -143,6 +173,10 @@ class Driver:
             text = f"voltage_cmd refused: {self.safety.message()}; call reset_faults"
             self._say("refused", "warning", text)
             return
+        if self.stopping and v != 0.0:
+            text = f"voltage_cmd {v:g} V refused: the driver is stopping (0 V, then open)"
+            self._say("stopping", "warning", text)
+            return
         limit = self.voltage_limit_v
         self.clamped = abs(v) > limit
         if self.clamped:
@@ -179,6 +213,36 @@ class Driver:
         self.driving = False
         self.backend.make_safe()
 
+    # -- stopping ------------------------------------------------------------------------
+    @property
+    def armature_closed(self) -> bool:
+        return not math.isnan(getattr(self.backend, "command_v", self.last_sample_v))
+
+    def begin_stop(self, now_s: float, commanders: int) -> str:
+        """A stop was requested while ``commanders`` nodes publish ``voltage_cmd``: 0 V on
+        a closed armature at once, then only 0 V or an opening until
+        :meth:`stop_complete`; the line to log."""
+        self.stopping = True
+        self._stop_deadline_s = now_s + self.stop_wait_s
+        if commanders <= 0:
+            return f"stopping: {self.state_text()}, no node commands this driver"
+        wait = f"at most {self.stop_wait_s:g} s"
+        if self.safety.tripped or not self.armature_closed:
+            return f"stopping: {self.state_text()}; waiting for the nodes commanding it ({wait})"
+        try:
+            self.backend.command_voltage(0.0)
+        except BackendError as exc:
+            self.make_safe()
+            return f"stopping: {exc}; motor made safe"
+        return (
+            f"stopping: 0 V applied; the armature opens once no node commands this driver ({wait})"
+        )
+
+    def stop_complete(self, now_s: float, commanders: int) -> bool:
+        """The stop may finish: no node publishes ``voltage_cmd`` any more, or the wait
+        is over (``commanders``: publishers of ``voltage_cmd``)."""
+        return commanders <= 0 or now_s >= self._stop_deadline_s
+
     # -- samples -------------------------------------------------------------------------
     def poll(self) -> list[Telemetry] | None:
         """The backend's new samples, each checked; the watchdog after them. ``None``
@@ -204,10 +268,21 @@ class Driver:
         if samples:
             self.last_sample_v = samples[-1].voltage_cmd_v
         if self.safety.watchdog_expired(self.clock_s(), self.driving):
+            idle = getattr(self.backend, "command_v", self.last_sample_v) == 0.0
             self.backend.open_armature()
             self.driving = False
             timeout = self.safety.config.watchdog_s
-            self.log("warning", f"watchdog: no voltage_cmd for {timeout:g} s, armature opened")
+            if idle:
+                # 0 V was the last command (a session's end, a controller that parked the
+                # motor): opening it is the normal way to idle, not a fault to report
+                self.safety.watchdog_tripped = False
+                self.log("info", f"no voltage_cmd for {timeout:g} s at 0 V: armature opened")
+            else:
+                self.log(
+                    "warning",
+                    f"watchdog: no voltage_cmd for {timeout:g} s, armature opened (raise "
+                    "watchdog_s if the commanding node is only slow on a busy machine)",
+                )
         return samples
 
     def _check(self, s: Telemetry) -> None:

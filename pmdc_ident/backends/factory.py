@@ -56,7 +56,23 @@ def make_backend(
         msg = f"backend 'serial' is not available ({exc})"
         raise BackendConfigError(msg) from None
     try:
-        return SerialBackend(cfg["port"], int(cfg["baud"]), limits, dt_s, safe_mode, log)
+        # The host's link timeout and the board's own watchdog tolerate the stall the
+        # driver's watchdog tolerates (a busy machine raises it: see the demo); the board
+        # keeps its 500 ms where the driver's is off.
+        watchdog_s = float(cfg["watchdog_s"])
+        timeout = max(100.0 * dt_s, 0.5, watchdog_s)
+        board_ms = min(65535, max(20, round(watchdog_s * 1000))) if watchdog_s > 0 else 500
+        return SerialBackend(
+            cfg["port"],
+            int(cfg["baud"]),
+            limits,
+            dt_s,
+            safe_mode,
+            log,
+            telemetry_timeout_s=timeout,
+            board_watchdog_ms=board_ms,
+            timeout_name="raise the driver's watchdog_s",
+        )
     except (OSError, PmdcError) as exc:
         msg = f"cannot open the driver board on {cfg['port']}: {exc}"
         raise BackendConfigError(msg) from None

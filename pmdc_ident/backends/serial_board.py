@@ -9,7 +9,9 @@ board's sample counter on its own clock, never the host's arrival time. Gaps
 in the counter are counted as dropped samples and flag :attr:`Fault.LINK` on
 the next sample. Speed is the backward difference of the encoder count over
 the counter interval (the mean speed over the previous period; 0 on the first
-sample of a stream).
+sample of a session's stream, where the rotor starts at rest; a stream that resumes
+after a link loss or a board reset publishes from its second sample, the first only
+starts the count: the rotor may be coasting then).
 
 Link loss: a failing port (unplugged), telemetry that stops for
 ``telemetry_timeout_s``, a board that resets (BOOT frame, counter going back,
@@ -40,6 +42,7 @@ import collections
 import enum
 import math
 import os
+import select
 import threading
 import time
 from collections.abc import Callable
@@ -73,6 +76,8 @@ from pmdc_ident.protocol import Telemetry as WireTelemetry
 from pmdc_ident.protocol.messages import NOT_MEASURED
 
 __all__ = ["LinkState", "LinkStats", "SerialBackend"]
+
+WRITE_STALL_S = 0.5  # a port that accepts no byte for this long (while waited for) failed
 
 _STICKY_REPORTED = Fault.OVER_CURRENT | Fault.OVER_SPEED | Fault.WATCHDOG | Fault.BAD_COMMAND
 
@@ -155,6 +160,7 @@ class SerialBackend:
         reconnect: bool = True,
         reconnect_interval_s: float = 0.5,
         max_catch_up_s: float = 0.25,
+        timeout_name: str = "telemetry_timeout_s",
     ) -> None:
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             msg = f"sample period dt_s must be a positive number of seconds, got {dt_s}"
@@ -175,6 +181,7 @@ class SerialBackend:
         self._timeout_s = (
             telemetry_timeout_s if telemetry_timeout_s is not None else max(100 * self._dt_s, 0.5)
         )
+        self._timeout_name = timeout_name  # what a user raises (the driver: its watchdog_s)
         self._board_wd_ms = int(board_watchdog_ms)
         self._handshake_s = float(handshake_timeout_s)
         self._reconnect = reconnect
@@ -208,6 +215,7 @@ class SerialBackend:
         self._pos_counts = 0
         self._pos_offset_rad = 0.0
         self._last_position = 0.0
+        self._resumed = False  # the stream resumes after a link loss: the rotor may turn
         self._link_flag = False
         self._last_faults = Fault.NONE
         self._lost_at = 0.0
@@ -380,12 +388,33 @@ class SerialBackend:
             self._seq = (self._seq + 1) & 0xFF
             seq = self._seq
             try:
-                ser.write(frame_message(msg, seq))
-            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                self._write_all(ser, frame_message(msg, seq))
+            except (serial.SerialException, OSError, TypeError, AttributeError, ValueError) as exc:
                 text = f"serial port {self.port} write failed: {_reason(exc)}"
                 raise BackendError(text) from None
             self._last_write = time.monotonic()
         return seq
+
+    def _write_all(self, ser: serial.Serial, data: bytes) -> None:
+        """Write every byte; time out only while the port itself refuses bytes.
+
+        Not ``ser.write``: pyserial 3.5 raises 'Write timeout' after a complete write
+        whenever the call as a whole took longer than its timeout, which a host starved
+        of CPU for half a second (a busy machine) turns into a lost link. Here the
+        port's file descriptor (non-blocking, as pyserial opens it) takes what it can,
+        and only a port that takes nothing for ``WRITE_STALL_S`` of waiting is a
+        failure (a wedged adapter)."""
+        fd = ser.fileno()
+        view = memoryview(data)
+        while view:
+            try:
+                n = os.write(fd, view)
+            except BlockingIOError:
+                n = 0
+            view = view[n:]
+            if view and not select.select([], [fd], [], WRITE_STALL_S)[1]:
+                msg = f"the port took no byte for {WRITE_STALL_S:g} s"
+                raise serial.SerialTimeoutException(msg)
 
     def _ping(self) -> None:
         token = int(time.monotonic_ns() // 1000) & 0xFFFFFFFF
@@ -417,9 +446,7 @@ class SerialBackend:
             )
             raise _LinkLostError(msg, fatal=True)
         try:
-            self._ser = serial.Serial(
-                self.port, self.baud, timeout=0.02, write_timeout=0.5, exclusive=True
-            )
+            self._ser = serial.Serial(self.port, self.baud, timeout=0.02, exclusive=True)
         except (serial.SerialException, OSError, ValueError) as exc:
             msg = f"cannot open serial port {self.port!r}: {_reason(exc)}"
             raise _LinkLostError(msg) from None
@@ -523,6 +550,7 @@ class SerialBackend:
             self._counter_acc = 0
             self._pos_offset_rad = self._last_position
             self._pos_counts = 0
+            self._resumed = self._samples_total > 0
             self._last_faults = Fault.NONE
             self._last_rx = now
             self._last_write = now
@@ -537,6 +565,15 @@ class SerialBackend:
             step = 1
             delta = 0
             self._last_count = t.encoder_count
+            if self._resumed:
+                # A stream resumed after a link loss or a board reset: the rotor may still
+                # turn (it coasts while the board reboots), and one count gives no speed.
+                # Publishing 0 would be a false reading (a 265 rad/s coast read 0 for one
+                # sample): this sample only starts the count, the next is the first out.
+                self._resumed = False
+                self._last_counter = t.counter
+                self._last_rx = time.monotonic()
+                return
         else:
             step = (t.counter - self._last_counter) & 0xFFFFFFFF
             if step == 0 or step >= 0x80000000:
@@ -649,7 +686,8 @@ class SerialBackend:
         if silent > self._timeout_s:
             msg = (
                 f"no telemetry from the board on {self.port} for {silent:.2f} s "
-                f"({silent / self._dt_s:.0f} sample periods)"
+                f"({silent / self._dt_s:.0f} sample periods; timeout {self._timeout_s:g} s, "
+                f"{self._timeout_name})"
             )
             raise _LinkLostError(msg)
 

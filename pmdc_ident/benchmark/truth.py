@@ -31,10 +31,15 @@ inductance_saturation  sech2 (flux tanh), frohlich (psi = a i/(1 + |i|/Is)),
                        piecewise (linear fall between two currents)
 =====================  ===========================================================
 
-Sizes are graded on a ladder of four levels per name (``LADDERS``), in a user's
-units: % of rated torque (``T_rated`` = Kt x rated current; drag at the no-load
-speed), % of rated voltage, % of R (rise over the session), samples of delay (the
-report adds ms), % of rated current, % fall of L at the session's peak current.
+The vocabulary is the effects registry's (``core.effects.EFFECT_TYPES``): every
+effect that declares a ``BENCHMARK_LADDER``, in registry order. Sizes are graded on
+that ladder of four levels per name (``LADDERS``), in a user's units: % of rated
+torque (``T_rated`` = Kt x rated current; drag at the no-load speed), % of rated
+voltage, % of R (rise over the session), samples of delay (the report adds ms), % of
+rated current, % fall of L at the session's peak current. The equations stay here,
+written apart from the candidates' (``GENERATORS`` draws each name); a test checks that
+every laddered effect has its equations and generator, and every default candidate its
+ladder.
 
 Out-of-vocabulary effects (``OOV_NAMES``) have no candidate: a torque ripple at a
 frequency unrelated to the angle, backlash to a load inertia, a supply that sags
@@ -52,9 +57,11 @@ from numpy.typing import NDArray
 
 from pmdc_ident.benchmark import plant as pl
 from pmdc_ident.benchmark.motors import BenchMotor
+from pmdc_ident.core.effects import EFFECT_TYPES
 
 __all__ = [
     "EQUATIONS",
+    "GENERATORS",
     "LADDERS",
     "OOV_NAMES",
     "VOCABULARY",
@@ -66,18 +73,8 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 
-VOCABULARY: tuple[str, ...] = (
-    "coulomb_friction",
-    "stribeck_friction",
-    "quadratic_drag",
-    "load_torque",
-    "brush_drop",
-    "dead_zone",
-    "cogging",
-    "resistance_drift",
-    "delay",
-    "current_offset",
-    "inductance_saturation",
+VOCABULARY: tuple[str, ...] = tuple(
+    n for n, cls in EFFECT_TYPES.items() if cls.BENCHMARK_LADDER is not None
 )
 OOV_NAMES: tuple[str, ...] = (
     "torque_ripple",
@@ -100,19 +97,11 @@ EQUATIONS: dict[str, tuple[str, ...]] = {
     "inductance_saturation": ("sech2", "frohlich", "piecewise"),
     **{n: ("oov",) for n in OOV_NAMES},
 }
-# (unit, four graded sizes)
+# (unit, four graded sizes), from each effect's BENCHMARK_LADDER
 LADDERS: dict[str, tuple[str, tuple[float, ...]]] = {
-    "coulomb_friction": ("% rated torque", (3.0, 6.0, 12.0, 25.0)),
-    "stribeck_friction": ("% rated torque", (6.0, 12.0, 25.0, 50.0)),
-    "quadratic_drag": ("% rated torque at w0", (5.0, 10.0, 20.0, 40.0)),
-    "load_torque": ("% rated torque", (3.0, 6.0, 12.0, 25.0)),
-    "brush_drop": ("% rated voltage", (1.0, 2.0, 4.0, 8.0)),
-    "dead_zone": ("% rated voltage", (1.0, 2.0, 4.0, 8.0)),
-    "cogging": ("% rated torque", (3.0, 6.0, 12.0, 25.0)),
-    "resistance_drift": ("% of R", (4.0, 8.0, 16.0, 32.0)),
-    "delay": ("samples", (0.5, 1.0, 2.0, 4.0)),
-    "current_offset": ("% rated current", (1.0, 2.0, 4.0, 8.0)),
-    "inductance_saturation": ("% fall of L at peak current", (20.0, 35.0, 50.0, 70.0)),
+    n: (ladder.unit, ladder.sizes)
+    for n, cls in EFFECT_TYPES.items()
+    if (ladder := cls.BENCHMARK_LADDER) is not None
 }
 ALPHA_CU = 0.00393  # 1/K
 
@@ -389,6 +378,22 @@ def _oov(name: str, ctx: Context, rng: np.random.Generator) -> TrueEffect:
     return TrueEffect(name, "oov", -1, float(size), unit, tuple(s))
 
 
+# the generator of each vocabulary name (its equations are in EQUATIONS)
+GENERATORS = {
+    "coulomb_friction": _friction,
+    "stribeck_friction": _friction,
+    "quadratic_drag": _torques,
+    "load_torque": _torques,
+    "cogging": _torques,
+    "brush_drop": _electrical,
+    "dead_zone": _electrical,
+    "resistance_drift": _electrical,
+    "delay": _electrical,
+    "current_offset": _electrical,
+    "inductance_saturation": _electrical,
+}
+
+
 def draw_effect(
     name: str, level: int, ctx: Context, rng: np.random.Generator, equation: str | None = None
 ) -> TrueEffect:
@@ -399,8 +404,4 @@ def draw_effect(
     if eq not in EQUATIONS.get(name, ()):
         msg = f"{name} has no equation {eq!r}; known: {EQUATIONS.get(name)}"
         raise ValueError(msg)
-    if name in ("coulomb_friction", "stribeck_friction"):
-        return _friction(name, eq, level, ctx, rng)
-    if name in ("quadratic_drag", "load_torque", "cogging"):
-        return _torques(name, eq, level, ctx, rng)
-    return _electrical(name, eq, level, ctx, rng)
+    return GENERATORS[name](name, eq, level, ctx, rng)

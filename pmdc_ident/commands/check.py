@@ -78,9 +78,17 @@ def run(args: argparse.Namespace) -> int:
         progress("checking")
         report = quality(args, inputs, fixed)
         show_quality(report, info=True, show=show)
-        segment_inputs(args, inputs, show=show)
+        segmented = segment_inputs(args, inputs, show=show)
     if json_to is not None:
-        body = {"sources": [x.path for x in inputs], **input_json(inputs, report)}
+        from pmdc_ident.core.assumptions import register_json
+        from pmdc_ident.core.data import unique_labels
+
+        segments = unique_labels(s for x in segmented for s in x.run.segments)
+        body = {
+            "sources": [x.path for x in inputs],
+            **input_json(segmented, report),
+            "assumptions_checked": register_json(report.findings, segments),
+        }
         document = json.dumps(body, indent=2, allow_nan=False) + "\n"
         if json_to == STDOUT:
             print(document, end="")

@@ -30,7 +30,7 @@ from pmdc_ident.commands.outputs import (
     check_folder_output,
     check_inputs_distinct,
 )
-from pmdc_ident.core.effects import EFFECT_NAMES
+from pmdc_ident.core.effects import DEFAULT_CANDIDATES, EFFECT_NAMES
 from pmdc_ident.core.errors import ParameterError
 
 HELP = "diagnose the sim-to-real gap: where it lies, which effect causes it, how far it shrinks"
@@ -50,9 +50,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--effects",
-        default=",".join(EFFECT_NAMES),
+        default=",".join(DEFAULT_CANDIDATES),
         metavar="NAME,...",
-        help="effects of the vocabulary to try (default: all)",
+        help="effects of the vocabulary to try (default: all"
+        + "".join(f" but {n}" for n in EFFECT_NAMES if n not in DEFAULT_CANDIDATES)
+        + ")",
     )
     parser.add_argument(
         "--fix",
@@ -122,8 +124,13 @@ def run(args: argparse.Namespace) -> int:
     print("split: " + "; ".join(result.split.description), file=text_out)
     written: list[Path] = []
     if json_to is not None:
+        from pmdc_ident.core.assumptions import register_json
+        from pmdc_ident.core.data import unique_labels
+
         body = result.to_json()
         body.update(input_json(inputs, report))
+        segments = unique_labels(s for r in runs for s in r.segments)
+        body["assumptions_checked"] = register_json(report.findings, segments)
         document = json.dumps(body, indent=2) + "\n"
         if json_to == STDOUT:
             print(document, end="")

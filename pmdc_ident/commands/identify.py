@@ -204,10 +204,9 @@ def run(args: argparse.Namespace) -> int:
         bootstrap=n_boot,
         progress=progress,
         added_inertia=added,
+        findings=report.findings,
+        expected_rsd=report.expected_rsd,
     )
-    from pmdc_ident.core.quality.bias import flag_biased
-
-    result = flag_biased(result, report.findings, fixed)
     print(result.text_report(), file=text_out)
     body = result.to_json_dict()
     body.update(input_json(inputs, report))

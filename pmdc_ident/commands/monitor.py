@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from pmdc_ident.commands.outputs import check_folder_output
     from pmdc_ident.core.drift_monitor import DriftMonitor, MonitorConfig
     from pmdc_ident.core.motors import load_motor
-    from pmdc_ident.dataio import load_data
+    from pmdc_ident.dataio.units import load_input
 
     check_bounds(
         [
@@ -91,8 +91,11 @@ def run(args: argparse.Namespace) -> int:
     )
 
     spec = load_motor(args.params)
-    data = load_data(args.data)
+    # read as identify and diagnose read it (units sidecar, the assumption register's
+    # continuity: a separate run restarts the filters, as a gap in time does)
+    data = load_input(args.data).run
     t, v, i, w = _samples(data)
+    starts = _run_starts(data, t)
     cfg = MonitorConfig(
         r_warn_rel=args.r_warn,
         r_error_rel=args.r_error,
@@ -104,7 +107,14 @@ def run(args: argparse.Namespace) -> int:
         delay_error_s=args.delay_error,
     )
     mon = DriftMonitor(spec, cfg)
-    reports = mon.process(t, v, i, w)
+    reports = []
+    bounds = [0, *starts, t.size]
+    for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+        if k:
+            mon.restart_filters()
+        reports += mon.process(t[a:b], v[a:b], i[a:b], w[a:b])
+    if starts:
+        print(f"{len(starts)} separate run(s) in {args.data}: the filters restart at each")
     if not reports:
         msg = f"{args.data}: too short to monitor ({t.size} samples over {t[-1] - t[0]:.3g} s)"
         raise DataError(msg)
@@ -142,6 +152,23 @@ def _samples(data: Any) -> tuple[Any, ...]:
     w = np.concatenate([s.speed_or_derivative() for s in segs])
     order = np.argsort(cols[0], kind="stable")
     return tuple(c[order] for c in (*cols, w))
+
+
+def _run_starts(data: Any, t: Any) -> list[int]:
+    """Sample indices (into the time-ordered samples) where a separate run starts: a
+    segment on the same clock as the one before that does not continue it."""
+    import numpy as np
+
+    from pmdc_ident.core.assumptions import continues
+    from pmdc_ident.core.data import same_clock
+
+    segs = sorted(data.segments, key=lambda s: float(s.t[0]))
+    starts = [
+        int(np.searchsorted(t, s.t[0]))
+        for prev, s in zip(segs[:-1], segs[1:], strict=True)
+        if same_clock(prev, s) and not continues(s)
+    ]
+    return sorted(set(starts))
 
 
 def _pm(q: object, scale: float = 1.0, fmt: str = ".4g") -> str:

@@ -9,7 +9,8 @@ only when *its own* source file changes, not when a kernel it calls from another
 module does (``output_error/kernel.py`` inlines ``model.effects_kernel``): after a
 ``git pull`` that changes only ``model.py`` the old physics would run on, silently.
 So unless ``NUMBA_CACHE_DIR`` is set, the cache lives in a folder named by a hash of
-every kernel source (:data:`KERNEL_SOURCES`): ``$XDG_CACHE_HOME/pmdc_ident`` (or
+every kernel source (:data:`KERNEL_SOURCES`, and the slot layout the kernels read,
+:data:`KERNEL_CONSTANTS`): ``$XDG_CACHE_HOME/pmdc_ident`` (or
 ``~/.cache/pmdc_ident``), and where that is not writable (a service with no home)
 a private directory under the system's temporary directory
 (:func:`_private_cache_dir`). If even that is impossible the kernels are compiled
@@ -41,7 +42,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["HAVE_NUMBA", "KERNEL_SOURCES", "njit"]
+__all__ = ["HAVE_NUMBA", "KERNEL_CONSTANTS", "KERNEL_SOURCES", "njit"]
 
 #: every module with a numba kernel, relative to the package; a test keeps it complete
 KERNEL_SOURCES = (
@@ -49,12 +50,16 @@ KERNEL_SOURCES = (
     "core/model.py",
     "core/estimators/output_error/kernel.py",
     "core/drift_estimator.py",
+    "core/design/information.py",
     "dataio/mcap_scan.py",
     "dataio/csv_scan.py",
     "core/segmentation.py",
     "dataio/outliers.py",
     "benchmark/plant.py",
 )
+#: modules whose constants the kernels freeze when compiled (the slots they read): part
+#: of the fingerprint as well, so a moved slot never runs with an old kernel
+KERNEL_CONSTANTS = ("core/effects/layout.py",)
 _STALE_AFTER_S = 7 * 24 * 3600.0  # caches of other source versions unused this long go
 
 #: numba is importable (and not switched off): kernels are compiled. numba itself is
@@ -97,7 +102,7 @@ def kernel_fingerprint(root: Path | None = None) -> str:
     kernel gets a fresh cache."""
     h = hashlib.sha1()
     root = root or Path(__file__).resolve().parents[1]
-    for rel in KERNEL_SOURCES:
+    for rel in (*KERNEL_SOURCES, *KERNEL_CONSTANTS):
         try:
             h.update((root / rel).read_bytes())
         except OSError:

@@ -30,6 +30,7 @@ __all__ = [
     "excitation_problem",
     "heat_state",
     "link_history",
+    "same_clock",
     "segment_kind",
     "unique_labels",
 ]
@@ -304,14 +305,28 @@ def link_history(segments: Sequence[Segment]) -> tuple[Segment, ...]:
 
     Segments are taken in the given (record) order; a segment continues the
     previous one when it starts one sample period (within half a period) after
-    the previous one's last sample, on the same period. The first segment of
-    each contiguous stretch keeps the history it has.
+    the previous one's last sample, on the same period, *and* its first samples
+    follow from the previous one's last within what the motor does in one sample
+    (:mod:`pmdc_ident.core.continuity`: a clock that runs on over joined runs is no
+    continuation). The first segment of each contiguous stretch keeps the history it
+    has; a separate run keeps none.
     """
+    from pmdc_ident.core.continuity import boundary_jump, step_limits
+
+    segs = list(segments)
+    limits = step_limits(segs) if len(segs) > 1 else {}
     out: list[Segment] = []
-    for seg in segments:
+    for seg in segs:
         prev = out[-1] if out else None
         if prev is None or not _contiguous(prev, seg):
             out.append(seg)
+            continue
+        if boundary_jump(prev, seg, limits) is not None:  # a separate run: its own start
+            out.append(
+                replace(
+                    seg, history_voltage=None, history_heat_a2s=None, history_heat_profile=None
+                )
+            )
             continue
         hist_v = None
         if prev.voltage is not None and seg.voltage is not None:
@@ -425,6 +440,13 @@ def _profile(ages_s: FloatArray, a2s: FloatArray, dt_s: float) -> FloatArray | N
     wx, _ = np.histogram(x, bins=edges, weights=a2s * x)
     keep = w > 0.0
     return np.column_stack([wx[keep] / w[keep], w[keep] / total])
+
+
+def same_clock(prev: Segment, seg: Segment) -> bool:
+    """``seg`` starts one sample period (within half a period) after ``prev``'s last
+    sample, on the same period: the clock allows a continuation (the samples decide,
+    :func:`link_history`)."""
+    return _contiguous(prev, seg)
 
 
 def _contiguous(prev: Segment, seg: Segment) -> bool:

@@ -15,8 +15,14 @@ confidence (one-sided: the estimate's lower bound against the threshold):
 
 The overall level is the worst one. A re-identification is suggested, and the
 suggestion latched until :meth:`DriftMonitor.reset_suggestion`, when any level
-reaches ERROR or stays at WARN for ``suggest_after_s``. The winding temperature
-rise follows from R with the copper coefficient: ``dT = (R/R0 - 1)/alpha``.
+reaches ERROR or stays at WARN for ``suggest_after_s``. The reset also starts the
+estimates over from the identified values and the levels at OK, so the suggestion
+latches again only on evidence gathered after it, never from the estimate that raised
+it. Each restarted interval also admits the last estimate: the motor did not cool at
+the reset, and an interval that excluded its hot R would push R's misfit onto Ke.
+:func:`diagnostic_status` is what ``/diagnostics`` says: STALE before the first report
+and whenever no driver sample came for a while. The winding temperature rise follows
+from R with the copper coefficient: ``dT = (R/R0 - 1)/alpha``.
 
 The delay's interval includes half a sample period: the current's path between
 samples is not observed (on the simulator the estimate reads about 0.35 ms at
@@ -40,11 +46,13 @@ from pmdc_ident.core.motors import MotorSpec
 __all__ = [
     "COPPER_COEFF_PER_K",
     "QUANTITIES",
+    "STALE",
     "DriftLevel",
     "DriftMonitor",
     "DriftReport",
     "MonitorConfig",
     "QuantityEstimate",
+    "diagnostic_status",
 ]
 
 COPPER_COEFF_PER_K = 3.93e-3  # resistance temperature coefficient of copper at 20 degC
@@ -65,6 +73,9 @@ class DriftLevel(enum.IntEnum):
     OK = 0
     WARN = 1
     ERROR = 2
+
+
+STALE = 3  # diagnostic_msgs/DiagnosticStatus.STALE: no data to judge the motor by
 
 
 @dataclass(frozen=True)
@@ -170,7 +181,8 @@ class DriftMonitor:
             ]
         )
         self._prior_var_m = (2.0 * f_warn) ** 2
-        self._state = new_state(np.array([p.R, p.Ke, d0]), self._prior_var, tc, self._prior_var_m)
+        self._prior = (np.array([p.R, p.Ke, d0]), self._prior_var, tc, self._prior_var_m)
+        self._state = new_state(*self._prior)
         deadband = tn.speed_deadband_rad_s or 0.02 * spec.limits.speed_max_rad_s
         q_tf = (tn.friction_rate_nm or 0.01 * rated) ** 2
         self._consts = np.array(
@@ -222,6 +234,14 @@ class DriftMonitor:
             self._last_row = row
         return reports
 
+    def restart_filters(self) -> None:
+        """The next sample starts a new run (the motor's state does not follow from the
+        last one: core/continuity.py): the signal filters restart there, as after a gap
+        in time; the parameter estimates carry on."""
+        from pmdc_ident.core import drift_estimator
+
+        self._state["st"][drift_estimator._INIT] = 0.0  # the estimator's 'initialised' flag
+
     def latest(self) -> DriftReport | None:
         """A report of the newest estimate (None before the first update)."""
         return None if self._last_row is None else self._report(self._last_row, update=False)
@@ -231,10 +251,31 @@ class DriftMonitor:
         return self._suggest
 
     def reset_suggestion(self) -> None:
-        """Clear the latched suggestion (after a re-identification)."""
+        """Clear the latched suggestion (after a re-identification) and start over: the
+        estimates from the identified values, every level at OK. A drift must then be
+        proven again on samples that come after the reset (``hold_s`` apart), so the
+        suggestion cannot re-latch from the old estimate. Each interval is the prior's
+        widened by the distance to the last estimate, so it admits both (see below)."""
         self._suggest = False
         self._suggest_reason = ""
         self._warn_since = None
+        self._levels = dict.fromkeys(QUANTITIES, DriftLevel.OK)
+        self._pending.clear()
+        theta_e, var_e, theta_m, var_m = self._prior
+        # The motor did not change at the reset: a prior that excludes what the monitor
+        # has just measured (a hot winding's R back at the cold value +-5 %) would load
+        # R's misfit onto Ke at the next operating point and "prove" a back-EMF drift
+        # that is not there. So each estimate starts at its identified value with an
+        # interval that also admits the last estimate (no drift can be proven from it).
+        var_e = var_e + (self._state["th_e"] - theta_e) ** 2
+        var_m = var_m + float(self._state["th_m"][0] - theta_m) ** 2
+        fresh = new_state(theta_e, var_e, theta_m, var_m)  # the signal filters keep theirs
+        for key in ("th_e", "p_e", "th_m", "p_m"):
+            self._state[key][...] = fresh[key]
+        # the random walk's caps must not clip that interval back at the next sample
+        self._consts[13:16] = np.maximum(4.0 * self._prior_var, var_e)
+        self._consts[16] = max(4.0 * self._prior_var_m, var_m)
+        self._next_report = -math.inf
 
     # -- internals -----------------------------------------------------------
     def _adapt_filter(self, t: np.ndarray) -> None:  # noqa: D401
@@ -332,6 +373,22 @@ class DriftMonitor:
         if self._suggest:
             text += f"; re-identify suggested: {self._suggest_reason}"
         return text
+
+
+def diagnostic_status(
+    report: DriftReport | None, since_sample_s: float | None, stale_after_s: float
+) -> tuple[int, str]:
+    """The ``/diagnostics`` level (0-3, :data:`STALE` = 3) and message: STALE before the
+    first report, and when no driver sample came for ``stale_after_s`` (the last level
+    is named in the message: it describes the motor as it was), else the report's."""
+    if report is None:
+        return STALE, "no driver samples yet"
+    if since_sample_s is not None and since_sample_s > stale_after_s:
+        return STALE, (
+            f"no driver samples for {since_sample_s:.1f} s; last report "
+            f"{report.level.name}: {report.message}"
+        )
+    return int(report.level), report.message
 
 
 def _current_gate(spec: MotorSpec, tau_s: float) -> float:

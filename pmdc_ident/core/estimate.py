@@ -29,7 +29,9 @@ class ParameterEstimate:
     """A parameter's value with its 95 % interval, unit and identifiability.
 
     ``reason`` says why it is not identifiable (or that it was fixed or assumed);
-    ``method`` names the estimator that gave ``value``.
+    ``method`` names the estimator that gave ``value``. An assumed value (Kt under the
+    closure Kt = Ke, whose reason starts with ``assumed``) is written with
+    ``identifiable: false``: the data did not give it.
     """
 
     name: str
@@ -41,6 +43,11 @@ class ParameterEstimate:
     reason: str = ""
     method: str = ""
 
+    @property
+    def assumed(self) -> bool:
+        """Set by an assumption (the Kt = Ke closure), not measured."""
+        return self.reason.startswith("assumed ")
+
     def to_json(self) -> dict[str, Any]:
         return {
             "value": finite_or_none(self.value),
@@ -48,7 +55,7 @@ class ParameterEstimate:
             if self.ci95 is None
             else [finite_or_none(self.ci95[0]), finite_or_none(self.ci95[1])],
             "unit": self.unit,
-            "identifiable": bool(self.identifiable),
+            "identifiable": bool(self.identifiable) and not self.assumed,
             "stderr": None if self.stderr is None else finite_or_none(self.stderr),
             "reason": self.reason,
             "method": self.method,

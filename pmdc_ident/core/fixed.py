@@ -1,61 +1,131 @@
-"""Parameter values the user fixes (``--fix NAME=VALUE``; the node's ``fix`` parameter)."""
+"""Parameter values the user fixes (``--fix NAME=VALUE``; the node's ``fix`` parameter).
+
+:class:`FixedValues` is the one type of held values: the command line's and the node's
+``NAME=VALUE`` items (:func:`parse_fix`), ``identify(fixed=...)`` and
+``DiagnosisConfig(fixed=...)`` all check theirs through it, by one rule: a name the
+caller can hold, a finite value in the parameter's physical range (a motor
+parameter's :data:`~pmdc_ident.core.params.PARAMETER_RANGES`, an effect field's
+:class:`~pmdc_ident.core.effects.ParamSpec`), never two different values for one name.
+"""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator, Mapping
 
 from pmdc_ident.core.effects import EFFECT_TYPES
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.params import PARAMETER_NAMES, check_physical_range
 
-__all__ = ["parse_fix"]
+__all__ = ["IDENTIFY_FIXABLE", "FixedValues", "parse_fix"]
+
+#: what identify can hold: the motor parameters, the Coulomb friction and a load torque
+IDENTIFY_FIXABLE: tuple[str, ...] = (
+    *PARAMETER_NAMES,
+    "coulomb_friction.torque_nm",
+    "load_torque.torque_nm",
+)
 
 
-def parse_fix(items: Iterable[str], known: tuple[str, ...] | None = None) -> dict[str, float]:
-    """``--fix NAME=VALUE`` items (the CLI option and the identification node's ``fix``
-    parameter): known names, physical values, no conflicting repeats.
+class FixedValues(Mapping[str, float]):
+    """Held parameter values by name (``"R"``, ``"coulomb_friction.torque_nm"``), each
+    checked; an immutable mapping.
 
-    ``known``: the names that may be fixed (default: what identify can hold, the
-    motor parameters, the Coulomb friction and a load torque).
+    ``known``: the names the caller can hold (default :data:`IDENTIFY_FIXABLE`);
+    ``source``: how the message names where the values came from.
     """
-    if known is None:
-        known = (*PARAMETER_NAMES, "coulomb_friction.torque_nm", "load_torque.torque_nm")
-    out: dict[str, float] = {}
+
+    __slots__ = ("_values",)
+
+    def __init__(
+        self,
+        values: Mapping[str, float] | Iterable[tuple[str, float]] = (),
+        *,
+        known: Iterable[str] | None = None,
+        source: str = "--fix",
+    ) -> None:
+        names = tuple(IDENTIFY_FIXABLE if known is None else known)
+        pairs = values.items() if isinstance(values, Mapping) else values
+        out: dict[str, float] = {}
+        for name, raw in pairs:
+            name = str(name)
+            try:
+                v = float(raw)
+            except (TypeError, ValueError):
+                msg = f"{source} {name}: {raw!r} is not a number"
+                raise ParameterError(msg) from None
+            if not math.isfinite(v):
+                msg = f"{source} {name}: value must be finite, got {raw!r}"
+                raise ParameterError(msg)
+            if name not in names:
+                msg = f"{source} {name}: unknown parameter (can be fixed: {', '.join(names)})"
+                raise ParameterError(msg)
+            _check_range(name, v, source)
+            if name in out and out[name] != v:
+                msg = (
+                    f"{source} {name} given twice with different values ({out[name]:g} and {v:g})"
+                )
+                raise ParameterError(msg)
+            out[name] = v
+        self._values = out
+
+    def __getitem__(self, name: str) -> float:
+        return self._values[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def __repr__(self) -> str:
+        return f"FixedValues({self._values!r})"
+
+    def __eq__(self, other: object) -> bool:
+        return dict(self._values) == dict(other) if isinstance(other, Mapping) else False
+
+    def __hash__(self) -> int:
+        return hash(tuple(sorted(self._values.items())))
+
+    def __reduce__(self) -> tuple[object, ...]:
+        # to a child process (the node's worker) as what it is, checked again there
+        return (_rebuild, (tuple(self._values.items()),))
+
+
+def _rebuild(items: tuple[tuple[str, float], ...]) -> FixedValues:
+    return FixedValues(items, known=[n for n, _ in items])
+
+
+def parse_fix(items: Iterable[str], known: tuple[str, ...] | None = None) -> FixedValues:
+    """``--fix NAME=VALUE`` items (the CLI option and the identification node's ``fix``
+    parameter) as :class:`FixedValues`.
+
+    ``known``: the names that may be fixed (default :data:`IDENTIFY_FIXABLE`).
+    """
+    pairs: list[tuple[str, str]] = []
     for item in items:
         name, sep, value = item.partition("=")
         name = name.strip()
         if not sep or not name:
             msg = f"--fix expects NAME=VALUE (e.g. L=3e-4), got {item!r}"
             raise ParameterError(msg)
-        try:
-            v = float(value)
-        except ValueError:
-            msg = f"--fix {name}: {value!r} is not a number"
-            raise ParameterError(msg) from None
-        if not math.isfinite(v):
-            msg = f"--fix {name}: value must be finite, got {value!r}"
-            raise ParameterError(msg)
-        if name not in known:
-            msg = f"--fix {name}: unknown parameter (known: {', '.join(known)})"
-            raise ParameterError(msg)
-        _check_fix_range(name, v)
-        if name in out and out[name] != v:
-            msg = f"--fix {name} given twice with different values ({out[name]:g} and {v:g})"
-            raise ParameterError(msg)
-        out[name] = v
-    return out
+        pairs.append((name, value))
+    return FixedValues(pairs, known=known)
 
 
-def _check_fix_range(name: str, value: float) -> None:
+def _check_range(name: str, value: float, source: str) -> None:
     if name in PARAMETER_NAMES:
-        check_physical_range(name, value, source="--fix")
+        check_physical_range(name, value, source=source)
         return
     effect, _, field_name = name.partition(".")
-    spec = EFFECT_TYPES[effect].SPECS[field_name]
+    cls = EFFECT_TYPES.get(effect)
+    spec = cls.SPECS.get(field_name) if cls is not None else None
+    if spec is None:
+        msg = f"{source} {name}: unknown parameter"
+        raise ParameterError(msg)
     if not spec.lower <= value <= spec.upper:
         msg = (
-            f"--fix {name}={value:g}: outside the range of the {spec.description}, "
+            f"{source} {name}={value:g}: outside the range of the {spec.description}, "
             f"[{spec.lower:g}, {spec.upper:g}] {spec.unit}"
         )
         raise ParameterError(msg)

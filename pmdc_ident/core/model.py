@@ -29,20 +29,35 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pmdc_ident.core._jit import njit
-from pmdc_ident.core.effects import (
-    NO_COOLING_S,
-    BrushDrop,
-    Cogging,
-    CoulombFriction,
-    CurrentOffset,
-    DeadZone,
-    Delay,
-    Effect,
-    InductanceSaturation,
-    LoadTorque,
-    QuadraticDrag,
-    ResistanceDrift,
-    StribeckFriction,
+from pmdc_ident.core.effects import EFFECT_TYPES, Effect
+from pmdc_ident.core.effects.layout import (
+    CQ,
+    DELAY,
+    DS,
+    I_OFF,
+    IB,
+    ISAT,
+    KE,
+    KF,
+    KR,
+    KT,
+    LAG,
+    MU,
+    N_COEF,
+    NCOG,
+    PHCOG,
+    TAUQ,
+    TC,
+    TCOG,
+    TL,
+    TS,
+    V_DZ,
+    VB,
+    WS,
+    B,
+    J,
+    L,
+    R,
 )
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.params import MotorParams
@@ -157,7 +172,10 @@ def expm_small(a):  # pragma: no cover - jitted
     Plain loops, no BLAS: scipy's expm calls threaded BLAS, which on a busy
     machine costs milliseconds per 5x5 matrix (simulate calls this per segment;
     the output-error engine for its 5x5 and 10x10 Van Loan blocks). Relative
-    accuracy ~1e-15 after scaling.
+    accuracy ~1e-15 after scaling. Kept by hand on a measurement
+    (``benchmarks/bench_scipy_imports.py``): scipy's is 20-50 times slower per call
+    here, and importing ``scipy.linalg`` alone adds about 60 % to the CPU of an
+    ``identify`` of a staircase table.
     """
     n = a.shape[0]
     norm = 0.0
@@ -263,63 +281,37 @@ def _linear_kernel(v, tl, phi, gam, decay, a_mech, j, dt, x):  # pragma: no cove
 # ---------------------------------------------------------------------------
 # Model with effects
 # ---------------------------------------------------------------------------
-# Layout of the coefficient vector handed to the kernel.
-_R, _L, _KE, _KT, _J, _B = 0, 1, 2, 3, 4, 5
-_TC, _TS, _WS, _CQ, _TL, _VB, _TCOG, _NCOG, _PHCOG, _KR, _ISAT, _TAUQ, _DS, _IB, _KF = range(6, 21)
-_NCOEF = 21
-
-
 def effect_coefficients(model: Model) -> FloatArray:
-    """The coefficient vector :func:`effects_kernel` reads: R..B, then every effect's
-    parameters at fixed indices (zero for an absent effect)."""
+    """The coefficient vector the kernels read (:mod:`pmdc_ident.core.effects.layout`):
+    R..B, then every effect's numbers in its slots, written by the effect itself
+    (:meth:`~pmdc_ident.core.effects.base.Effect.write_coefficients`); an absent
+    effect's slots hold their neutral value (zero unless the effect declares one)."""
     p = model.params
-    c = np.zeros(_NCOEF)
-    c[[_R, _L, _KE, _KT, _J, _B]] = p.R, p.L, p.Ke, p.Kt, p.J, p.B
-    c[_WS] = 1.0
-    c[_DS] = 2.0
+    c = np.zeros(N_COEF)
+    c[[R, L, KE, KT, J, B]] = p.R, p.L, p.Ke, p.Kt, p.J, p.B
+    for cls in EFFECT_TYPES.values():
+        for slot, value in cls.KERNEL_NEUTRAL.items():
+            c[slot] = value
     for e in model.effects:
-        if isinstance(e, CoulombFriction):
-            c[_TC] = e.torque_nm
-        elif isinstance(e, StribeckFriction):
-            c[_TS], c[_WS], c[_DS] = e.torque_nm, e.speed_rad_s, e.shape_exponent
-        elif isinstance(e, QuadraticDrag):
-            c[_CQ] = e.coeff_nm_s2
-        elif isinstance(e, LoadTorque):
-            c[_TL] = e.torque_nm
-        elif isinstance(e, BrushDrop):
-            c[_VB], c[_IB] = e.voltage_v, e.knee_current_a
-        elif isinstance(e, Cogging):
-            c[_TCOG], c[_NCOG], c[_PHCOG] = e.torque_nm, e.periods_per_rev, e.phase_rad
-        elif isinstance(e, ResistanceDrift):
-            c[_KR] = e.coeff_per_a2s
-            c[_KF] = e.flux_loss_ratio * e.coeff_per_a2s  # Ke (1 - kf q)
-            c[_TAUQ] = e.time_constant_s if e.time_constant_s < NO_COOLING_S else 0.0
-        elif isinstance(e, InductanceSaturation):
-            c[_ISAT] = e.saturation_current_a
+        e.write_coefficients(c)
     return c
 
 
 def heat_time_constant(model: Model) -> float:
     """The winding's thermal time constant of the model's resistance drift (s);
     infinite without cooling or without the effect (then the heat is the integral)."""
-    e = model.effect("resistance_drift")
-    if isinstance(e, ResistanceDrift) and e.time_constant_s < NO_COOLING_S:
-        return float(e.time_constant_s)
-    return math.inf
-
-
-# Effects that leave the motor linear with a constant input over each sample: they act
-# on the command (delay, dead zone), add a constant torque or offset the measured current.
-_LINEAR_BETWEEN_SAMPLES = frozenset({"delay", "dead_zone", "load_torque", "current_offset"})
+    tau = float(effect_coefficients(model)[TAUQ])
+    return tau if tau > 0.0 else math.inf
 
 
 def substeps_for(model: Model, substeps: int) -> int:
     """``substeps``, or 1 when every effect of ``model`` leaves the motor linear between
-    samples (no friction, drag, cogging, brush drop or varying R/L): each sub-step is
-    then an exact zero-order-hold step of one linear system under one input, so one step
-    over the whole sample gives the same states (to rounding) for a fraction of the
-    cost. The fits simulate candidates this way."""
-    if all(e.NAME in _LINEAR_BETWEEN_SAMPLES for e in model.effects):
+    samples (``LINEAR_BETWEEN_SAMPLES``: it acts on the command, adds a constant torque
+    or offsets the measured current): each sub-step is then an exact zero-order-hold
+    step of one linear system under one input, so one step over the whole sample gives
+    the same states (to rounding) for a fraction of the cost. The fits simulate
+    candidates this way."""
+    if all(e.LINEAR_BETWEEN_SAMPLES for e in model.effects):
         return 1
     return substeps
 
@@ -413,18 +405,16 @@ def simulate(
         msg = f"substeps must be >= 1, got {substeps}"
         raise ParameterError(msg)
     v_cmd = _as_voltage(voltage)
-    dz = model.effect("dead_zone")
-    dl = model.effect("delay")
-    v_app = apply_dead_zone(v_cmd, dz.voltage_v if isinstance(dz, DeadZone) else 0.0)
+    c = effect_coefficients(model)
+    dead_zone_v, delay_s, lag_s = float(c[V_DZ]), float(c[DELAY]), float(c[LAG])
+    v_app = apply_dead_zone(v_cmd, dead_zone_v)
     # From a given state x0 (a segment cut from a longer run) the command before the
     # first sample is taken as the first command: the lag then does not inject a
     # spurious 0 V interval at every segment start. From rest (x0 None) it is 0 V.
     pre_v = float(v_app[0]) if x0 is not None and v_app.size else 0.0
-    delay_s = dl.delay_s if isinstance(dl, Delay) else 0.0
-    lag_s = dl.lag_s if isinstance(dl, Delay) else 0.0
     pre = _as_voltage(pre_voltage) if pre_voltage is not None else np.zeros(0)
     if pre.size and (delay_s > 0.0 or lag_s > 0.0):
-        pre = apply_dead_zone(pre, dz.voltage_v if isinstance(dz, DeadZone) else 0.0)
+        pre = apply_dead_zone(pre, dead_zone_v)
         both = apply_delay(np.concatenate([pre, v_app]), delay_s, dt_s, float(pre[0]))
         p0 = float(pre[0]) if math.isfinite(pre[0]) else 0.0
         v_app = apply_lag(both, lag_s, dt_s, p0)[pre.size :]
@@ -436,9 +426,8 @@ def simulate(
     state = np.zeros(5)
     state[:3] = _initial_state(x0)
     state[3] = heat0_a2s
-    out = _run_effects(model, v_app, dt_s, state, substeps)
-    off = model.effect("current_offset")
-    current = out[:, 0] + (off.offset_a if isinstance(off, CurrentOffset) else 0.0)
+    out = _run_effects(model, c, v_app, dt_s, state, substeps)
+    current = out[:, 0] + float(c[I_OFF])
     return SimResult(
         t=np.arange(v_cmd.size) * dt_s,
         current=current,
@@ -449,20 +438,20 @@ def simulate(
     )
 
 
-def _varying(c: FloatArray) -> bool:
-    """Whether the electrical step changes within a sample (R heats, L saturates, a
-    smooth brush drop's slope), so the kernel re-discretises every sub-step."""
-    return bool(c[_KR] > 0.0 or c[_ISAT] > 0.0 or (c[_VB] > 0.0 and c[_IB] > 0.0))
+def _varying(model: Model) -> bool:
+    """Whether the electrical step changes within a sample (an effect's
+    ``varies_within_sample``: R heats, L saturates, a smooth brush drop's slope), so the
+    kernel re-discretises every sub-step."""
+    return any(e.varies_within_sample() for e in model.effects)
 
 
 def _run_effects(
-    model: Model, v_app: FloatArray, dt_s: float, state: FloatArray, substeps: int
+    model: Model, c: FloatArray, v_app: FloatArray, dt_s: float, state: FloatArray, substeps: int
 ) -> FloatArray:
-    c = effect_coefficients(model)
     h = dt_s / substeps
-    varying = _varying(c)
+    varying = _varying(model)
     phi, gam = discretize_zoh(model.params, h)
-    if state[4] == 0.0 and state[1] == 0.0 and c[_TC] + c[_TS] > 0.0:
+    if state[4] == 0.0 and state[1] == 0.0 and c[TC] + c[TS] > 0.0:
         state[4] = 1.0  # starts at rest: held by static friction until it breaks away
     return effects_kernel(v_app, c, phi, gam, h, substeps, varying, state)
 
@@ -532,15 +521,16 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
     ``st`` = [i, w, th, heat, stuck] is the state, updated in place (heat: the winding
     heat state q of :class:`~pmdc_ident.core.effects.ResistanceDrift`). Returns the states
     (n, 3) at the sample instants."""
-    r0, l0, ke0, kt0, j, b = c[0], c[1], c[2], c[3], c[4], c[5]
+    r0, l0, ke0, kt0, j, b = c[R], c[L], c[KE], c[KT], c[J], c[B]
     ke, kt = ke0, kt0
-    kf = c[20]  # magnets' flux falling with the heat: Ke (1 - kf q), Kt likewise
-    tc, ts, ws, cq, tl, vb = c[6], c[7], c[8], c[9], c[10], c[11]
-    tcog, ncog, phcog, kr, isat = c[12], c[13], c[14], c[15], c[16]
-    ds = c[18]  # Stribeck shape exponent
-    ib = c[19]  # brush drop knee current (0: the hard sign)
-    # winding heat q: dq/dt = i^2 - q/tau (tau = c[17]; 0 = no cooling, the integral)
-    cool = math.exp(-h / c[17]) if c[17] > 0.0 else 1.0
+    kf = c[KF]  # magnets' flux falling with the heat: Ke (1 - kf q), Kt likewise
+    tc, ts, ws, cq, tl, vb = c[TC], c[TS], c[WS], c[CQ], c[TL], c[VB]
+    tcog, ncog, phcog, kr, isat = c[TCOG], c[NCOG], c[PHCOG], c[KR], c[ISAT]
+    ds = c[DS]  # Stribeck shape exponent
+    ib = c[IB]  # brush drop knee current (0: the hard sign)
+    mu = c[MU]  # torque-dependent friction: mu |Kt i| against the motion
+    # winding heat q: dq/dt = i^2 - q/tau (tau = c[TAUQ]; 0 = no cooling, the integral)
+    cool = math.exp(-h / c[TAUQ]) if c[TAUQ] > 0.0 else 1.0
     t_static = tc + ts
     a_mech = b / j
     n = v.shape[0]
@@ -596,7 +586,8 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
                     i_inf = v_eff / r
                     i_held = i_inf + (i - i_inf) * math.exp(-r * h / lcur)
                     i_avg = i_inf + (i - i_inf) * (1.0 - math.exp(-r * h / lcur)) * lcur / (r * h)
-                    if abs(kt * i_avg - t_pos) <= t_static:
+                    hold = t_static + (mu * abs(kt * i_avg) if mu > 0.0 else 0.0)
+                    if abs(kt * i_avg - t_pos) <= hold:
                         q += i_held * i_held * h
                         i = i_held
                         continue
@@ -607,6 +598,8 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
                 sgn = 1.0 if w > 0.0 else (-1.0 if w < 0.0 else (1.0 if drive > 0.0 else -1.0))
             # (ts = 0: ts * exp(.) is 0 exactly, so the exp is skipped, same numbers)
             fric = sgn * (tc + ts * stribeck_fall(w, ws, ds)) if ts > 0.0 else sgn * tc
+            if mu > 0.0:
+                fric += sgn * mu * abs(kt * i)
             t_opp = t_pos + fric + cq * w * abs(w)
             if is_open:
                 w_new, th_new = _coast_step(w, th, t_opp, a_mech, j, h)
@@ -633,7 +626,8 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
                 i_c = i + frac * (i_new - i)
                 th_c = th + 0.5 * w * frac * h
                 held = -t_pos if is_open else kt * i_c - t_pos
-                if abs(held) <= t_static:
+                hold = t_static + (mu * abs(kt * i_c) if mu > 0.0 and not is_open else 0.0)
+                if abs(held) <= hold:
                     stuck = True
                     w_new, th_new = 0.0, th_c
                 elif is_open:
@@ -644,7 +638,7 @@ def effects_kernel(v, c, phi, gam, h, nsub, varying, st):  # pragma: no cover - 
                         i_c,
                         th_c,
                         v_eff,
-                        t_pos + (t_static if held > 0.0 else -t_static),
+                        t_pos + (hold if held > 0.0 else -hold),
                         r,
                         lcur,
                         ke,
@@ -678,20 +672,17 @@ class Plant:
         self.model = model
         self.dt_s = float(dt_s)
         self.substeps = int(substeps)
-        dz = model.effect("dead_zone")
-        dl = model.effect("delay")
-        off = model.effect("current_offset")
-        self._dead_zone_v = dz.voltage_v if isinstance(dz, DeadZone) else 0.0
-        self._delay_s = dl.delay_s if isinstance(dl, Delay) else 0.0
-        self._lag_s = dl.lag_s if isinstance(dl, Delay) else 0.0
+        self._coef = c = effect_coefficients(model)
+        self._dead_zone_v = float(c[V_DZ])
+        self._delay_s = float(c[DELAY])
+        self._lag_s = float(c[LAG])
         self._lag_v = 0.0  # the lag's output before the next sample (from rest: 0 V)
-        self._offset_a = off.offset_a if isinstance(off, CurrentOffset) else 0.0
+        self._offset_a = float(c[I_OFF])
         self._history = np.zeros(int(math.floor(self._delay_s / self.dt_s)) + 2)
-        self._coef = effect_coefficients(model)
-        self._varying = _varying(self._coef)
+        self._varying = _varying(model)
         self._phi, self._gam = discretize_zoh(model.params, self.dt_s / self.substeps)
         self._state = np.zeros(5)
-        self._state[4] = 1.0 if self._coef[_TC] + self._coef[_TS] > 0.0 else 0.0
+        self._state[4] = 1.0 if c[TC] + c[TS] > 0.0 else 0.0
         self.samples = 0
         # Load (or compile) the kernel now, not inside the first step a real-time caller
         # waits for: a driver's clock is running by then (a late first poll was a
@@ -718,7 +709,7 @@ class Plant:
     @property
     def resistance_ohm(self) -> float:
         """The winding resistance now: ``R (1 + k q)`` with a resistance drift."""
-        return float(self._coef[_R] * (1.0 + self._coef[_KR] * self._state[3]))
+        return float(self._coef[R] * (1.0 + self._coef[KR] * self._state[3]))
 
     def step(self, voltage_v: float | None) -> None:
         v = math.nan if voltage_v is None else float(voltage_v)

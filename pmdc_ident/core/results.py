@@ -1,6 +1,8 @@
 """Identification results: parameter estimates, method comparison, JSON and motor YAML.
 
-JSON (docs/design.md §4): ``parameters.{R,L,Ke,Kt,J,B}`` each ``{value, ci95: [lo, hi] |
+JSON (docs/design.md §4, schema in docs/integration.md): ``schema_version``
+(:data:`pmdc_ident.core.schema.SCHEMA_VERSION`), ``sources``,
+``parameters.{R,L,Ke,Kt,J,B}`` each ``{value, ci95: [lo, hi] |
 null, unit, identifiable}`` (plus ``stderr``, ``reason``), effect parameters as
 ``parameters["<effect>.<name>"]``; then ``assumptions``, ``warnings``,
 ``methods`` (each method's estimates, for comparison), ``validation``
@@ -24,6 +26,7 @@ from pmdc_ident.core.estimate import ParameterEstimate, finite_or_none
 from pmdc_ident.core.estimators.output_error import FitResult
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec, motor_to_yaml
+from pmdc_ident.core.schema import SCHEMA_VERSION
 
 __all__ = [
     "IdentificationResult",
@@ -87,6 +90,9 @@ class IdentificationResult:
     frequency: Any = field(default=None, repr=False)
     fit_info: dict[str, Any] = field(default_factory=dict)
     limits: Limits = field(default_factory=Limits)
+    # the assumption register's reading of the data and what it changed (JSON key
+    # ``assumptions_checked``, the same function for every command: core/assumptions.py)
+    assumptions_checked: dict[str, Any] = field(default_factory=dict)
 
     # -- text -----------------------------------------------------------------
     def table(self) -> str:
@@ -97,7 +103,13 @@ class IdentificationResult:
             else:
                 ci = f"[{p.ci95[0]:.5g}, {p.ci95[1]:.5g}]"
             note = "" if p.identifiable else "NOT IDENTIFIABLE"
-            if p.reason and (not p.identifiable or p.reason.startswith(_SHOWN)):
+            if p.reason.startswith("assumed"):  # a closure: said as what it is
+                note = p.reason
+            elif p.reason and (
+                not p.identifiable
+                or p.reason.startswith(_SHOWN)
+                or "the gate expected" in p.reason
+            ):
                 note = (note + " " + p.reason).strip() if not p.identifiable else p.reason
             lines.append(f"{p.name:<28} {p.value:>12.6g}  {ci:<26} {p.unit:<11} {note}")
         return "\n".join(lines)
@@ -158,6 +170,7 @@ class IdentificationResult:
     def to_json_dict(self) -> dict[str, Any]:
         return _jsonable(
             {
+                "schema_version": SCHEMA_VERSION,
                 "sources": list(self.sources),
                 "model": self.model_kind,
                 "parameters": {k: p.to_json() for k, p in self.parameters.items()},
@@ -170,6 +183,7 @@ class IdentificationResult:
                 else transfer_function_dict(self.model),
                 "noise": self.noise,
                 "fit": self.fit_info,
+                "assumptions_checked": self.assumptions_checked,
             }
         )
 
@@ -179,17 +193,23 @@ class IdentificationResult:
         return write_text(path, json.dumps(self.to_json_dict(), indent=2, allow_nan=False) + "\n")
 
     def motor_spec(self, name: str = "identified") -> MotorSpec:
+        """The identified motor as a motor file: a value the fit ran outside the physical
+        range (flagged in the result) is carried at the nearest end of the range, so
+        ``load_motor`` and ``export-model`` accept what identify writes; the description
+        says which."""
         sensors = SensorSpec(
             current_noise_a=float(self.noise.get("current", 0.0)),
             speed_noise_rad_s=float(self.noise.get("speed", 0.0)),
         )
+        model, clamped = _in_range(self.model)
+        note = f"; {clamped}" if clamped else ""
         return MotorSpec(
             name=name,
-            model=self.model,
+            model=model,
             sensors=sensors,
             limits=self.limits,
             description=f"identified by pmdc-ident from {', '.join(self.sources)} "
-            f"({self.model_kind} model)",
+            f"({self.model_kind} model){note}",
         )
 
     def write_motor_yaml(self, path: str | Path, name: str | None = None) -> Path:
@@ -198,6 +218,28 @@ class IdentificationResult:
         p = Path(path)
         header = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
         return write_text(p, header + motor_to_yaml(self.motor_spec(name or p.stem)))
+
+
+def _in_range(model: Model) -> tuple[Model, str]:
+    """``model`` with each motor parameter clamped into its physical range, and the note
+    saying which were (empty when none)."""
+    import math
+    from dataclasses import replace
+
+    from pmdc_ident.core.params import PARAMETER_RANGES
+
+    values = model.params.as_dict()
+    said = []
+    for name, (lo, hi) in PARAMETER_RANGES.items():
+        v = values.get(name)
+        if v is None or (math.isfinite(v) and lo <= v <= hi):
+            continue
+        end = lo if not v > lo else hi
+        said.append(f"{name} {v:.3g} outside [{lo:g}, {hi:g}], written as {end:g} (flagged)")
+        values[name] = end
+    if not said:
+        return model, ""
+    return replace(model, params=type(model.params)(**values)), "; ".join(said)
 
 
 def _jsonable(obj: Any) -> Any:

@@ -36,7 +36,15 @@ from pmdc_ident.core._jit import njit
 from pmdc_ident.core.data import HISTORY_S, Run, Segment, link_history
 from pmdc_ident.core.quality.timing import time_constants_s
 
-__all__ = ["Piece", "contiguous_pieces", "find_segments", "is_unlabeled", "segment_run"]
+__all__ = [
+    "UNLABELED",
+    "Piece",
+    "contiguous_pieces",
+    "find_segments",
+    "is_unlabeled",
+    "segment_run",
+    "split_restarts",
+]
 
 FloatArray = NDArray[np.float64]
 _MIN_HOLD = 20  # samples: a hold shorter than this is never a step of its own
@@ -58,9 +66,39 @@ class Piece:
         return f"{self.label} {t0:.4g}-{t1:.4g} s ({self.stop - self.start} samples, {level})"
 
 
+UNLABELED = "run"  # the label of a log read without a segment column
+
+
 def is_unlabeled(run: Run) -> bool:
-    """True for a log read without a segment column (one segment called ``run``)."""
-    return len(run.segments) == 1 and run.segments[0].label == "run"
+    """True for a log read without a segment column: one segment called ``run``, or the
+    separate runs it was cut into where a new run starts (``run.1``, ``run.2``...;
+    :func:`split_restarts`)."""
+    labels = [s.label for s in run.segments]
+    if labels == [UNLABELED]:
+        return True
+    return len(labels) > 1 and labels == [f"{UNLABELED}.{k + 1}" for k in range(len(labels))]
+
+
+def split_restarts(run: Run) -> Run:
+    """An unlabeled log cut where a new run starts (:func:`core.continuity.restarts`: the
+    rotor at rest after a jump of its speed or position beyond what the record does in
+    one sample), each part (``run.1``, ``run.2``...) a separate run from its own first
+    sample. The gate's ``continuity`` finding says so, once."""
+    from pmdc_ident.core.continuity import restarts
+
+    if [s.label for s in run.segments] != [UNLABELED]:
+        return run
+    seg = run.segments[0]
+    cuts = [0, *(k for k, _ in restarts(seg)), seg.n]
+    if len(cuts) == 2 or min(b - a for a, b in zip(cuts[:-1], cuts[1:], strict=True)) < 2:
+        return run  # no restart (or a 'run' of one sample: a spike, not a restart)
+    parts = []
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        part = seg.slice(a, b, label=f"{UNLABELED}.{len(parts) + 1}")
+        parts.append(
+            replace(part, history_voltage=None, history_heat_a2s=None, history_heat_profile=None)
+        )
+    return Run(tuple(parts), source=run.source)
 
 
 def _command(seg: Segment) -> tuple[FloatArray, str]:
@@ -206,25 +244,36 @@ def _active_runs(
     return out
 
 
-def find_segments(seg: Segment) -> list[Piece]:
-    """The experiments in one continuous record (see the module table)."""
+def long_hold(parts: Sequence[Segment]) -> int:
+    """Samples a hold must last to be a step of its own: three mechanical time constants
+    (the speed settles) and a quarter of the record's third-longest hold."""
+    lengths = [0]
+    for seg in parts:
+        x, _ = _command(seg)
+        is_open = np.isnan(x)
+        bounds = np.r_[0, np.flatnonzero(np.diff(is_open.astype(int))) + 1, seg.n]
+        finite = x[~is_open]
+        if finite.size:
+            tol = _tolerance(finite)
+            for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+                if not is_open[lo]:
+                    lengths += [b - a for a, b in _holds(x[lo:hi], tol)]
+    third = sorted(lengths)[-3] if len(lengths) >= 3 else max(lengths)
+    # a step must last long enough for the speed to settle (3 mechanical time constants)
+    _, tau_m = time_constants_s([w for seg in parts for w in _windows(seg)])
+    settle = 3.0 * tau_m / parts[0].dt_s if tau_m else 0.0
+    return max(_MIN_HOLD, int(_LONG_SHARE * third), int(settle))
+
+
+def find_segments(seg: Segment, hold: int | None = None) -> list[Piece]:
+    """The experiments in one continuous record (see the module table); ``hold``: the
+    samples a step lasts at least (default: :func:`long_hold` of this record)."""
     x, _ = _command(seg)
     w = seg.speed_or_derivative()
     w_scale = float(np.max(np.abs(w))) or 1.0
     is_open = np.isnan(x)
     bounds = np.r_[0, np.flatnonzero(np.diff(is_open.astype(int))) + 1, seg.n]
-    finite = x[~is_open]
-    lengths = [0]
-    if finite.size:
-        tol = _tolerance(finite)
-        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
-            if not is_open[lo]:
-                lengths += [b - a for a, b in _holds(x[lo:hi], tol)]
-    third = sorted(lengths)[-3] if len(lengths) >= 3 else max(lengths)
-    # a step must last long enough for the speed to settle (3 mechanical time constants)
-    _, tau_m = time_constants_s(_windows(seg))
-    settle = 3.0 * tau_m / seg.dt_s if tau_m else 0.0
-    long_hold = max(_MIN_HOLD, int(_LONG_SHARE * third), int(settle))
+    long_hold_ = long_hold([seg]) if hold is None else hold
     raw: list[tuple[int, int, str, float]] = []
     for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
         if is_open[lo]:
@@ -232,7 +281,7 @@ def find_segments(seg: Segment) -> list[Piece]:
             raw.append((int(lo), int(hi), "coast" if moving else "open", float("nan")))
         else:
             after_open = lo > 0
-            raw += _driven_pieces(x[lo:hi], w[lo:hi], int(lo), after_open, long_hold)
+            raw += _driven_pieces(x[lo:hi], w[lo:hi], int(lo), after_open, long_hold_)
     return _numbered(_merge_short(raw))
 
 
@@ -275,18 +324,39 @@ def _numbered(raw: Sequence[tuple[int, int, str, float]]) -> list[Piece]:
 
 
 def segment_run(run: Run) -> tuple[Run, list[str]]:
-    """``run`` cut into its experiments when it is unlabeled, with one line per segment."""
+    """``run`` cut into its experiments when it is unlabeled, with one line per segment
+    (each separate run of a log cut at its restarts is cut on its own; the labels are
+    numbered over the whole log)."""
     if not is_unlabeled(run):
         return run, []
-    seg = run.segments[0]
-    pieces = find_segments(seg)
-    if not pieces or (len(pieces) == 1 and pieces[0].label.startswith(("plateau", "excit"))):
-        return run, []
-    _, unit = _command(seg)
-    # each piece continues the one before it: link_history gives it the history of the
-    # piece before (its commands and heat), linear in the record; Segment.slice would
-    # sum the whole record before each piece (quadratic on a long log)
-    segs = [seg.slice(0, pieces[0].stop, label=pieces[0].label)]
+    hold = long_hold(run.segments)  # one rule over the whole log, however it is cut
+    found = [(part, find_segments(part, hold)) for part in run.segments]
+    if len(found) == 1:
+        pieces = found[0][1]
+        if not pieces or (len(pieces) == 1 and pieces[0].label.startswith(("plateau", "excit"))):
+            return run, []
+    count: dict[str, int] = {}
+    segs: list[Segment] = []
+    lines: list[str] = []
+    for part, pieces in found:
+        _, unit = _command(part)
+        numbered: list[Piece] = []
+        for p in pieces or [Piece(0, part.n, "excitation_0", float("nan"))]:
+            kind = p.label.rsplit("_", 1)[0]
+            count[kind] = count.get(kind, 0) + 1
+            numbered.append(replace(p, label=f"{kind}_{count[kind]}"))
+            lines.append(numbered[-1].describe(part, unit))
+        segs += _cut(part, numbered)  # within one run; the runs stay separate
+    return Run(tuple(segs), source=run.source), lines
+
+
+def _cut(seg: Segment, pieces: Sequence[Piece]) -> list[Segment]:
+    """``seg`` cut into ``pieces``, each continuing the one before it.
+
+    ``link_history`` gives each piece the history of the piece before (its commands and
+    heat), linear in the record; ``Segment.slice`` would sum the whole record before each
+    piece (quadratic on a long log)."""
+    segs = [seg.slice(pieces[0].start, pieces[0].stop, label=pieces[0].label)]
     segs += [_piece(seg, p.start, p.stop, p.label) for p in pieces[1:]]
     linked = list(link_history(segs))
     if seg.voltage is not None and seg.history_voltage is None:
@@ -296,8 +366,7 @@ def segment_run(run: Run) -> tuple[Run, list[str]]:
             if linked[k].history_voltage is not None:
                 view = seg.voltage[max(0, p.start - keep) : p.start]
                 linked[k] = replace(linked[k], history_voltage=view)
-    lines = [p.describe(seg, unit) for p in pieces]
-    return Run(tuple(linked), source=run.source), lines
+    return linked
 
 
 def _piece(seg: Segment, start: int, stop: int, label: str) -> Segment:

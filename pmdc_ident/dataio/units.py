@@ -427,10 +427,14 @@ def convert_run(run: Run, spec: InputSpec) -> tuple[Run, tuple[str, ...]]:
 
 
 def _finish(run: Run, notes: list[str], spec: InputSpec) -> tuple[Run, tuple[str, ...]]:
-    """Wrapped positions unwrapped; an averaged speed read as the position it sums to."""
+    """Wrapped positions unwrapped; an averaged speed read as the position it sums to; an
+    unlabeled log cut where a new run starts (before any unwrapping: a position that
+    restarts with a run is not a wrap)."""
+    from pmdc_ident.core.segmentation import split_restarts
+
     if spec.speed_averaged:
         run = _speed_as_counts(run, notes)
-    return _unwrap(run, notes)
+    return _unwrap(split_restarts(run), notes)
 
 
 def _speed_as_counts(run: Run, notes: list[str]) -> Run:

@@ -19,8 +19,10 @@ flavours, both commanded in volts (``ctrl`` = armature voltage):
 Rotor inertia, viscous friction and Coulomb friction go on the joint, reflected
 through the gear ``N`` (``armature = J N^2``, ``damping = B N^2``, ``frictionloss
 = Tc N``; a quadratic drag ``Cq`` becomes the joint's second damping coefficient
-``Cq N^3``, MuJoCo >= 4). The actuator's ``gear`` is ``N``. Effects MuJoCo's model
-cannot carry are listed in :attr:`MujocoExport.not_carried` and in the file.
+``Cq N^3``, MuJoCo >= 4). The actuator's ``gear`` is ``N``. Each effect says what it
+adds to the joint (:meth:`~pmdc_ident.core.effects.base.Effect.mujoco_joint`) or why
+MuJoCo's model cannot carry it (``MUJOCO_NOT_CARRIED``); those are listed in
+:attr:`MujocoExport.not_carried` and in the file.
 """
 
 from __future__ import annotations
@@ -30,7 +32,6 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
-from pmdc_ident.core.effects import CoulombFriction, QuadraticDrag
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.params import MotorParams
@@ -39,21 +40,6 @@ __all__ = ["MUJOCO_FLAVOURS", "MujocoExport", "installed_mujoco_flavour", "mujoc
 
 MUJOCO_FLAVOURS: tuple[str, ...] = ("dcmotor", "general")
 
-# Why each effect of core.effects is or is not in the MJCF.
-_NOT_CARRIED: dict[str, str] = {
-    "stribeck_friction": "extra breakaway torque at low speed (MuJoCo's frictionloss is constant)",
-    "load_torque": "constant load torque (apply it as qfrc_applied in your simulation)",
-    "brush_drop": "brush voltage drop (no such term in MuJoCo's motor)",
-    "dead_zone": "driver dead zone (put it in your controller's output stage)",
-    "cogging": "cogging torque (dcmotor's cogging needs integer poles; not exported)",
-    "resistance_drift": (
-        "winding heating R(1 + k q), dq/dt = i^2 - q/tau, flux Ke (1 - r k q) "
-        "(MuJoCo's thermal model differs)"
-    ),
-    "delay": "command delay (use MuJoCo's actuator delay/nsample history if you need it)",
-    "current_offset": "current-sensor offset (a measurement effect, not dynamics)",
-    "inductance_saturation": "inductance falling with current (MuJoCo's L is constant)",
-}
 _ALWAYS_NOTED = (
     "open armature (coast-down): MuJoCo's motor has no open circuit; ctrl = 0 V shorts "
     "the winding and brakes",
@@ -102,11 +88,10 @@ def mujoco_xml(
     flavour = flavour or installed_mujoco_flavour()
     _check_arguments(flavour, reduction, timestep_s)
     p, n = spec.model.params, float(reduction)
-    coulomb = spec.model.effect("coulomb_friction")
-    drag = spec.model.effect("quadratic_drag")
-    tc = coulomb.torque_nm if isinstance(coulomb, CoulombFriction) else 0.0
-    cq = drag.coeff_nm_s2 if isinstance(drag, QuadraticDrag) else 0.0
-    not_carried = _not_carried(spec, flavour, cq)
+    joint_terms = _joint_terms(spec, n)
+    frictionloss = joint_terms.get("frictionloss", 0.0)  # Tc N
+    damping2 = joint_terms.get("damping2", 0.0)  # Cq N^3
+    not_carried = _not_carried(spec, flavour, n)
 
     root = ET.Element("mujoco", model=spec.name or "pmdc_motor")
     ET.SubElement(root, "option", timestep=_f(timestep_s), gravity="0 0 0")
@@ -114,8 +99,8 @@ def mujoco_xml(
     body = ET.SubElement(world, "body", name=f"{joint}_output")
     damping = (
         _f(p.B * n * n)
-        if not (cq > 0 and flavour == "dcmotor")
-        else (f"{_f(p.B * n * n)} {_f(cq * n**3)}")
+        if not (damping2 > 0 and flavour == "dcmotor")
+        else (f"{_f(p.B * n * n)} {_f(damping2)}")
     )
     ET.SubElement(
         body,
@@ -125,7 +110,7 @@ def mujoco_xml(
         axis="0 0 1",
         armature=_f(p.J * n * n),
         damping=damping,
-        frictionloss=_f(tc * n),
+        frictionloss=_f(frictionloss),
     )
     # The rotor's inertia is the joint armature; the body itself is nearly massless.
     ET.SubElement(body, "inertial", pos="0 0 0", mass="1e-6", diaginertia="1e-12 1e-12 1e-12")
@@ -165,14 +150,27 @@ def _check_arguments(flavour: str, reduction: float, timestep_s: float) -> None:
         raise ParameterError(msg)
 
 
-def _not_carried(spec: MotorSpec, flavour: str, quadratic_drag: float) -> tuple[str, ...]:
+def _joint_terms(spec: MotorSpec, n: float) -> dict[str, float]:
+    """What the model's effects add to the joint (``frictionloss``, ``damping2``)."""
+    terms: dict[str, float] = {}
+    for e in spec.model.effects:
+        for key, value in e.mujoco_joint(n).items():
+            terms[key] = terms.get(key, 0.0) + value
+    return terms
+
+
+def _not_carried(spec: MotorSpec, flavour: str, n: float) -> tuple[str, ...]:
     """What of the motor's model the MJCF cannot carry, one line each."""
     out = tuple(
-        f"{name}: {_NOT_CARRIED[name]}" for name in spec.model.effect_names if name in _NOT_CARRIED
+        f"{e.NAME}: {e.MUJOCO_NOT_CARRIED}" for e in spec.model.effects if e.MUJOCO_NOT_CARRIED
     )
     out += _ALWAYS_NOTED
-    if quadratic_drag > 0 and flavour == "general":
-        out += ("quadratic_drag: polynomial joint damping needs MuJoCo >= 4",)
+    if flavour == "general":
+        out += tuple(
+            f"{e.NAME}: polynomial joint damping needs MuJoCo >= 4"
+            for e in spec.model.effects
+            if e.mujoco_joint(n).get("damping2", 0.0) > 0
+        )
     return out
 
 

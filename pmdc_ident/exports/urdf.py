@@ -8,19 +8,28 @@ URDF (one output link on a continuous joint, as a snippet to merge into a robot)
 * ``<limit effort velocity>``: the motor's current limit as output torque
   (``Kt I_max N``) and its speed limit at the output (``w_max / N``);
 * ``<inertial>``: the rotor inertia reflected to the output (``J N^2`` about the
-  joint axis);
-* ``<transmission>``: a ``transmission_interface/SimpleTransmission`` with
-  ``mechanicalReduction`` N, and a ``<ros2_control>`` block (the same joint with
-  effort command and position/velocity/effort state interfaces, the effort
-  command limited to the torque limit) whose hardware plugin you replace with
-  your drive's.
+  joint axis, ``izz``) in a physically valid tensor: across the axis (``ixx = iyy``)
+  the 7/6 of it of a solid cylinder as long as its diameter, so every triangle
+  inequality (``ixx + iyy >= izz``, ...) holds with margin and simulators accept it
+  (the mass, which no test measures, is a 1 g placeholder that adds no weight);
+* a ROS 2 ``<ros2_control>`` block (no ROS 1 ``<transmission>``/
+  ``hardware_interface/EffortJointInterface``): the joint with an effort command
+  limited to the torque limit and position/velocity/effort state interfaces, and,
+  inside it, the ``transmission_interface/SimpleTransmission`` with the reduction N
+  (``<mechanical_reduction>``); replace its ``mock_components/GenericSystem`` plugin
+  by your drive's.
 
-ros2_control YAML: ``controller_manager`` (update rate = the gain design's
-sample rate), a ``joint_state_broadcaster``, a ``pid_controller/PidController``
-closing the speed loop on the joint's effort interface with the designed speed
-PI (converted to torque: ``Kt N`` times the current gains), and the
-``joint_limits`` of the joint. The current loop lives in the drive (see
+ros2_control YAML (every value under a node's ``ros__parameters``, so any node loads
+it with ``--params-file``): ``controller_manager`` (update rate = the gain design's
+sample rate, the controllers' types, and the joint's ``joint_limits``, the layout
+``joint_limits::get_joint_limits`` reads from a node's parameters), a
+``joint_state_broadcaster``, a ``pid_controller/PidController`` closing the speed loop
+on the joint's effort interface with the designed speed PI (converted to torque:
+``Kt N`` times the current gains). The current loop lives in the drive (see
 ``export-model --gains``).
+
+The joint's name (``joint``, default ``motor_joint``) is the driver node's
+``joint_name`` default: a driver and the exports of its motor name the same joint.
 """
 
 from __future__ import annotations
@@ -35,7 +44,11 @@ from pmdc_ident.core.control_design import GainDesign
 from pmdc_ident.core.effects import CoulombFriction
 from pmdc_ident.core.motors import MotorSpec
 
-__all__ = ["JointFigures", "joint_figures", "ros2_control_yaml", "urdf_xml"]
+__all__ = ["CROSS_AXIS_RATIO", "JointFigures", "joint_figures", "ros2_control_yaml", "urdf_xml"]
+
+# inertia across the axis / about it: a solid cylinder as long as its diameter,
+# m (3 r^2 + h^2) / 12 over m r^2 / 2 with h = 2 r
+CROSS_AXIS_RATIO = 7.0 / 6.0
 
 
 class JointFigures:
@@ -72,9 +85,9 @@ def urdf_xml(spec: MotorSpec, *, reduction: float = 1.0, joint: str = "motor_joi
     inertial = ET.SubElement(out, "inertial")
     ET.SubElement(inertial, "origin", xyz="0 0 0", rpy="0 0 0")
     ET.SubElement(inertial, "mass", value="1e-3")
-    i_axis = _f(fig.inertia_kg_m2)
+    i_axis, i_across = _f(fig.inertia_kg_m2), _f(CROSS_AXIS_RATIO * fig.inertia_kg_m2)
     ET.SubElement(
-        inertial, "inertia", ixx="1e-9", ixy="0", ixz="0", iyy="1e-9", iyz="0", izz=i_axis
+        inertial, "inertia", ixx=i_across, ixy="0", ixz="0", iyy=i_across, iyz="0", izz=i_axis
     )
     j = ET.SubElement(robot, "joint", name=joint, type="continuous")
     ET.SubElement(j, "parent", link="base_link")
@@ -85,12 +98,6 @@ def urdf_xml(spec: MotorSpec, *, reduction: float = 1.0, joint: str = "motor_joi
     ET.SubElement(
         j, "dynamics", damping=_f(fig.damping_nm_s_per_rad), friction=_f(fig.friction_nm)
     )
-    tr = ET.SubElement(robot, "transmission", name=f"{joint}_transmission")
-    ET.SubElement(tr, "type").text = "transmission_interface/SimpleTransmission"
-    tj = ET.SubElement(tr, "joint", name=joint)
-    ET.SubElement(tj, "hardwareInterface").text = "hardware_interface/EffortJointInterface"
-    ta = ET.SubElement(tr, "actuator", name=f"{joint}_motor")
-    ET.SubElement(ta, "mechanicalReduction").text = _f(fig.reduction)
     _ros2_control_block(robot, joint, fig)
     tree = ET.ElementTree(robot)
     ET.indent(tree, space="  ")
@@ -142,6 +149,14 @@ def ros2_control_yaml(
                     "type": "joint_state_broadcaster/JointStateBroadcaster"
                 },
                 pid: {"type": "pid_controller/PidController"},
+                "joint_limits": {
+                    joint: {
+                        "has_velocity_limits": True,
+                        "max_velocity": fig.velocity_max_rad_s,
+                        "has_effort_limits": True,
+                        "max_effort": fig.effort_max_nm,
+                    }
+                },
             }
         },
         pid: {
@@ -159,14 +174,6 @@ def ros2_control_yaml(
                         "antiwindup_strategy": "conditional_integration",
                     }
                 },
-            }
-        },
-        "joint_limits": {
-            joint: {
-                "has_velocity_limits": True,
-                "max_velocity": fig.velocity_max_rad_s,
-                "has_effort_limits": True,
-                "max_effort": fig.effort_max_nm,
             }
         },
     }

@@ -9,15 +9,16 @@ name                   type                             meaning
 ``open_armature``      std_srvs/srv/Trigger (service)   open the winding (coast-down); the next
                                                         valid ``voltage_cmd`` closes it again
 ``reset_faults``       std_srvs/srv/Trigger (service)   clear a latched over-current/speed trip
-``current``            sensor_msgs/msg/JointState       ``name ['armature']``, ``effort`` [A]
-``encoder``            sensor_msgs/msg/JointState       ``name ['shaft']``, ``position`` [rad],
+``current``            sensor_msgs/msg/JointState       ``name [joint]``, ``effort`` [A]
+``encoder``            sensor_msgs/msg/JointState       ``name [joint]``, ``position`` [rad],
                                                         ``velocity`` [rad/s]
-``voltage_applied``    sensor_msgs/msg/JointState       ``name ['armature'(, 'terminal')]``,
+``voltage_applied``    sensor_msgs/msg/JointState       ``name [joint(, joint_terminal)]``,
                                                         ``effort`` [command V, NaN while open
                                                         (, measured terminal V)]
 ``/diagnostics``       diagnostic_msgs/DiagnosticArray  1 Hz status of the driver
 =====================  ===============================  =========================================
 
+``joint`` is the ``joint_name`` parameter (``motor_joint``, the exports' default joint).
 One message of each sample topic per backend sample, all three with the same
 ``header.stamp``: the backend's sample time since its start plus the ROS time
 at which it started, so stamps are comparable to ROS time and exactly on the
@@ -33,7 +34,10 @@ status) is :class:`pmdc_ident.backends.driver.Driver`, the plant is
 :class:`pmdc_ident.backends.sim.SimBackend` or the board behind
 :class:`pmdc_ident.backends.serial_board.SerialBackend`; parameters are declared from
 :data:`pmdc_ident.nodes.parameter_tables.DRIVER`. The motor is made safe on every way
-out (Ctrl-C, SIGTERM, exception, shutdown: :mod:`pmdc_ident.nodes.runtime`).
+out (Ctrl-C, SIGTERM, exception, shutdown: :mod:`pmdc_ident.nodes.runtime`); a
+stop holds 0 V while a node still commands the driver (at most ``stop_wait_s``), so
+the identification node's own safe command lands before the armature opens
+(:meth:`pmdc_ident.backends.driver.Driver.begin_stop`).
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -54,6 +59,7 @@ from std_srvs.srv import Trigger
 from pmdc_ident.backends.base import Telemetry
 from pmdc_ident.backends.driver import Driver
 from pmdc_ident.backends.status import Level
+from pmdc_ident.nodes.diagnostics import LevelLog, hardware_id, status_name
 from pmdc_ident.nodes.parameter_tables import DRIVER
 from pmdc_ident.nodes.parameters import declare
 from pmdc_ident.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, sample_qos
@@ -63,6 +69,8 @@ from pmdc_ident.nodes.runtime import run_node
 __all__ = ["DriverNode", "main"]
 
 NODE_NAME = "driver_node"
+FINAL_SAMPLES_S = 0.05  # published after the safe mode is applied on the way out
+FINAL_ACK_S = 0.5  # at most this long for the readers to acknowledge them
 _LEVEL = {
     Level.OK: DiagnosticStatus.OK,
     Level.WARN: DiagnosticStatus.WARN,
@@ -82,20 +90,26 @@ class DriverNode(Node):
         cfg = declare(self, DRIVER, lambda name, value: self.driver.check_value(name, value))
         self._published = 0
         self._diag_count = 0
-        self._diag_t = clock_s()
-        self._last_rate_hz = 0.0
+        self._diag_t: float | None = None  # the rate's window starts at the first sample
+        self._last_rate_hz = float(cfg["rate_hz"])  # not judged before a window is full
         qos = sample_qos(float(cfg["rate_hz"]))
         self._pub_current = self.create_publisher(JointState, "current", qos)
         self._pub_encoder = self.create_publisher(JointState, "encoder", qos)
         self._pub_voltage = self.create_publisher(JointState, "voltage_applied", qos)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
-        self._msg_current = JointState(name=["armature"], effort=[0.0])
-        self._msg_encoder = JointState(name=["shaft"], position=[0.0], velocity=[0.0])
-        self._msg_voltage = JointState(name=["armature"], effort=[0.0])
+        joint = str(cfg["joint_name"])
+        self._names = ([joint], [joint, f"{joint}_terminal"])  # voltage_applied's two forms
+        self._msg_current = JointState(name=[joint], effort=[0.0])
+        self._msg_encoder = JointState(name=[joint], position=[0.0], velocity=[0.0])
+        self._msg_voltage = JointState(name=list(self._names[0]), effort=[0.0])
+        self._hardware_id = hardware_id(self.get_namespace(), str(cfg["hardware_id"]))
+        self._levels = LevelLog("driver status", causes_logged=True)
         self._driver = Driver(cfg, self._log, clock_s)
         self._t0_ns = self.get_clock().now().nanoseconds  # ROS time of backend sample 0
         try:
-            self.create_subscription(Float64, "voltage_cmd", self._on_voltage_cmd, COMMAND_QOS)
+            self._cmd_sub = self.create_subscription(
+                Float64, "voltage_cmd", self._on_voltage_cmd, COMMAND_QOS
+            )
             self.create_service(Trigger, "open_armature", self._on_open_armature)
             self.create_service(Trigger, "reset_faults", self._on_reset_faults)
             self.add_post_set_parameters_callback(self._apply_parameters)
@@ -119,7 +133,31 @@ class DriverNode(Node):
         self.finished = True
 
     def wind_down(self, spin_once: Any) -> None:
-        """Nothing to finish: the motor is made safe in :meth:`close`."""
+        """0 V at once, then serve the nodes that command this driver until they have
+        gone (their own safe command applied and confirmed) or ``stop_wait_s`` passed;
+        :meth:`close` then applies the safe mode."""
+        if self._driver is None:
+            return
+        commanders = self._cmd_sub.get_publisher_count()
+        self._log("info", self.driver.begin_stop(self._clock_s(), commanders))
+        while not self.driver.stop_complete(self._clock_s(), self._cmd_sub.get_publisher_count()):
+            spin_once(0.02)
+        if self._cmd_sub.get_publisher_count() > 0:
+            self._log(
+                "warning",
+                f"a node still commands this driver after {self.driver.stop_wait_s:g} s "
+                "(stop_wait_s): stopping anyway",
+            )
+        # the safe mode now, and a few samples that show it to whoever still listens (a
+        # recorder, a probe): the last published state is the one the motor is left in
+        self.driver.make_safe()
+        end = self._clock_s() + FINAL_SAMPLES_S
+        while self._clock_s() < end:
+            spin_once(0.01)
+        end = time.monotonic() + FINAL_ACK_S  # and let them reach those readers
+        for pub in (self._pub_current, self._pub_encoder, self._pub_voltage):
+            left = max(0.0, end - time.monotonic())
+            pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
 
     def close(self) -> list[str]:
         if self._driver is None:
@@ -166,12 +204,12 @@ class DriverNode(Node):
         self._pub_encoder.publish(enc)
         if math.isnan(s.terminal_voltage_v):
             if len(vol.name) != 1:
-                vol.name = ["armature"]
+                vol.name = list(self._names[0])
                 vol.effort = [0.0]
             vol.effort[0] = s.voltage_cmd_v
         else:
             if len(vol.name) != 2:
-                vol.name = ["armature", "terminal"]
+                vol.name = list(self._names[1])
                 vol.effort = [0.0, 0.0]
             vol.effort[0] = s.voltage_cmd_v
             vol.effort[1] = s.terminal_voltage_v
@@ -180,14 +218,17 @@ class DriverNode(Node):
 
     def _on_diagnostics(self) -> None:
         now = self._clock_s()
-        span = now - self._diag_t
-        if span > 0:
-            self._last_rate_hz = (self._published - self._diag_count) / span
-        self._diag_t, self._diag_count = now, self._published
+        if self._diag_t is not None and now - self._diag_t > 0:
+            self._last_rate_hz = (self._published - self._diag_count) / (now - self._diag_t)
+        if self._published or self._diag_t is not None:
+            self._diag_t, self._diag_count = now, self._published
         report = self.driver.status(self._last_rate_hz, self._published)
         status = DiagnosticStatus(level=_LEVEL[report.level], message=report.message)
-        status.name = f"{self.get_fully_qualified_name()}: motor driver"
-        status.hardware_id = f"{self.driver.name}:{self.driver.spec.name}"
+        status.name = status_name(self.get_fully_qualified_name(), "motor driver")
+        status.hardware_id = self._hardware_id
+        change = self._levels.update(status.level[0], report.message)
+        if change is not None:
+            self._log(*change)
         status.values = [KeyValue(key=k, value=v) for k, v in report.values.items()]
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.get_clock().now().to_msg()

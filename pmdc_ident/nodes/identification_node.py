@@ -16,6 +16,9 @@ name                       type                          meaning
 ``status``                 std_msgs/msg/String           JSON: state, abort reason, detail, bag
 ``identified_parameters``  std_msgs/msg/String           the JSON of ``pmdc-ident identify --json``
                                                          (reliable, transient-local, KEEP_LAST(1))
+``identified_parameters/   std_msgs/Float64MultiArray    one per parameter, latched: value, 95 %
+<name>``                                                 interval, stderr, identifiable (plottable;
+                                                         :mod:`pmdc_ident.nodes.result_topics`)
 ``run_session``            std_srvs/srv/Trigger          start a session on demand
 ``abort_session``          std_srvs/srv/Trigger          stop the running session, motor safe
 ``recorder_status``        std_msgs/msg/String           the recorder's heartbeat and bag path
@@ -34,6 +37,7 @@ warmed up when the session starts) with the same function and options as
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from collections.abc import Callable
@@ -44,12 +48,13 @@ from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64, String
+from std_msgs.msg import Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.session.controller import SessionController
 from pmdc_ident.core.session.ports import IdentificationJob
+from pmdc_ident.core.session.sequential import DesignOutcome
 from pmdc_ident.dataio.bagio import parse_joint_state
 from pmdc_ident.nodes.identify_call import IdentificationWorker
 from pmdc_ident.nodes.parameter_tables import IDENTIFICATION
@@ -60,6 +65,7 @@ from pmdc_ident.nodes.qos import (
     SEGMENT_QOS,
     sample_qos,
 )
+from pmdc_ident.nodes.result_topics import array_message, parameter_topics
 from pmdc_ident.nodes.runtime import log as node_log
 from pmdc_ident.nodes.runtime import run_node
 from pmdc_ident.nodes.settings import controller_config
@@ -83,7 +89,8 @@ class IdentificationNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         self._built_s = time.monotonic()
         values = declare(self, IDENTIFICATION)
-        self.controller = SessionController(controller_config(values), ports=self)
+        config = controller_config(values, namespace=self.get_namespace())
+        self.controller = SessionController(config, ports=self)
         self.exit_code = 0
         self._worker: IdentificationWorker | None = None
         self._param_future: Any = None
@@ -93,6 +100,7 @@ class IdentificationNode(Node):
         self.pub_progress = self.create_publisher(String, "progress", LATCHED_QOS)
         self.pub_status = self.create_publisher(String, "status", LATCHED_QOS)
         self.pub_result = self.create_publisher(String, "identified_parameters", LATCHED_QOS)
+        self._pub_arrays: dict[str, Any] = {}  # identified_parameters/<name> -> publisher
         self.open_client = self.create_client(Trigger, "open_armature")
         self.param_client = AsyncParameterClient(self, str(values["driver_node"]))
         self.create_service(Trigger, "run_session", self._on_run_session)
@@ -172,7 +180,13 @@ class IdentificationNode(Node):
         self._collect_driver_parameters()
         if self._worker is not None:
             outcome = self._worker.poll()
-            if outcome is not None:
+            if isinstance(outcome, DesignOutcome):
+                self.controller.on_design(outcome, time.monotonic())
+            elif outcome is not None and self.controller.design_pending:
+                # the worker died under a plan: auto re-fit: end the session safely
+                stop = DesignOutcome("stop", message=f"re-fit failed: {outcome.error}")
+                self.controller.on_design(stop, time.monotonic())
+            elif outcome is not None:
                 self.controller.on_identified(outcome)
         self.controller.tick(time.monotonic())
 
@@ -210,6 +224,16 @@ class IdentificationNode(Node):
 
     def publish_result(self, text: str) -> None:
         self.pub_result.publish(String(data=text))
+        topics = {t.topic: t for t in parameter_topics(json.loads(text))}
+        for name, pub in self._pub_arrays.items():
+            if name not in topics:  # a parameter this model does not have: no value now
+                pub.publish(Float64MultiArray(data=[float("nan")] * 5))
+        for t in topics.values():
+            pub = self._pub_arrays.get(t.topic)
+            if pub is None:
+                pub = self.create_publisher(Float64MultiArray, t.topic, LATCHED_QOS)
+                self._pub_arrays[t.topic] = pub
+            pub.publish(array_message(t))
 
     def request_driver_parameters(self, names: tuple[str, ...]) -> bool:
         if self._param_future is not None or not self.param_client.services_are_ready():
@@ -218,9 +242,14 @@ class IdentificationNode(Node):
         self._param_names = names
         return True
 
-    def prepare_identification(self, nominal: MotorSpec) -> None:
+    def prepare_identification(self, nominal: MotorSpec | None) -> None:
         if self._worker is None or not self._worker.alive:
             self._worker = IdentificationWorker(nominal)
+
+    def start_design(self, job: object) -> None:
+        if self._worker is None or not self._worker.alive:
+            self._worker = IdentificationWorker()
+        self._worker.submit(job)  # type: ignore[arg-type]
 
     def start_identification(self, job: IdentificationJob) -> None:
         if self._worker is None or not self._worker.alive:

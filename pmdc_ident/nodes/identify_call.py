@@ -33,6 +33,7 @@ from pmdc_ident.core.motors import MotorSpec, motor_to_yaml
 from pmdc_ident.core.safe_write import write_text
 from pmdc_ident.core.session.ports import ExportRequest, IdentificationJob, IdentificationOutcome
 from pmdc_ident.core.session.recording import SessionSamples
+from pmdc_ident.core.session.sequential import DesignJob, DesignOutcome
 from pmdc_ident.dataio.bagio import DriverArrays, assemble_run
 from pmdc_ident.dataio.completeness import Completeness, completeness
 
@@ -75,9 +76,18 @@ def identify_session_run(
     ``extra`` entries are added to the JSON document (the node adds how complete its
     driver samples were).
     """
+    from pmdc_ident.core.errors import DataError
     from pmdc_ident.core.estimators.identify import ModelChoice, identify, merge_runs
     from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
+    from pmdc_ident.core.quality import GateInput, check_inputs
 
+    # the data-quality gate and the assumption register, as `pmdc-ident identify` runs them
+    report = check_inputs([GateInput(run.source or "session", run)], fixed=dict(fixed or {}))
+    if report.errors:
+        first = report.errors[0]
+        fix = f"; fix: {first.fix}" if first.fix else ""
+        msg = f"data quality: {first.code}: {first.where}: {first.message}{fix}"
+        raise DataError(msg)
     result = identify(
         merge_runs([run]),
         sources=(run.source,),
@@ -86,12 +96,14 @@ def identify_session_run(
         model=ModelChoice.AUTO.value,
         holdout=True,
         bootstrap=0,
+        findings=report.findings,
+        expected_rsd=report.expected_rsd,
     )
     header = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
     spec = result.motor_spec(name)
+    doc = {**result.to_json_dict(), "quality": report.to_json(), **(extra or {})}
     return IdentifyOutput(
-        json_text=json.dumps({**result.to_json_dict(), **(extra or {})}, indent=2, allow_nan=False)
-        + "\n",
+        json_text=json.dumps(doc, indent=2, allow_nan=False) + "\n",
         yaml_text=header + motor_to_yaml(spec),
         table=result.text_report(),
         values={k: p.value for k, p in result.parameters.items()},
@@ -117,6 +129,7 @@ def write_session_exports(
             folder,
             stem=EXPORT_STEM,
             reduction=request.reduction,
+            joint=request.joint or "motor_joint",
             sample_rate_hz=request.sample_rate_hz,
             speed_bandwidth_hz=request.speed_bandwidth_hz or None,
             phase_margin_deg=request.phase_margin_deg,
@@ -147,9 +160,8 @@ def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
         notes.append(
             ("warning" if found.missing else "info", f"session {job.session}: {found.line()}")
         )
-        result = identify_session_run(
-            run, job.fixed, name=job.session, extra={"driver_samples": found.to_dict()}
-        )
+        extra = {"driver_samples": found.to_dict(), **dict(job.extra or {})}
+        result = identify_session_run(run, job.fixed, name=job.session, extra=extra)
         job.output_dir.mkdir(parents=True, exist_ok=True)
         if job.exports is not None:
             made = write_session_exports(result.spec, job.output_dir, job.exports, notes)
@@ -167,6 +179,24 @@ def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
         output_dir=str(job.output_dir),
         notes=tuple(notes),
     )
+
+
+def run_design_job(job: DesignJob) -> DesignOutcome:
+    """A ``plan: auto`` session's re-fit and design (:mod:`pmdc_ident.core.session.
+    sequential`) on the samples so far, assembled as the bag would be. Never raises."""
+    from pmdc_ident.core.session.sequential import run_design_job as decide
+
+    try:
+        run = assemble_run(_driver_arrays(job.samples), source=job.source, session=job.session)
+        return decide(job, run)
+    except PmdcError as exc:
+        return DesignOutcome(
+            "stop", design=job.design, message=f"re-fit failed: {exc}", error=str(exc)
+        )
+    except Exception as exc:  # noqa: BLE001 - one line, the node ends the session safely
+        return DesignOutcome(
+            "stop", design=job.design, message=f"re-fit failed: {exc!r}", error=repr(exc)
+        )
 
 
 def _driver_arrays(s: SessionSamples) -> DriverArrays:
@@ -232,7 +262,7 @@ class IdentificationWorker:
     def alive(self) -> bool:
         return self._process.is_alive()
 
-    def submit(self, job: IdentificationJob) -> None:
+    def submit(self, job: IdentificationJob | DesignJob) -> None:
         """Hand a finished session over; :meth:`poll` returns its outcome.
 
         Sent from a thread: a session's samples are megabytes, more than the pipe
@@ -241,7 +271,8 @@ class IdentificationWorker:
         self._busy = True
         if self._process.pid is not None:
             _set_nice(WORKER_NICE, self._process.pid)  # were it still warming up
-            if self._rt_priority:
+            # a plan: auto re-fit runs while the motor does: never at real-time priority
+            if self._rt_priority and not isinstance(job, DesignJob):
                 _set_policy(self._process.pid, os.SCHED_RR, self._rt_priority)
         threading.Thread(
             target=self._send, args=(job,), name="pmdc_ident job", daemon=True
@@ -253,7 +284,7 @@ class IdentificationWorker:
         except (OSError, ValueError):
             pass  # the child is gone (or we closed): poll() says so
 
-    def poll(self) -> IdentificationOutcome | None:
+    def poll(self) -> IdentificationOutcome | DesignOutcome | None:
         """The outcome of the submitted job once the child has it (``None`` meanwhile,
         and while no job is submitted)."""
         while self._busy and self._conn.poll():
@@ -261,6 +292,11 @@ class IdentificationWorker:
                 msg = self._conn.recv()
             except (EOFError, OSError):
                 break
+            if isinstance(msg, DesignOutcome):
+                self._busy = False
+                if self._rt_priority and self._process.pid is not None:
+                    _set_policy(self._process.pid, os.SCHED_OTHER, 0)
+                return replace(msg, notes=(*msg.notes, *self._notes))
             if isinstance(msg, IdentificationOutcome):
                 self._busy = False
                 if self._rt_priority and self._process.pid is not None:
@@ -342,6 +378,9 @@ def _serve(conn: Any, nominal: MotorSpec | None) -> None:
         except (EOFError, OSError):
             return  # the node is gone
         t0, cpu0 = time.monotonic(), time.process_time()
+        if isinstance(job, DesignJob):
+            conn.send(run_design_job(job))
+            continue
         outcome = run_identification_job(job)
         took = (
             "info",

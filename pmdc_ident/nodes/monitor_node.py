@@ -6,36 +6,52 @@ Runs beside any controller. Subscribes to the driver's ``voltage_applied``,
 publishes:
 
 * ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, every
-  ``diagnostics_period_s``): one status ``pmdc_ident: <node> motor drift``, level
-  OK/WARN/ERROR, each quantity with its 95 % interval and unit in the key names;
+  ``diagnostics_period_s``): one status ``<namespace>/monitor_node: motor drift``
+  (:mod:`pmdc_ident.nodes.diagnostics`), hardware id ``pmdc_motor<namespace>`` (or
+  the ``hardware_id`` parameter), level OK/WARN/ERROR, or STALE when no driver sample
+  came for ``stale_s``; each quantity with its 95 % interval and unit in the key
+  names; every level change is logged once;
 * ``model_drift`` (``std_msgs/String``, JSON, every ``report_period_s``): time,
-  level, estimates, intervals, identified values, thresholds;
+  level, estimates, intervals, identified values, thresholds; and each quantity as a
+  plottable ``std_msgs/Float64MultiArray`` on ``model_drift/<quantity>``
+  (:mod:`pmdc_ident.nodes.result_topics`);
 * ``reidentify_suggested`` (``std_msgs/String``, JSON, latched: transient local,
   depth 1): published when the monitor latches a suggestion to re-identify and
-  when ``reset_suggestion`` (``std_srvs/Trigger``) clears it.
+  when ``reset_suggestion`` (``std_srvs/Trigger``) clears it; the reset also starts
+  the estimates over, so only new evidence latches it again.
 """
 
 from __future__ import annotations
 
 import json
 import sys
+import time
 from dataclasses import fields
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import String
+from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
-from pmdc_ident.core.drift_monitor import DriftMonitor, DriftReport, MonitorConfig
+from pmdc_ident.core.drift_monitor import (
+    DriftMonitor,
+    DriftReport,
+    MonitorConfig,
+    diagnostic_status,
+)
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.motors import load_motor
+from pmdc_ident.core.schema import SCHEMA_VERSION
 from pmdc_ident.core.stream_join import StampJoiner
 from pmdc_ident.dataio.bagio import parse_joint_state
+from pmdc_ident.nodes.diagnostics import LevelLog, hardware_id, status_name
 from pmdc_ident.nodes.parameter_tables import MONITOR
 from pmdc_ident.nodes.parameters import declare
 from pmdc_ident.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, LATCHED_QOS, sample_qos
+from pmdc_ident.nodes.result_topics import NumericTopic, array_message, drift_topics
+from pmdc_ident.nodes.runtime import log as node_log
 from pmdc_ident.nodes.runtime import run_node
 
 __all__ = ["MonitorNode", "main"]
@@ -68,8 +84,13 @@ class MonitorNode(Node):
         self.joiner = StampJoiner(max_pending=int(2.0 * p("rate_hz")))
         self.latest: DriftReport | None = None
         self._suggested = False
+        self._stale_s = float(p("stale_s"))
+        self._last_sample_s: float | None = None  # host clock of the last driver sample
+        self._hardware_id = hardware_id(self.get_namespace(), str(p("hardware_id")))
+        self._levels = LevelLog("motor drift")
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
         self.pub_drift = self.create_publisher(String, "model_drift", COMMAND_QOS)
+        self._pub_arrays: dict[str, Any] = {}  # model_drift/<quantity> -> publisher
         self.pub_suggest = self.create_publisher(String, "reidentify_suggested", LATCHED_QOS)
         qos = sample_qos(float(p("rate_hz")), seconds=2.0)
         self.create_subscription(JointState, "voltage_applied", self._on_voltage, qos, raw=True)
@@ -95,6 +116,7 @@ class MonitorNode(Node):
     def _on_voltage(self, raw: bytes) -> None:
         ns, _, _, v, _ = parse_joint_state(raw)
         self.joiner.add("voltage", ns, v)
+        self._last_sample_s = time.monotonic()
 
     def _on_current(self, raw: bytes) -> None:
         ns, _, _, i, _ = parse_joint_state(raw)
@@ -111,13 +133,19 @@ class MonitorNode(Node):
         for report in self.monitor.process(t, v, i, w):
             self.latest = report
             self.pub_drift.publish(String(data=json.dumps(drift_json(report))))
+            for topic in drift_topics(report):
+                self._publish_array(topic)
         if self.monitor.suggest_reidentify != self._suggested:
             self._publish_suggestion()
 
     def _publish_suggestion(self) -> None:
         self._suggested = self.monitor.suggest_reidentify
         reason = self.latest.message if self.latest is not None and self._suggested else ""
-        data = {"suggest_reidentify": self._suggested, "reason": reason}
+        data = {
+            "schema_version": SCHEMA_VERSION,
+            "suggest_reidentify": self._suggested,
+            "reason": reason,
+        }
         self.pub_suggest.publish(String(data=json.dumps(data)))
 
     def _on_reset(self, _req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
@@ -126,16 +154,30 @@ class MonitorNode(Node):
         resp.success, resp.message = True, "re-identify suggestion cleared"
         return resp
 
+    def _publish_array(self, topic: NumericTopic) -> None:
+        pub = self._pub_arrays.get(topic.topic)
+        if pub is None:
+            pub = self.create_publisher(Float64MultiArray, topic.topic, COMMAND_QOS)
+            self._pub_arrays[topic.topic] = pub
+        pub.publish(array_message(topic))
+
     def _on_diagnostics(self) -> None:
+        since = None if self._last_sample_s is None else time.monotonic() - self._last_sample_s
+        level, message = diagnostic_status(self.latest, since, self._stale_s)
+        change = self._levels.update(level, message)
+        if change is not None:
+            node_log(self, *change)
+        st = monitor_status(self.latest, level, message, self)
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
-        arr.status = [diagnostic_status(self.get_fully_qualified_name(), self.latest, self)]
+        arr.status = [st]
         self.pub_diag.publish(arr)
 
 
 def drift_json(r: DriftReport) -> dict[str, Any]:
     """The ``model_drift`` message body."""
     return {
+        "schema_version": SCHEMA_VERSION,
         "t_s": r.t_s,
         "level": r.level.name,
         "suggest_reidentify": r.suggest_reidentify,
@@ -158,15 +200,23 @@ def drift_json(r: DriftReport) -> dict[str, Any]:
     }
 
 
-def diagnostic_status(name: str, r: DriftReport | None, node: MonitorNode) -> DiagnosticStatus:
-    st = DiagnosticStatus(name=f"pmdc_ident: {name} motor drift", hardware_id="pmdc_motor")
+def monitor_status(
+    r: DriftReport | None, level: int, message: str, node: MonitorNode
+) -> DiagnosticStatus:
+    """The ``/diagnostics`` status: ``level`` and ``message`` (:func:`diagnostic_status`),
+    the last report's values (``t_s`` = its driver time, seconds since the epoch)."""
+    st = DiagnosticStatus(
+        name=status_name(node.get_fully_qualified_name(), "motor drift"),
+        hardware_id=node._hardware_id,
+        level=bytes([level]),
+        message=message,
+    )
     if r is None:
-        st.level = DiagnosticStatus.STALE
-        st.message = "no driver samples yet"
         return st
-    st.level = bytes([int(r.level)])
-    st.message = r.message
-    values = [("temperature_rise_k", r.temperature_rise_k), ("t_s", r.t_s)]
+    values: list[tuple[str, Any]] = [
+        ("temperature_rise_k", r.temperature_rise_k),
+        ("t_s", f"{r.t_s:.3f}"),
+    ]
     for q in r.quantities:
         unit = q.unit.replace("*", "_").replace("/", "_per_").replace("^", "")
         values += [(f"{q.name}_{unit}", q.value), (f"{q.name}_ci95_{unit}", q.ci95)]

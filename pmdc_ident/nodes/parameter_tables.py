@@ -136,8 +136,11 @@ DRIVER = ParameterTable(
         P("speed_limit_rad_s", 0.0,
           "trip to safe (latched) above this |speed|, rad/s (0 = the motor's limit)",
           0.0, 100000.0, runtime=True),
-        P("watchdog_s", 0.5, "open the armature if no voltage_cmd came for this long, s (0 = off)",
-          0.0, 60.0, runtime=True),
+        P("watchdog_s", 1.5, "open the armature if no voltage_cmd came for this long, s (0 = "
+          "off, at start only: never switched off at run time)", 0.0, 60.0, runtime=True),
+        P("stop_wait_s", 6.0, "on Ctrl-C/SIGTERM: hold 0 V while a node still commands this "
+          "driver (its own safe state first), at most this long, then the safe mode, s "
+          "(below ros2 launch's 10 s before SIGKILL)", 0.0, 60.0),
         P("safe_mode", "open",
           "safe state on faults and exit: 'open' (disconnect the winding) or 'zero' (0 V, "
           "brakes)", choices=("open", "zero")),
@@ -148,6 +151,10 @@ DRIVER = ParameterTable(
           -1.0, 10000.0),
         P("encoder_counts_per_rev", -1.0,
           "sim: encoder counts per turn (0 = exact, negative = the motor file's)", -1.0, 1e9),
+        P("joint_name", "motor_joint", "joint name in the sample topics' JointState (the "
+          "exports' joint: export-model --joint)"),
+        P("hardware_id", "", "/diagnostics hardware_id ('' = pmdc_motor<namespace>, shared "
+          "with the monitor of this motor)"),
         P("port", "/dev/ttyACM0", "serial: port of the driver board"),
         P("baud", 115200, "serial: baud rate", 1200, 10000000),
     ),
@@ -225,7 +232,7 @@ IDENTIFICATION = ParameterTable(
           "current abort)", 0.0, 1e5),
         P("safety.stall_speed_rad_s", 1.0, "stall: while |speed| below this, rad/s", 0.0, 1e4),
         P("safety.stall_time_s", 0.0, "stall: for this long, s (0 = 3 tau_m)", 0.0, 60.0),
-        P("safety.data_timeout_s", 0.5, "abort when no driver sample came for this long, s",
+        P("safety.data_timeout_s", 3.0, "abort when no driver sample came for this long, s",
           0.01, 60.0),
         P("max_start_latency_s", 0.05, "start only once driver samples arrive within this of "
           "their stamp, s", 0.001, 10.0),
@@ -240,7 +247,8 @@ IDENTIFICATION = ParameterTable(
         P("exit_when_done", False, "exit after one session (bring-up uses this)"),
         P("output_dir", "pmdc_sessions", "where results go when no recorder names a bag"),
         P("fix", [""], "identification: fixed values NAME=VALUE (as pmdc-ident identify --fix)"),
-        P("session_name", "", "name of the next session (default: session_<UTC time>)"),
+        P("session_name", "", "name of the next session (default: session_<UTC time>_"
+          "<namespace>_<6 hex digits>, unique)"),
         P("export_models", False, "also write the identified motor for MuJoCo (MJCF), URDF, "
           "ros2_control and its controller gains beside the bag (identified.*)"),
         P("export_reduction", 1.0, "exports: gear ratio, motor turns per joint turn",
@@ -249,6 +257,19 @@ IDENTIFICATION = ParameterTable(
           "(0 = a tenth of the current loop's)", 0.0, 1e5),
         P("export_phase_margin_deg", 60.0, "exports: phase margin of both loops, deg",
           20.0, 85.0),
+        P("plan", "default", "which plan: 'default' (the sequence below), 'auto' (a pre-test, "
+          "then a designed plan, re-fitted until the target is met) or a plan CSV "
+          "(pmdc-ident plan --csv)"),
+        P("plan_target", "", "auto: relative sd per parameter, e.g. R=1%,Tc=5%,L=off (empty: "
+          "R, L, Ke, J, B 1 %, Tc 5 %)"),
+        P("plan_travel_rad", [0.0, 0.0], "[MIN, MAX] travel of the joint in the encoder's frame, "
+          "rad: plans stay inside, the session aborts outside ([0, 0]: no limit)"),
+        P("plan_budget_s", 0.0, "auto: most motor time, s (0 = the default sequence's length)",
+          0.0, 1e5),
+        P("plan_heat_a2s", 0.0, "auto: winding heat budget int i^2 dt, A^2*s (0 = the default "
+          "sequence's)", 0.0, 1e9),
+        P("plan_reveal", "", "auto: effects to make visible first, e.g. "
+          "cogging,stribeck_friction"),
         *_from_dataclass("sequence.", SequenceConfig, _SEQUENCE_TEXT),
         *_from_dataclass("steady_state.", SteadyStateConfig, _STEADY_TEXT),
     ),
@@ -299,6 +320,10 @@ MONITOR = ParameterTable(
         P("hold_s", 1.0, "a higher level must be proven again this much later, s", 0.01, 600.0),
         P("suggest_after_s", 30.0, "WARN this long latches the re-identify suggestion, s",
           0.1, 1e5),
+        P("stale_s", 2.0, "no driver sample for this long: /diagnostics says STALE, s",
+          0.01, 600.0),
+        P("hardware_id", "", "/diagnostics hardware_id ('' = pmdc_motor<namespace>, shared "
+          "with this motor's driver)"),
     ),
 )
 # fmt: on

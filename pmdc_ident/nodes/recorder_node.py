@@ -56,7 +56,7 @@ class RecorderNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         values = declare(self, RECORDER)
-        self.output_dir = Path(values["output_dir"]).expanduser()
+        self.output_dir = Path(values["output_dir"]).expanduser().absolute()  # bags named anywhere
         rate = float(values["rate_hz"]) or 1000.0
         self.margin_ns = int(float(values["margin_s"]) * 1e9)
         self.half_dt_ns = int(0.5e9 / rate)

@@ -20,6 +20,7 @@ from pmdc_ident.core.fixed import parse_fix
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.session.controller import ControllerConfig
 from pmdc_ident.core.session.ports import ExportRequest
+from pmdc_ident.core.session.sequential import PlanSetting
 from pmdc_ident.core.session.startup import SessionSettings, StartRules
 from pmdc_ident.core.session.steady_state import SteadyStateConfig
 
@@ -42,9 +43,10 @@ def _dataclass(cls: Any, prefix: str, values: Mapping[str, Any]) -> Any:
 
 
 def controller_config(
-    values: Mapping[str, Any], flush_timeout_s: float = FLUSH_TIMEOUT_S
+    values: Mapping[str, Any], flush_timeout_s: float = FLUSH_TIMEOUT_S, namespace: str = ""
 ) -> ControllerConfig:
-    """The controller's configuration from the node's parameter values (by table name)."""
+    """The controller's configuration from the node's parameter values (by table name);
+    ``namespace`` is the node's (it names the sessions)."""
     try:
         nominal = load_motor(values["motor"])
     except PmdcError as exc:
@@ -86,7 +88,16 @@ def controller_config(
         flush_timeout_s=flush_timeout_s,
         fixed=fixed,
         exports=_exports(v),
+        namespace=namespace,
+        plan=_plan(v),
     )
+
+
+def _plan(v: Mapping[str, Any]) -> PlanSetting:
+    try:
+        return PlanSetting.from_values(v)
+    except PmdcError as exc:
+        raise PmdcError(f"parameter plan: {exc}") from None
 
 
 def _exports(v: Mapping[str, Any]) -> ExportRequest | None:

@@ -282,9 +282,10 @@ def test_a_board_reset_is_reported_and_re_handshaken(board: VirtualBoard) -> Non
     c = Collector(be)
     try:
         be.command_voltage(6.0)
-        c.run(0.1)
+        c.run(0.4)  # the rotor turns (tau_m 0.3 s) when the board resets
         board.reset()
         assert c.until(lambda: bool(c.errors), 1.0)
+        n_before = len(c.samples)
         assert "reset" in c.errors[0]
         assert board.armature_open
         assert c.until(lambda: be.state is LinkState.STREAMING, 2.0)
@@ -295,6 +296,14 @@ def test_a_board_reset_is_reported_and_re_handshaken(board: VirtualBoard) -> Non
         assert c.until(lambda: c.samples[-1].voltage_cmd_v == pytest.approx(3.0), 1.0)
     finally:
         be.close()
+    last, first = c.samples[n_before - 1], c.samples[n_before]
+    assert first.sample_index > last.sample_index + 1  # the outage is a gap in the stamps
+    # The rotor coasts through the reboot: the first sample published after it reads
+    # that speed (it read 0 rad/s, the board's count having no previous one), and the
+    # position goes on from the last one (the angle turned in the outage is unknown).
+    assert last.speed_rad_s > 30.0
+    assert first.speed_rad_s == pytest.approx(last.speed_rad_s, rel=0.3)
+    assert 0.0 < first.position_rad - last.position_rad < 2.0 * first.speed_rad_s * DT_S
 
 
 def test_port_unplugged_mid_run_is_reported_and_never_hangs(board: VirtualBoard) -> None:
@@ -415,3 +424,56 @@ def test_a_host_that_polls_late_gets_only_the_newest_samples_flagged(board: Virt
     assert be.skipped_samples >= 140
     idx = [x.sample_index for x in late]
     assert idx == list(range(idx[0], idx[0] + 50))
+
+
+def test_a_host_held_up_inside_a_write_keeps_its_link(
+    board: VirtualBoard, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A busy machine may deschedule the driver for half a second in the middle of a
+    write that went through: that is no write failure (pyserial's own write called it
+    'Write timeout' and the link was dropped mid-session)."""
+    import os
+
+    be = _backend(board, board_watchdog_ms=2000)  # the board's own watchdog is not tested
+    try:
+        fd = be._ser.fileno()  # type: ignore[union-attr]
+        real_write = os.write
+
+        def held_up(f: int, data: bytes | memoryview) -> int:
+            n = real_write(f, data)
+            if f == fd:
+                time.sleep(0.6)  # the bytes are out; this thread waits for a CPU
+            return n
+
+        monkeypatch.setattr(os, "write", held_up)
+        assert be.command_voltage(3.0) == 3.0
+        monkeypatch.setattr(os, "write", real_write)
+        c = Collector(be)
+        c.run(0.3)
+        assert c.errors == [] and be.state is LinkState.STREAMING
+        assert c.samples and c.samples[-1].voltage_cmd_v == pytest.approx(3.0)
+    finally:
+        be.close()
+
+
+def test_the_board_watchdog_and_the_link_timeout_follow_the_drivers_watchdog(
+    board: VirtualBoard, motor: MotorSpec
+) -> None:
+    """A driver told to tolerate 1.5 s of host stalls (watchdog_s, as the demo on a busy
+    machine) does not have its board open the armature after 0.5 s of the same stall."""
+    from pmdc_ident.backends.factory import make_backend
+
+    cfg = {"backend": "serial", "port": board.port, "baud": BAUD, "rate_hz": 500.0}
+    cfg |= {"safe_mode": "open", "watchdog_s": 1.5}
+    be = make_backend(cfg, motor, motor.limits, lambda _text: None)
+    assert isinstance(be, SerialBackend)
+    be.start()
+    try:
+        be.command_voltage(3.0)
+        time.sleep(1.0)  # held up: no poll, no keep-alive ping
+        samples = be.poll()
+        assert samples and samples[-1].voltage_cmd_v == pytest.approx(3.0)
+        assert not any(s.faults & Fault.WATCHDOG for s in samples)
+        assert be.state is LinkState.STREAMING
+    finally:
+        be.close()

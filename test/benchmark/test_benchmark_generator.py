@@ -31,6 +31,7 @@ ALLOWED = {
     "pmdc_ident.core.excitation",  # the session's test plan (the user's shapes)
     "pmdc_ident.core.motors",  # the plan's Limits
     "pmdc_ident.core._jit",  # numba compilation, no equation
+    "pmdc_ident.core.effects",  # the registry: the vocabulary's names and ladders
 }
 
 
@@ -45,6 +46,9 @@ def test_generator_imports_nothing_of_the_candidate_library():
                     assert {a.name for a in node.names} <= {"SequenceConfig", "default_plan"}
                 if node.module == "pmdc_ident.core.motors":
                     assert {a.name for a in node.names} == {"Limits"}
+                if node.module == "pmdc_ident.core.effects":
+                    # names and graded sizes only: the equations stay the generator's own
+                    assert {a.name for a in node.names} == {"EFFECT_TYPES"}
 
 
 def test_motors_span_three_decades_geared_and_direct_and_every_name_has_two_equations():
@@ -130,10 +134,18 @@ def _sensors(m):  # type: ignore[no-untyped-def]
 def test_run_file_holds_no_truth_and_hidden_effects_are_measured(tmp_path):
     cases = build_cases(1, 0, 0, 0, seed=2, effects=("dead_zone",), max_samples=4000)
     rec, vis = record(cases[0])
-    text = write_recording(rec, tmp_path / "run.csv").read_text()
+    path = write_recording(rec, tmp_path / "run.csv")
+    text = path.read_text()
     assert "dead" not in text and "zone" not in text and cases[0].name not in text
     assert "step_up" in text and "coast" in text
     assert vis is not None and vis.raw >= vis.residual >= 0.0
+    # the session is one continuous record: read back, every segment continues the one
+    # before (issue 22: continuity judged from the samples keeps real continuations)
+    from pmdc_ident.core.assumptions import continues
+    from pmdc_ident.dataio import load_data
+
+    segs = load_data(path).segments
+    assert len(segs) > 3 and all(continues(s) for s in segs[1:])
 
 
 def test_a_power_law_brush_drop_is_stepped_by_the_slope_of_its_linear_stretch():

@@ -150,14 +150,19 @@ def test_a_change_in_any_kernel_source_moves_the_cache(tmp_path) -> None:
     # numba alone invalidates a cached kernel only when its own file changes; the
     # output-error kernel inlines model.effects_kernel from another file
     root = Path(_jit.__file__).resolve().parents[1]
-    for rel in _jit.KERNEL_SOURCES:
+    for rel in (*_jit.KERNEL_SOURCES, *_jit.KERNEL_CONSTANTS):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(root / rel, tmp_path / rel)
     before = _jit.kernel_fingerprint(tmp_path)
     assert before == _jit.kernel_fingerprint()
     with (tmp_path / "core" / "model.py").open("a") as f:
         f.write("# a changed crossing rule\n")
-    assert _jit.kernel_fingerprint(tmp_path) != before
+    after_model = _jit.kernel_fingerprint(tmp_path)
+    assert after_model != before
+    # the kernels freeze the slot numbers of the effects' layout when compiled
+    with (tmp_path / "core" / "effects" / "layout.py").open("a") as f:
+        f.write("# a moved slot\n")
+    assert _jit.kernel_fingerprint(tmp_path) != after_model
 
 
 def test_every_module_with_a_kernel_is_in_the_fingerprint() -> None:

@@ -140,18 +140,18 @@ class _Bowl:
 
 
 def test_the_solver_refuses_a_diverged_start_in_one_line():
-    from pmdc_ident.core.estimators.output_error.solver import levenberg_marquardt
+    from pmdc_ident.core.estimators.solver import LMSettings, levenberg_marquardt
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         with pytest.raises(DataError, match="the fit cannot start"):
-            levenberg_marquardt(_Bowl(start_diverges=True), np.zeros(1), 20, None)
+            levenberg_marquardt(_Bowl(start_diverges=True), np.zeros(1), LMSettings(20))
 
 
 def test_the_solver_steps_back_from_diverged_trial_points():
-    from pmdc_ident.core.estimators.output_error.solver import levenberg_marquardt
+    from pmdc_ident.core.estimators.solver import LMSettings, levenberg_marquardt
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        z, state = levenberg_marquardt(_Bowl(), np.zeros(1), 50, None)
+        z, state = levenberg_marquardt(_Bowl(), np.zeros(1), LMSettings(50))
     assert np.isfinite(z).all() and 0.0 < z[0] <= 0.8 and math.isfinite(state.cost)

@@ -208,10 +208,11 @@ def test_sample_rates_from_50_hz_to_20_khz(tmp_path, capsys, case):
     for name in names:
         assert _value(doc, name) == pytest.approx(getattr(m, name), rel=rel), name
         assert doc["parameters"][name]["identifiable"], name
-    if case.startswith("50hz"):  # L/R = 0.25 ms against a 20 ms sample: said, and in range
+    if case.startswith("50hz"):  # L/R = 0.25 ms against a 20 ms sample: a timing offset of
+        # 1 % of a period moves L by ~90 %, which no record shows: flagged, with the meter
         L = doc["parameters"]["L"]
-        assert "below the sample period 20 ms" in L["reason"]
-        assert L["ci95"][0] <= 2e-3 <= L["ci95"][1], L
+        assert not L["identifiable"] and L["ci95"] is None, L
+        assert "20 ms sample" in L["reason"] and "LCR" in L["reason"], L
         assert any("an encoder of 12 counts/rev" in a for a in doc["assumptions"])
         # the same key in a sidecar
         path.with_name(path.name + ".yaml").write_text("speed_averaged: true\n")

@@ -25,6 +25,7 @@ from pmdc_ident.core.effects import (
     QuadraticDrag,
     ResistanceDrift,
     StribeckFriction,
+    TorqueDependentFriction,
     effect_from_mapping,
     effects_from_mapping,
 )
@@ -384,6 +385,21 @@ def test_effect_inductance_saturation_speeds_the_current_rise_at_high_current():
     assert sat.current[-1] == pytest.approx(100.0 / P1.R, rel=1e-3)
 
 
+def test_effect_torque_dependent_friction_takes_its_share_driving_and_adds_it_braking():
+    mu = 0.3
+    # the torque is smaller while driving: the rotor settles later (tau_m / (1 - mu))
+    v = np.concatenate([np.full(8000, V_EFF), np.zeros(300)])
+    plain = simulate(Model(P0), v, DT_S).speed
+    res = simulate(Model(P0, (TorqueDependentFriction(mu),)), v, DT_S).speed
+    # V = R i + Ke w and Kt (1 - mu) i = B w: the share mu of the torque is lost
+    w_ss = V_EFF / (P0.R * P0.B / (P0.Kt * (1.0 - mu)) + P0.Ke)
+    assert res[7999] == pytest.approx(w_ss, rel=1e-6)
+    assert res[7999] < plain[7999] - 1.0  # (a no-load current: a small share of it)
+    # shorted at 0 V the winding brakes the rotor: the friction then adds to the torque
+    lost = (plain[8000] - plain[8200]) / plain[8000], (res[8000] - res[8200]) / res[8000]
+    assert lost[1] > lost[0] + 0.05  # a larger share of the speed is gone 0.2 s later
+
+
 def test_every_vocabulary_effect_has_a_direction_test():
     tested = {
         "coulomb_friction",
@@ -397,6 +413,7 @@ def test_every_vocabulary_effect_has_a_direction_test():
         "delay",
         "current_offset",
         "inductance_saturation",
+        "torque_dependent_friction",
     }
     assert tested == set(EFFECT_NAMES)
 

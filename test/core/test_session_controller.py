@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import xml.etree.ElementTree as ET
 from dataclasses import replace
 from typing import Any
@@ -101,9 +102,11 @@ def _config(**overrides: Any) -> ControllerConfig:
     return controller_config(values)
 
 
-def _ready(c: SessionController, now: float, clock_offset_ns: int = 0) -> None:
+def _ready(
+    c: SessionController, now: float, clock_offset_ns: int = 0, driver: dict | None = None
+) -> None:
     """The driver answered, samples arrive on time, the recorder receives them."""
-    c.on_driver_parameters(DRIVER)
+    c.on_driver_parameters(driver or DRIVER)
     c.on_recorder_status(json.dumps({"receiving": {"a": 1, "b": 1, "c": 1}}), now)
     _samples(c, 0, now, clock_offset_ns)
 
@@ -201,7 +204,7 @@ def test_safety_defaults_are_safety_config_for_limits_at_90_percent_of_the_drive
 
 def test_latency_is_measured_against_the_lowest_offset_seen_and_a_late_sample_aborts():
     ports = Ports()
-    c = SessionController(_config(settle_s=0.0), ports)
+    c = SessionController(_config(settle_s=0.0, **{"safety.data_timeout_s": 0.5}), ports)
     c.start(autostart=True, now_s=0.0)
     offset = 5_000_000_000  # a board clock 5 s behind this host's
     _ready(c, 0.0, offset)
@@ -212,6 +215,10 @@ def test_latency_is_measured_against_the_lowest_offset_seen_and_a_late_sample_ab
     c.on_encoder(2_000_000, 0.0, 0.0, 0.04, offset + 2_000_000 + 600_000_000)  # > 0.5 s
     assert c.session.abort_reason is AbortReason.LOST_DRIVER_DATA
     assert "arrive 0.60 s late" in ports.status[-1]["detail"] and ports.sent[-1] == 0.0
+    # the abort names its fix, in the log line and in the status (issue 24)
+    remedy = "raise safety.data_timeout_s (now 0.5 s"
+    assert remedy in ports.status[-1]["remedy"]
+    assert any("ABORTED (lost_driver_data)" in t and remedy in t for _, t in ports.logs)
 
 
 def test_commands_go_out_on_change_and_every_0_1_s_for_the_watchdog():
@@ -335,20 +342,25 @@ def test_a_lost_recorder_aborts_the_running_session():
         c.tick(k * 0.02)
     assert c.session.abort_reason is AbortReason.PEER_CRASHED
     assert ports.status[-1] == {
+        "schema_version": 1,
         "state": "aborted",
         "session": c.session.name,
         "reason": "peer_crashed",
         "detail": "recorder heartbeat lost: recorder gone",
+        "remedy": "if the recorder is only slow, raise peer_timeout_s (now 0.5 s)",
         "bag": "",
     }
 
 
-def _closed_loop(cfg: ControllerConfig) -> tuple[SessionController, Ports]:
-    """A whole session closed around the simulated plant, up to the identification."""
+def _closed_loop(
+    cfg: ControllerConfig, driver: dict | None = None, bag_dir: str = ""
+) -> tuple[SessionController, Ports]:
+    """A whole session closed around the simulated plant, up to the identification;
+    with ``bag_dir`` the recorder reports the bag ``<bag_dir>/<session>`` (as given)."""
     ports = Ports()
     c = SessionController(cfg, ports)
     c.start(autostart=True, now_s=0.0)
-    _ready(c, 0.0)
+    _ready(c, 0.0, driver=driver)
     c.tick(0.0)
     plant = Plant(MOTOR.model, DT, substeps=4)
     applied = 0.0
@@ -362,7 +374,10 @@ def _closed_loop(cfg: ControllerConfig) -> tuple[SessionController, Ports]:
         if k % 20 == 0:
             c.tick(now)
         if k % 200 == 0:  # the recorder's heartbeat
-            c.on_recorder_status(json.dumps({"receiving": {"a": ns, "b": ns, "c": ns}}), now)
+            beat: dict[str, Any] = {"receiving": {"a": ns, "b": ns, "c": ns}}
+            if bag_dir and c.session is not None:
+                beat |= {"session": c.session.name, "path": f"{bag_dir}/{c.session.name}"}
+            c.on_recorder_status(json.dumps(beat), now)
         if ports.sent:
             applied = ports.sent[-1]
         plant.step(None if c.commands.armature_open else applied)
@@ -403,17 +418,26 @@ def test_unknown_parameters_of_the_node_are_refused_in_one_line():
     assert isinstance(_config().session, SessionSettings)
 
 
-def test_exports_are_written_beside_the_results_and_a_failed_one_is_one_line(tmp_path):
+def test_exports_are_written_beside_the_results_and_a_failed_one_is_one_line(
+    tmp_path, monkeypatch
+):
     """export_models: the identification job also writes the identified motor's MJCF,
-    URDF, ros2_control and gains files; a failure is a warning and a field of the
-    result, never a failed identification."""
+    URDF, ros2_control and gains files for the driver's joint; a failure is a warning
+    and a field of the result, never a failed identification. The job names its bag by
+    absolute path, whatever path the recorder (started in the same folder) gave."""
     from pmdc_ident.nodes.identify_call import run_identification_job, write_session_exports
 
+    monkeypatch.chdir(tmp_path)
     cfg = _config(settle_s=0.0, export_models=True, export_reduction=3.0)
-    _, ports = _closed_loop(cfg)
+    driver = {**DRIVER, "joint_name": "left_wheel_joint"}
+    c, ports = _closed_loop(cfg, driver=driver, bag_dir="sessions")
     job = ports.jobs[0]
-    # the gains' rate is the session's (the driver's 1 kHz)
-    assert job.exports == ExportRequest(reduction=3.0, sample_rate_hz=1000.0)
+    # the gains' rate is the session's (the driver's 1 kHz), the joint the driver's
+    assert job.exports == ExportRequest(
+        reduction=3.0, sample_rate_hz=1000.0, joint="left_wheel_joint"
+    )
+    bag = tmp_path / "sessions" / c.session.name
+    assert job.source == str(bag) and job.output_dir == bag  # absolute (issue 24)
     out = run_identification_job(replace(job, output_dir=tmp_path / "ok"))
     assert not out.error, out.error
     names = ["identified" + s for s in EXPORT_FILES]
@@ -424,6 +448,11 @@ def test_exports_are_written_beside_the_results_and_a_failed_one_is_one_line(tmp
     mjcf, urdf_text, control, gains = ((tmp_path / "ok" / n).read_text() for n in names)
     assert ET.fromstring(mjcf).tag == "mujoco"
     assert ET.fromstring(urdf_text).find("joint/dynamics") is not None
+    assert ET.fromstring(urdf_text).find("joint").get("name") == "left_wheel_joint"
+    assert (
+        "left_wheel_joint"
+        in yaml.safe_load(control)["left_wheel_joint_speed_pid"]["ros__parameters"]["dof_names"]
+    )
     assert yaml.safe_load(control) and yaml.safe_load(gains)["verification"]
     assert ("info", f"exports written to {tmp_path / 'ok'}: {', '.join(names)}") in out.notes
     # a speed loop the 1 kHz current loop cannot carry: no files, one warning, no raise
@@ -460,3 +489,22 @@ def test_a_backlog_drained_one_topic_first_is_judged_with_each_samples_own_curre
     assert c.session.abort_reason is AbortReason.STALL
     (abort,) = [m for m in ports.markers if m["event"] == "abort"]
     assert 0.2 <= abort["t_s"] < 0.21, abort  # 0.2 s after the first sample's 12 A
+
+
+def test_default_session_names_are_unique_for_motors_started_in_the_same_second():
+    """Two wheels (two namespaces) started at once, and two sessions in one namespace:
+    every default session name differs, and says which motor it is (issue 24)."""
+    names = []
+    for namespace in ("/left_wheel", "/right_wheel", "/left_wheel", "/"):
+        values = {**IDENTIFICATION.defaults(), "motor": "seed001_110v", **SHORT}
+        values["settle_s"] = 0.0
+        c = SessionController(controller_config(values, namespace=namespace), Ports())
+        c.start(autostart=True, now_s=0.0)
+        _ready(c, 0.0)
+        c.tick(0.02)
+        assert c.phase is Phase.RUNNING
+        names.append(c.session.name)
+    assert len(set(names)) == 4, names
+    assert re.fullmatch(r"session_\d{8}_\d{6}_left_wheel_[0-9a-f]{6}", names[0]), names
+    assert re.fullmatch(r"session_\d{8}_\d{6}_right_wheel_[0-9a-f]{6}", names[1]), names
+    assert re.fullmatch(r"session_\d{8}_\d{6}_[0-9a-f]{6}", names[3]), names

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
@@ -108,10 +109,60 @@ def test_urdf_parses_with_dynamics_limits_and_reduction() -> None:
     assert j.dynamics.friction == pytest.approx(0.0256 * 10)
     assert j.limit.effort == pytest.approx(p.Kt * spec.limits.current_max_a * 10)
     assert j.limit.velocity == pytest.approx(spec.limits.speed_max_rad_s / 10)
-    (tr,) = robot.transmissions
-    assert tr.actuators[0].mechanicalReduction == pytest.approx(10.0)
-    assert tr.joints[0].name == "wheel"
-    assert robot.link_map["wheel_output"].inertial.inertia.izz == pytest.approx(p.J * 100)
+    inertia = robot.link_map["wheel_output"].inertial.inertia
+    assert inertia.izz == pytest.approx(p.J * 100)
+
+
+def test_urdf_inertia_is_physically_valid_and_the_transmission_is_ros2_control() -> None:
+    """Every triangle inequality of the principal moments holds (simulators refuse a
+    tensor that breaks one), and the reduction rides in a ROS 2 <ros2_control>
+    transmission, not a ROS 1 <transmission> with EffortJointInterface (issue 24)."""
+    urdf = pytest.importorskip("urdf_parser_py.urdf")
+    for reduction in (1.0, 10.0, 0.25):
+        text = urdf_xml(load_motor("seed000_ebike"), reduction=reduction, joint="wheel")
+        inertia = urdf.URDF.from_xml_string(text).link_map["wheel_output"].inertial.inertia
+        moments = np.array([inertia.ixx, inertia.iyy, inertia.izz])
+        assert np.all(moments > 0) and inertia.ixy == inertia.ixz == inertia.iyz == 0
+        for k in range(3):
+            assert moments.sum() - moments[k] >= 1.1 * moments[k], (reduction, moments)
+        root = ET.fromstring(text)
+        assert root.find("transmission") is None  # the ROS 1 form is gone
+        assert "EffortJointInterface" not in text
+        (tr,) = root.findall("ros2_control/transmission")
+        assert tr.findtext("plugin") == "transmission_interface/SimpleTransmission"
+        assert tr.find("joint").get("name") == "wheel"
+        assert float(tr.findtext("joint/mechanical_reduction")) == pytest.approx(reduction)
+        assert root.find("ros2_control/joint").get("name") == "wheel"
+
+
+def test_ros2_control_yaml_loads_with_params_file_in_a_node(tmp_path) -> None:
+    """Every value under a node's ros__parameters: rcl parses the file at start-up
+    (a top-level block failed: 'Cannot have a value before ros__parameters', issue 24)
+    and the controller_manager node gets the joint's limits."""
+    rclpy = pytest.importorskip("rclpy")
+    from rclpy.context import Context
+
+    spec = load_motor("seed000_ebike")
+    d = design_gains(spec.model.params, spec.limits, sample_rate_hz=500, speed_bandwidth_hz=4)
+    path = tmp_path / "wheel.ros2_control.yaml"
+    path.write_text(ros2_control_yaml(spec, d, reduction=5.0, joint="wheel"))
+    data = yaml.safe_load(path.read_text())
+    assert all(set(v) == {"ros__parameters"} for v in data.values()), data.keys()
+    ctx = Context()
+    rclpy.init(args=["--ros-args", "--params-file", str(path)], context=ctx)
+    try:
+        node = rclpy.create_node(
+            "controller_manager",
+            context=ctx,
+            automatically_declare_parameters_from_overrides=True,
+        )
+        got = {k: v.value for k, v in node.get_parameters_by_prefix("").items()}
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    assert got["update_rate"] == 500
+    assert got["joint_limits.wheel.max_effort"] == pytest.approx(spec.model.params.Kt * 30 * 5)
+    assert got["wheel_speed_pid.type"] == "pid_controller/PidController"
 
 
 def test_ros2_control_yaml_holds_the_speed_pi_as_joint_torque() -> None:
@@ -123,7 +174,8 @@ def test_ros2_control_yaml_holds_the_speed_pi_as_joint_torque() -> None:
     kt = spec.model.params.Kt
     assert gains["p"] == pytest.approx(d.speed_kp_a_s_per_rad * kt * 25)
     assert gains["i"] == pytest.approx(d.speed_ki_a_per_rad * kt * 25)
-    assert data["joint_limits"]["wheel"]["max_effort"] == pytest.approx(kt * 30 * 5)
+    limits = data["controller_manager"]["ros__parameters"]["joint_limits"]["wheel"]
+    assert limits["max_effort"] == pytest.approx(kt * 30 * 5)
 
 
 def test_gains_meet_their_promise_on_the_true_motor_when_designed_on_an_imperfect_model() -> None:
@@ -209,7 +261,7 @@ def test_exports_are_importable_from_the_package() -> None:
 
     spec = lm("seed001_110v")
     assert "<dcmotor" in mx(spec).xml
-    assert "<transmission" in ux(spec)
+    assert "<ros2_control" in ux(spec)
     design = dg(spec.model.params, spec.limits, sample_rate_hz=1000, speed_bandwidth_hz=3)
     assert design.speed_phase_margin_deg >= 59.5
 

@@ -28,6 +28,7 @@ class Motor:
     B: float = 2e-6
     Tc: float = 0.0
     T_load: float = 0.0
+    mu: float = 0.0  # friction mu |Kt i| against the motion (a gearbox's mesh losses)
 
 
 @dataclass
@@ -52,10 +53,12 @@ class Record:
 def _deriv(m: Motor, v: float, i: float, w: float, is_open: bool) -> tuple[float, float]:
     di = 0.0 if is_open else (v - m.R * i - m.Ke * w) / m.L
     drive = (0.0 if is_open else m.Kt * i) - m.T_load
+    # what friction can hold at rest, and its size while turning
+    level = m.Tc + (m.mu * abs(m.Kt * i) if m.mu and not is_open else 0.0)
     if abs(w) > 1e-9:
-        fric = m.Tc * math.copysign(1.0, w)
+        fric = level * math.copysign(1.0, w)
     else:
-        fric = math.copysign(min(abs(drive), m.Tc), drive) if m.Tc else 0.0
+        fric = math.copysign(min(abs(drive), level), drive) if level else 0.0
     return di, (drive - m.B * w - fric) / m.J
 
 
@@ -106,7 +109,8 @@ def simulate(
                 # through zero: friction stops the rotor unless the drive breaks it away
                 # (then it turns on; clamping every crossing lost up to a sub-step's motion)
                 drive = (0.0 if is_open else m.Kt * i) - m.T_load
-                if abs(drive) <= m.Tc:
+                level = m.Tc + (m.mu * abs(m.Kt * i) if m.mu and not is_open else 0.0)
+                if abs(drive) <= level:
                     w_new = 0.0
             w = w_new
     cur = i_out + cur_noise

@@ -244,6 +244,18 @@ def test_runtime_parameter_changes_are_validated_with_a_reason(client):
     assert not res.successful and "above the limit of motor seed000_ebike" in res.reason
     read_only = Parameter("rate_hz", Parameter.Type.DOUBLE, 2000.0)
     assert not _wait(client, params.set_parameters([read_only])).results[0].successful
+    # no runtime change raises a limit past the motor file's or switches the watchdog off
+    # (issue 24: 500 A on a 30 A motor, 99999 rad/s and watchdog_s 0 were accepted)
+    for name, value, said in (
+        ("current_limit_a", 500.0, "above the limit of motor seed000_ebike (30 A"),
+        ("speed_limit_rad_s", 99999.0, "above the limit of motor seed000_ebike (450 rad/s"),
+        ("watchdog_s", 0.0, "would switch the watchdog off"),
+    ):
+        bad = Parameter(name, Parameter.Type.DOUBLE, value)
+        res = _wait(client, params.set_parameters([bad])).results[0]
+        assert not res.successful and said in res.reason, (name, res.reason)
+    got = _wait(client, params.get_parameters(["current_limit_a", "watchdog_s"])).values
+    assert [v.double_value for v in got] == [0.0, 0.5]  # unchanged
     lower = Parameter("voltage_limit_v", Parameter.Type.DOUBLE, 6.0)
     assert _wait(client, params.set_parameters([lower])).results[0].successful
     try:
@@ -266,11 +278,102 @@ def test_diagnostics_report_backend_rate_faults_and_armature(client):
         client.destroy_subscription(sub)
     statuses = [st for arr in got for st in arr.status if "motor driver" in st.name]
     assert 2 <= len(statuses) <= 3  # 1 Hz
+    # one naming scheme with the monitor's, a hardware id per motor (its namespace)
+    assert statuses[-1].name == "driver_node: motor driver"
+    assert statuses[-1].hardware_id == "pmdc_motor"
     values = {kv.key: kv.value for kv in statuses[-1].values}
     assert values["backend"] == "sim" and values["motor"] == "seed000_ebike"
     assert float(values["sample rate delivered (Hz)"]) == pytest.approx(RATE_HZ, rel=0.1)
     assert values["armature"] == "3 V applied"
     assert values["faults"] == "none" and values["watchdog"] == "ok"
+
+
+def test_sample_topics_name_the_configured_joint(client):
+    from sensor_msgs.msg import JointState
+
+    from pmdc_ident.nodes.qos import sample_qos
+
+    names: dict[str, list[str]] = {}
+    subs = [
+        client.create_subscription(
+            JointState, topic, lambda m, t=topic: names.setdefault(t, list(m.name)), qos
+        )
+        for topic, qos in (("encoder", sample_qos(RATE_HZ)), ("current", sample_qos(RATE_HZ)))
+    ]
+    try:
+        client.spin_for(0.5, 0.01)
+    finally:
+        for sub in subs:
+            client.destroy_subscription(sub)
+    assert names == {"encoder": ["motor_joint"], "current": ["motor_joint"]}
+
+
+def test_the_driver_is_ok_again_after_a_session_ends_at_zero_volts(client):
+    """A session ends with 0 V and its commands stop: the watchdog opens the armature
+    and the status stays OK (it stayed WARN 'watchdog: tripped' until a next command)."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    _drive(client, 5.0, 0.3)
+    _drive(client, 0.0, 0.3)  # the session's end: 0 V, then no more commands
+    got: list[DiagnosticStatus] = []
+    sub = client.create_subscription(
+        DiagnosticArray,
+        "/diagnostics",
+        lambda m: got.extend(st for st in m.status if "motor driver" in st.name),
+        10,
+    )
+    try:
+        end = time.monotonic() + 10.0
+        while time.monotonic() < end and not any(
+            {kv.key: kv.value for kv in st.values}["armature"] == "armature open" for st in got
+        ):
+            client.spin_once(0.05)
+        client.spin_for(1.2)  # and the next report too
+    finally:
+        client.destroy_subscription(sub)
+    opened = [
+        st for st in got if {kv.key: kv.value for kv in st.values}["armature"] != "0 V applied"
+    ]
+    assert opened, [st.message for st in got]
+    for st in opened:
+        values = {kv.key: kv.value for kv in st.values}
+        assert st.level == DiagnosticStatus.OK, (st.message, values)
+        assert values["watchdog"] == "ok" and values["faults"] == "none"
+
+
+def test_ctrl_c_holds_zero_volts_until_the_commanding_node_has_gone_then_opens(client):
+    """The last test of the shared driver: it stops it. Under ros2 launch Ctrl-C reaches
+    every node at once; the driver must not open before the identification node's
+    0 V is applied and confirmed (issue 24): it applies 0 V itself, refuses the plan's
+    next voltages, and opens once no node publishes voltage_cmd any more."""
+    driver = client.driver
+    _drive(client, 9.75, 0.4)
+    client.clear()
+    driver.proc.send_signal(signal.SIGINT)
+    end = time.monotonic() + 10.0  # the driver applies 0 V itself, at once
+    while time.monotonic() < end and 0.0 not in [v[0] for v in client.voltage.values]:
+        client.spin_once(0.01)
+    # a late command of the plan, then the commanding node's own safe command while it
+    # lives on (the identification node resends 0 V until the driver reports it)
+    client.send(9.75)
+    client.spin_for(1.0, 0.1, lambda: client.send(0.0))
+    client.catch_up()
+    held = client.voltage.array()[:, 0]
+    assert held.size > 500 and driver.alive()
+    k0 = int(np.argmax(held == 0.0))
+    assert held[k0] == 0.0 and np.all(held[k0:] == 0.0), held[k0:][held[k0:] != 0.0][:5]
+    assert k0 < 200  # 0 V within 0.2 s of the signal (host latency on a loaded machine)
+    client.destroy_publisher(client._pub)  # the commanding node has gone
+    end = time.monotonic() + 10.0
+    while driver.alive() and time.monotonic() < end:
+        client.spin_once(0.02)
+    assert driver.stop() == 0, driver.stderr
+    applied = client.voltage.array()[:, 0]
+    assert np.isnan(applied[-1]), applied[-10:]  # then the armature open, and published
+    assert np.all(applied[k0:][~np.isnan(applied[k0:])] == 0.0)
+    assert "stopping: 0 V applied" in driver.stderr
+    assert "refused: the driver is stopping" in driver.stderr
+    assert "driver stopped: motor safe (armature open, safe mode open)" in driver.stderr
 
 
 @pytest.mark.parametrize(
@@ -370,6 +473,6 @@ def test_bad_start_parameter_is_one_line_and_a_non_zero_exit(args, fragment, ros
     assert "Traceback" not in proc.stderr
 
 
-@pytest.mark.parametrize("name", ["driver.launch.py", "session.launch.py"])
+@pytest.mark.parametrize("name", ["driver.launch.py", "session.launch.py", "two_motors.launch.py"])
 def test_launch_file_compiles(name):
     py_compile.compile(str(REPO / "launch" / name), doraise=True)

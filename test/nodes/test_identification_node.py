@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -44,12 +45,9 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 DT = 1e-3
 # A short sequence on the seed-001 motor (tau_m = 50 ms): about 5 s of driver time.
-SHORT = {
-    **SHORT_SEQUENCE,
-    # This machine is shared (2 cores, other test suites running): tolerate 1.5 s of
-    # scheduling stalls instead of the 0.5 s default, except where a test says otherwise.
-    "safety.data_timeout_s": 1.5,
-}
+# This machine is shared (2 cores, other test suites running): the node's default
+# data timeout (3 s, issue 24) tolerates its scheduling stalls.
+SHORT = dict(SHORT_SEQUENCE)
 
 _PROBE = r"""
 import json, signal, sys, time
@@ -85,6 +83,17 @@ node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
 def on_result(m):
     out["result"] = m.data
 node.create_subscription(String, "identified_parameters", on_result, LATCHED_QOS)
+from std_msgs.msg import Float64MultiArray
+out["typed"] = {}
+def on_typed(name):
+    def cb(m):
+        data = [None if x != x else x for x in m.data]
+        out["typed"][name] = {"data": data, "label": [d.label for d in m.layout.dim]}
+    return cb
+for name in ("R", "Kt"):
+    node.create_subscription(
+        Float64MultiArray, "identified_parameters/" + name, on_typed(name), LATCHED_QOS
+    )
 from rclpy.experimental import EventsExecutor
 ex = EventsExecutor()
 ex.add_node(node)
@@ -245,6 +254,25 @@ def test_short_session_completes_and_the_bag_holds_every_driver_sample(short_ses
     assert coast.open_mask.sum() > 0.9 * 1000  # armature open ~1 s
 
 
+def test_the_result_is_versioned_typed_and_names_its_bag_by_absolute_path(short_session):
+    """Issue 24: schema_version, sources as an absolute path, Kt under the Kt = Ke
+    closure not identifiable, one plottable array per parameter, a unique session id."""
+    res, probe = short_session
+    result = res.result
+    assert result is not None, _logs(res)
+    assert result["schema_version"] == 1
+    assert [Path(x) for x in result["sources"]] == [res.bag.absolute()]
+    kt = result["parameters"]["Kt"]
+    assert kt["identifiable"] is False and kt["reason"].startswith("assumed equal to Ke")
+    r = result["parameters"]["R"]
+    typed = probe["typed"]
+    assert typed["R"]["data"] == [r["value"], *r["ci95"], r["stderr"], 1.0], typed
+    assert typed["R"]["label"] == ["R [ohm]: value,ci95_low,ci95_high,stderr,identifiable"]
+    assert typed["Kt"]["data"][4] == 0.0
+    assert re.fullmatch(r"session_\d{8}_\d{6}_[0-9a-f]{6}", res.bag.name), res.bag.name
+    assert all(st["schema_version"] == 1 for st in probe["status"])
+
+
 def test_independent_mcap_ros2_decoder_reads_the_session_bag(short_session):
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
@@ -327,6 +355,14 @@ def test_the_node_writes_the_exports_beside_the_bag(short_session):
     else:
         robot = URDF.from_xml_string(urdf_path.read_text())
         assert robot.joints[0].dynamics is not None
+        assert robot.joints[0].name == "motor_joint"  # the driver's joint_name
+    # the file beside the bag loads in a node with --params-file (issue 24)
+    import rclpy
+    from rclpy.context import Context
+
+    ctx = Context()
+    rclpy.init(args=["--ros-args", "--params-file", str(control)], context=ctx)
+    rclpy.shutdown(context=ctx)
 
 
 # ---------------------------------------------------------------------------
@@ -559,7 +595,6 @@ def test_full_default_sequence_recovers_the_seed000_motor(tmp_path, ros_domain):
         tmp_path,
         ros_domain,
         motor="seed000_ebike",
-        ident={"safety.data_timeout_s": 1.5},
         timeout_s=240,
         short=False,
     )
@@ -587,8 +622,14 @@ def test_full_default_sequence_recovers_the_seed000_motor(tmp_path, ros_domain):
     tc = truth.effect("coulomb_friction").torque_nm
     assert got["coulomb_friction.torque_nm"] == pytest.approx(tc * scale, rel=0.03)
     # L/R = 0.22 ms below the 1 ms period: flagged from the fit's own bound (issue 9), and
-    # the note says that L shows only in the first sample after a step and the current's lag
-    assert "below the sample period" in res.result["parameters"]["L"]["reason"]
+    # the note says that L shows only in the first sample after a step and the current's lag;
+    # the node reads its session through the same data-quality gate and assumption register
+    # as `pmdc-ident identify <bag>` (issue 22), so where the gate measures the current
+    # lagging the voltage column on this session, L carries that finding instead, as the
+    # command's would
+    reason = res.result["parameters"]["L"]["reason"]
+    assert "below the sample period" in reason or "(gate: delay)" in reason, reason
+    assert "assumptions_checked" in res.result and "quality" in res.result
     assert json.loads(probe["result"])["parameters"] == res.result["parameters"]
 
 
@@ -648,8 +689,17 @@ def test_a_larger_stack_asks_for_a_run_by_service_and_a_late_joiner_gets_the_res
             state["call"] = helper("call")
         if "identified from" in log and "late" not in state:
             state["late"] = helper("late")  # starts after the result was published
-        late = state.get("late")
-        if late is not None and late.poll() is not None and "stopped" not in state:
+            # and the integration guide's consumer, a node of another package
+            state["example"] = subprocess.Popen(
+                [sys.executable, str(REPO / "examples" / "result_listener.py"), "--timeout", "60"],
+                env=env,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+        waiting = [state[k] for k in ("late", "example") if k in state]
+        done = len(waiting) == 2 and all(w.poll() is not None for w in waiting)
+        if done and "stopped" not in state:
             procs["identification"].send_signal(signal.SIGINT)
             state["stopped"] = True
 
@@ -666,6 +716,13 @@ def test_a_larger_stack_asks_for_a_run_by_service_and_a_late_joiner_gets_the_res
     assert late["result"] is not None, _logs(res)
     assert json.loads(late["result"]) == res.result
     assert res.result["parameters"]["R"]["value"] == pytest.approx(3.0484, rel=0.02)
+    out, err = state["example"].communicate(timeout=30)
+    assert state["example"].returncode == 0, err
+    r = res.result["parameters"]["R"]
+    (r_line,) = [ln.split() for ln in out.splitlines() if ln.split()[:1] == ["R"]]
+    assert r_line[1:3] == [f"{r['value']:.6g}", "ohm"], out
+    assert "NOT MEASURED: assumed equal to Ke" in out
+    assert f"identified_parameters/R: [{r['value']!r}," in out, out
 
 
 def test_a_plan_above_the_driver_limit_is_refused_before_anything_moves(tmp_path, ros_domain):

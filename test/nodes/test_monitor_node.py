@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -31,7 +32,7 @@ from helpers.driver_harness import (  # noqa: E402
     apply_ros_env,
 )
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
+from std_msgs.msg import Float64MultiArray, String  # noqa: E402
 
 from pmdc_ident.core.stream_join import StampJoiner  # noqa: E402
 
@@ -65,9 +66,12 @@ def session(tmp_path_factory, module_ros_domain):
     ):
         rclpy.init()
         client = DriverClient(1000.0, name="test_monitor_client")
-        got: dict[str, list] = {"drift": [], "diag": [], "suggest": []}
+        got: dict[str, list] = {"drift": [], "diag": [], "suggest": [], "typed": []}
         client.create_subscription(
             String, "model_drift", lambda m: got["drift"].append(json.loads(m.data)), 100
+        )
+        client.create_subscription(
+            Float64MultiArray, "model_drift/resistance", got["typed"].append, 100
         )
         client.create_subscription(
             DiagnosticArray,
@@ -105,14 +109,14 @@ def session(tmp_path_factory, module_ros_domain):
             ):
                 client.spin_for(0.5, 0.02, step)
             client.catch_up()
-            yield client, got, monitor
+            yield client, got, monitor, driver
         finally:
             client.destroy_node()
             rclpy.try_shutdown()
 
 
 def test_heating_is_tracked_and_reported_over_dds(session):
-    client, got, monitor = session
+    client, got, monitor, _ = session
     assert monitor.alive(), monitor.stderr
     assert got["drift"], "no model_drift message"
     last = got["drift"][-1]
@@ -138,33 +142,60 @@ def test_heating_is_tracked_and_reported_over_dds(session):
 
 
 def test_diagnostics_carry_the_level_and_values_with_units(session):
-    _, got, _ = session
+    _, got, _, _ = session
     status = got["diag"][-1]
     assert status.level == b"\x02"  # ERROR
+    # the driver's naming scheme and hardware id (one motor, one namespace)
+    assert status.name == "monitor_node: motor drift" and status.hardware_id == "pmdc_motor"
     values = {kv.key: kv.value for kv in status.values}
+    assert re.fullmatch(r"\d{10}\.\d{3}", values["t_s"]), values["t_s"]  # not 1.79577e+09
     assert float(values["resistance_ohm"]) > 1.375 * 1.2
     assert values["resistance_level"] == "ERROR"
     assert values["suggest_reidentify"] == "true"
     assert "back_emf_V_s_per_rad" in values and "delay_ci95_s" in values
 
 
+def test_resistance_is_plottable_on_its_own_topic(session):
+    _, got, _, _ = session
+    assert got["typed"], "nothing on model_drift/resistance"
+    last = got["drift"][-1]["quantities"]["resistance"]
+    arrays = [list(m.data) for m in got["typed"]]
+    est, lo, hi, ref, level = arrays[-1]
+    assert ref == pytest.approx(1.375) and level == 2.0  # identified R, ERROR
+    assert lo < est < hi and est > 1.2 * 1.375
+    assert any(a[0] == pytest.approx(last["value"]) for a in arrays[-5:])
+    (dim,) = got["typed"][-1].layout.dim
+    assert dim.label == "resistance [ohm]: estimate,ci95_low,ci95_high,identified,level"
+
+
 def test_the_suggestion_is_latched_and_reset_by_service(session):  # noqa: D103
-    client, got, _ = session
+    client, got, _, _ = session
     assert got["suggest"][-1]["suggest_reidentify"] is True
     assert "resistance" in got["suggest"][-1]["reason"]
     before = got["suggest"][-1]
+    # The motor stops being driven: its armature open, the data say nothing about R.
+    # The watchdog would open it 0.5 s after the last command, but the reset below can
+    # come sooner than that (the tests before it take milliseconds): then the still-hot
+    # motor, driven, would rightly prove its R drift again. So open it, and wait for
+    # the monitor to report on samples of the open armature.
+    client.open_armature()
+    opened_s = client.get_clock().now().nanoseconds * 1e-9
+    end = time.monotonic() + 10.0
+    while time.monotonic() < end and got["drift"][-1]["t_s"] < opened_s + 0.2:
+        client.spin_once(0.05)
+    assert got["drift"][-1]["t_s"] >= opened_s + 0.2, "the monitor reported nothing after"
     n = len(got["suggest"])
     assert client.trigger("reset_suggestion") == "re-identify suggestion cleared"
-    # The reset publishes False. The motor is still at ERROR, so the next report (20 ms
-    # later) latches the suggestion again, and a loaded reader of this depth-1 latched
-    # topic may get only that. Either way a new message follows the reset: the node
-    # publishes only on a change, so only a reset makes one while the level holds.
-    end = time.monotonic() + 5.0
-    while time.monotonic() < end and len(got["suggest"]) == n:
+    # The reset publishes False and starts the estimates over: no new evidence comes, so
+    # the suggestion stays cleared. It used to re-latch at the next report, 20 ms later,
+    # from the old estimate (issue 24).
+    end = time.monotonic() + 3.0
+    while time.monotonic() < end:
         client.spin_once(0.05)
     after = got["suggest"][n:]
     assert after, "nothing published after the reset"
-    assert after[0]["suggest_reidentify"] is False or after[0]["reason"] != before["reason"]
+    assert all(a["suggest_reidentify"] is False for a in after), (before, after)
+    assert after[-1]["schema_version"] == 1
 
 
 def test_a_missing_motor_file_is_one_line_and_exit_2(tmp_path, ros_domain):
@@ -194,3 +225,20 @@ def test_sigint_stops_the_node_with_exit_0(ros_domain):
         assert proc.alive(), proc.stderr
         assert proc.stop(signal.SIGINT, timeout_s=20.0) == 0, proc.stderr
         assert "Traceback" not in proc.stderr
+
+
+def test_diagnostics_go_stale_when_the_driver_stops(session):
+    """The last test of the shared session: it stops the driver. The monitor then says
+    STALE (it republished its last ERROR forever) and logs the change (issue 24)."""
+    client, got, monitor, driver = session
+    assert driver.stop() == 0, driver.stderr
+    n = len(got["diag"])
+    end = time.monotonic() + 15.0  # stale_s 2 s, then the next 1 s report
+    while time.monotonic() < end and not any(st.level == b"\x03" for st in got["diag"][n:]):
+        client.spin_once(0.05)
+    stale = [st for st in got["diag"][n:] if st.level == b"\x03"]
+    assert stale, [st.message for st in got["diag"][n:]]
+    # the last report is named (OK: the reset before started the estimates over)
+    assert re.match(r"no driver samples for \d+\.\d s; last report OK", stale[-1].message)
+    assert monitor.stop() == 0
+    assert "motor drift: OK -> STALE: no driver samples for" in monitor.stderr

@@ -45,7 +45,7 @@ def test_the_check_reports_a_drifted_file(tmp_path, capsys):
         target.write_text(text)
     assert main(["--check", "--repo", str(tmp_path)]) == 0
     drifted = tmp_path / "config" / "driver.yaml"
-    drifted.write_text(drifted.read_text().replace("watchdog_s: 0.5", "watchdog_s: 0.7"))
+    drifted.write_text(drifted.read_text().replace("watchdog_s: 1.5", "watchdog_s: 0.7"))
     assert main(["--check", "--repo", str(tmp_path)]) == 1
     assert "config/driver.yaml" in capsys.readouterr().out
 

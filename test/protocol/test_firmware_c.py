@@ -12,9 +12,12 @@ arduino-core-avr package are installed; skipped otherwise) follow.
 from __future__ import annotations
 
 import importlib.util
+import json
+import os
 import shutil
 import struct
 import subprocess
+import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -179,46 +182,48 @@ def test_sketch_builds_and_links_for_an_arduino_uno_when_the_avr_core_is_install
 ) -> None:
     if shutil.which("avr-g++") is None or not (ARDUINO_AVR / "cores/arduino/Arduino.h").is_file():
         pytest.skip("avr-g++ or the Arduino AVR core not installed (apt: arduino-core-avr)")
-    core = ARDUINO_AVR / "cores" / "arduino"
-    flags = [
-        "-mmcu=atmega328p",
-        "-DF_CPU=16000000L",
-        "-DARDUINO=10807",
-        "-DARDUINO_AVR_UNO",
-        "-DARDUINO_ARCH_AVR",
-        "-Os",
-        "-ffunction-sections",
-        "-fdata-sections",
-        f"-I{core}",
-        f"-I{ARDUINO_AVR / 'variants' / 'standard'}",
-    ]
-    cxx = ["avr-g++", *flags, "-std=gnu++11", "-fno-exceptions", "-fno-threadsafe-statics"]
-    strict = ["-Wall", "-Wextra", "-Werror"]
-    sketch = FW / "arduino" / "pmdc_board" / "pmdc_board.ino"
-    objs = [tmp_path / "sketch.o", tmp_path / "proto.o"]
-    for cmd in (
-        [*cxx, *strict, "-x", "c++", "-c", str(sketch), "-o", str(objs[0])],
-        ["avr-gcc", *flags, "-std=c99", *strict, "-c", str(CORE), "-o", str(objs[1])],
-    ):
-        r = subprocess.run(cmd, capture_output=True, text=True)
-        assert r.returncode == 0, r.stderr
-    # The Arduino core itself (its own warnings are not ours; files it cannot build are
-    # not needed by the sketch and show up as link errors if they were).
-    for src in sorted(core.glob("*.c")) + sorted(core.glob("*.cpp")) + sorted(core.glob("*.S")):
-        out = tmp_path / f"core_{src.name}.o"
-        if src.suffix == ".cpp":
-            cmd = [*cxx, "-c", str(src), "-o", str(out)]
-        elif src.suffix == ".c":
-            cmd = ["avr-gcc", *flags, "-std=gnu11", "-c", str(src), "-o", str(out)]
-        else:
-            cmd = ["avr-gcc", *flags, "-x", "assembler-with-cpp", "-c", str(src), "-o", str(out)]
-        if subprocess.run(cmd, capture_output=True).returncode == 0:
-            objs.append(out)
-    elf = tmp_path / "pmdc_board.elf"
-    link = ["avr-gcc", "-mmcu=atmega328p", "-Os", "-Wl,--gc-sections", *map(str, objs)]
-    r = subprocess.run([*link, "-lm", "-o", str(elf)], capture_output=True, text=True)
+    # The build CI and `virtual-board --emulated` use (the IDE's flags, the core as an
+    # archive, -Wall -Wextra -Werror on the sketch and the protocol core).
+    r = subprocess.run(
+        [sys.executable, str(FW / "emulator" / "build.py"), "--baud", "1000000", "--json"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PMDC_FIRMWARE_CACHE": str(tmp_path)},
+        timeout=600,
+    )
+    if r.returncode == 3:
+        pytest.skip(r.stderr.strip())
     assert r.returncode == 0, r.stderr
+    elf = Path(json.loads(r.stdout)["elf"])
     size = subprocess.run(["avr-size", str(elf)], capture_output=True, text=True).stdout
     text, data, bss = (int(x) for x in size.splitlines()[1].split()[:3])
     assert text + data <= 32256  # Uno flash minus the 512-byte boot loader
     assert data + bss <= 1536  # leave 512 of the 2048 bytes of RAM for the stack
+    # Built once, then taken from the cache (content hash): nothing is rebuilt.
+    again = subprocess.run(
+        [sys.executable, str(FW / "emulator" / "build.py"), "--baud", "1000000", "--json"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PMDC_FIRMWARE_CACHE": str(tmp_path)},
+        timeout=600,
+    )
+    assert again.returncode == 0 and json.loads(again.stdout)["elf"] == str(elf)
+    assert json.loads(again.stdout)["cached"] is True
+
+
+def test_the_emulated_boards_constants_are_the_sketchs() -> None:
+    """virtual-board --emulated sizes its encoder and announces its rate from these."""
+    import re
+
+    from pmdc_ident.backends import emulated_board as eb
+
+    text = (FW / "arduino" / "pmdc_board" / "pmdc_board.ino").read_text()
+
+    def const(pattern: str) -> int:
+        m = re.search(pattern, text)
+        assert m is not None, pattern
+        return int(m.group(1))
+
+    assert const(r"HW_MIN_PERIOD_US = (\d+);") == eb.HW_MIN_PERIOD_US
+    assert const(r"MAX_EDGE_RATE = (\d+)UL;") == eb.MAX_EDGE_RATE
+    assert const(r"#define PMDC_COUNTS_PER_REV (\d+)UL") == eb.DEFAULT_COUNTS_PER_REV

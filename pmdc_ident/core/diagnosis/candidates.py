@@ -17,22 +17,7 @@ import numpy as np
 
 from pmdc_ident.core.data import Segment, heat_state
 from pmdc_ident.core.diagnosis.scoring import NoiseModel, residuals
-from pmdc_ident.core.effects import (
-    EFFECT_NAMES,
-    NO_COOLING_S,
-    BrushDrop,
-    Cogging,
-    CoulombFriction,
-    CurrentOffset,
-    DeadZone,
-    Delay,
-    Effect,
-    InductanceSaturation,
-    LoadTorque,
-    QuadraticDrag,
-    ResistanceDrift,
-    StribeckFriction,
-)
+from pmdc_ident.core.effects import EFFECT_NAMES, EFFECT_TYPES, DataScales, Effect
 from pmdc_ident.core.estimators.output_error import FitResult, fit_output_error
 from pmdc_ident.core.model import Model, heat_time_constant, simulate, substeps_for
 
@@ -49,20 +34,6 @@ __all__ = [
 
 BASE_FREE: tuple[str, ...] = ("R", "L", "Ke", "J", "B")
 REFINE_BELOW_SAMPLES = 20_000
-
-
-@dataclass(frozen=True)
-class DataScales:
-    """Sizes read off the data, used to place starting values of effects."""
-
-    torque_nm: float  # Kt * RMS current
-    voltage_v: float  # largest |command|
-    speed_rad_s: float  # largest |speed|
-    current_a: float  # largest |current|
-    dt_s: float  # median sample period
-    charge_a2s: float  # int i^2 dt over all segments
-    span_s: float  # from the first segment's start to the last one's end
-    periods_per_rev: tuple[int, ...]  # shaft-angle harmonics to try for cogging
 
 
 def data_scales(segments: Sequence[Segment], kt: float, periods: Sequence[int] = ()) -> DataScales:
@@ -87,73 +58,14 @@ def data_scales(segments: Sequence[Segment], kt: float, periods: Sequence[int] =
     )
 
 
-def _start(cls: type[Effect], *values: float) -> Effect:
-    """``cls(*values)`` with each value moved into its physical range: a start sized
-    from data in odd units must still be a valid effect, not an error."""
-    specs = list(cls.SPECS.values())
-    return cls(
-        *(min(max(float(v), sp.lower), sp.upper) for v, sp in zip(values, specs, strict=True))
-    )
-
-
 def starting_effects(name: str, sc: DataScales) -> list[Effect]:
-    """Starting values to scan for one effect, sized from the data (within its range)."""
-    t, v, w = sc.torque_nm, sc.voltage_v, sc.speed_rad_s
-    if name == "coulomb_friction":
-        return [_start(CoulombFriction, t * f) for f in (0.03, 0.1, 0.3)]
-    if name == "stribeck_friction":
-        # the fall's speed over two decades of the top speed, in both common shapes
-        # (exponential and Gaussian: measured curves lie between); the fit places the
-        # torque, a start need only be of its order
-        return [
-            _start(StribeckFriction, t * 0.25, max(w * g, 1e-3), shape)
-            for shape in (1.0, 2.0)
-            for g in (0.005, 0.02, 0.08, 0.3)
-        ]
-    if name == "quadratic_drag":
-        return [_start(QuadraticDrag, t * f / w**2) for f in (0.1, 0.3, 1.0)]
-    if name == "load_torque":
-        return [_start(LoadTorque, t * f) for f in (-0.2, -0.05, 0.05, 0.2)]
-    if name == "brush_drop":
-        # the hard sign (knee 0), then a contact film's knee at a share of the current
-        hard = [_start(BrushDrop, v * f, 0.0) for f in (0.01, 0.02, 0.035, 0.05, 0.075, 0.1)]
-        return hard + [
-            _start(BrushDrop, v * f, sc.current_a * g)
-            for f in (0.02, 0.05, 0.1)
-            for g in (0.03, 0.1, 0.3)
-        ]
-    if name == "dead_zone":
-        return [_start(DeadZone, v * f) for f in (0.01, 0.02, 0.035, 0.05, 0.075, 0.1)]
-    if name == "cogging":
-        return [
-            _start(Cogging, t * 0.1, float(n), ph)
-            for n in sc.periods_per_rev
-            for ph in (-2.5, -1.0, 0.5, 2.0)
-        ]
-    if name == "resistance_drift":
-        # first-order heating: q levels off near (mean i^2) x tau when tau < the span;
-        # magnets that keep their flux (the diagnosis frees that only where heating helps)
-        power = sc.charge_a2s / sc.span_s
-        return [
-            _start(ResistanceDrift, f / (power * min(tau, sc.span_s)), tau, 0.0)
-            for f in (0.05, 0.2)
-            for tau in (0.25 * sc.span_s, sc.span_s, NO_COOLING_S)
-        ]
-    if name == "delay":
-        # every whole sample: at high sweep frequencies the cost wraps with the phase;
-        # then a first-order lag behind a short transport delay (a drive's output filter)
-        transport = [_start(Delay, min(k * sc.dt_s, 1.0), 0.0) for k in (*range(1, 25), 30, 40)]
-        return transport + [
-            _start(Delay, d * sc.dt_s, min(k * sc.dt_s, 1.0))
-            for d in (0.0, 1.0)
-            for k in (0.5, 1, 2, 4, 8, 16)
-        ]
-    if name == "current_offset":
-        return [_start(CurrentOffset, sc.current_a * f) for f in (-0.05, -0.01, 0.01, 0.05)]
-    if name == "inductance_saturation":
-        return [_start(InductanceSaturation, max(sc.current_a * f, 1e-3)) for f in (0.5, 1.0, 2.0)]
-    msg = f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}"
-    raise ValueError(msg)
+    """Starting values to scan for one effect, sized from the data (within its range):
+    the effect's own :meth:`~pmdc_ident.core.effects.base.Effect.starts`."""
+    cls = EFFECT_TYPES.get(name)
+    if cls is None:
+        msg = f"unknown effect {name!r}; known: {', '.join(EFFECT_NAMES)}"
+        raise ValueError(msg)
+    return list(cls.starts(sc))
 
 
 @dataclass(frozen=True)
@@ -216,11 +128,12 @@ def scan_start(
     """The baseline plus the starting effect whose simulation best matches the data
     (among the starts ``keep`` accepts), and its gap on ``segments``.
 
-    L is scanned too: when L/R is near the sample period the linear fit places L to
-    mimic the effect (a delay most of all), and the fit holds L where it starts.
+    L is scanned too (the effect's ``L_SCAN`` factors): when L/R is near the sample
+    period the linear fit places L to mimic the effect (a delay most of all), and the
+    fit holds L where it starts.
     """
     p = base.params
-    factors = (1 / 3, 1 / 10, 1 / 30) if name == "delay" else (1 / 3, 3.0)
+    factors = EFFECT_TYPES[name].L_SCAN
     bases = [base] + [Model(p.replace(L=p.L * f), base.effects) for f in factors]
     best, best_gap = None, math.inf
     for b in bases:

@@ -59,7 +59,7 @@ def choose(search: Search, scoring: Scoring, base: Fitted, singles: list[Fitted]
     # A gap below the noise level still counts when an effect, fitted without the
     # held-out samples, beats its penalty on them and closes most of that gap: the
     # held-out improvement is the evidence (on effect-free runs no candidate does).
-    shown = bool(helping) and g0 > 0 and (g0 - helping[0][0].gap) >= th.explained_shrink * g0
+    shown = bool(helping) and g0 > 0 and scoring.closes_most(helping[0][0].gap)
     gap_significant = g0 > th.no_gap_noise or shown
     choice = Choice(base, gap_significant, scores=[s for s, _ in scored])
     if not (helping and gap_significant):
@@ -127,7 +127,6 @@ def with_chain_lag(
     saturates leaves the lag of the current sensor's filter in its high-frequency
     residuals."""
     chosen, lag = choice.chosen, by_name.get("delay")
-    th = scoring.thresholds
     if (
         lag is None
         or lag.failed
@@ -135,7 +134,7 @@ def with_chain_lag(
         # a delay that helps alone is combined as an effect, unless it is itself only
         # a chain lag (its helping alone is the filter's lag, not a dead time)
         or (scoring.score(lag).significant and chain_lag_s(lag, search.dt_s) is None)
-        or scoring.g0 - chosen.gap >= th.explained_shrink * scoring.g0
+        or scoring.closes_most(chosen.gap)
     ):
         return
     (trial,) = _with_each(search, chosen, by_name, ["delay"])
@@ -240,7 +239,7 @@ def _tied_with(
     return [
         (s, f)
         for s, f in others
-        if (g0 - s.gap) >= th.explained_shrink * g0
+        if scoring.closes_most(s.gap)
         and (
             (g0 - s.gap) >= (1.0 - th.tie_fraction) * gain_ref
             or not separated(
@@ -279,7 +278,7 @@ def combine(
         trials = [t for t in _with_each(search, chosen, by_name, pool_names) if not t.failed]
         if not trials:
             break
-        best_trial = min(trials, key=lambda f: f.gap + n_added(f.fit.model, f.effects) * penalty)
+        best_trial = min(trials, key=scoring.penalized)
         choice.scores.extend(scoring.score(f, chosen) for f in trials)
         k_new = n_added(best_trial.fit.model, best_trial.effects[-1:])
         # a larger model must be preferred beyond doubt in every block sense (no

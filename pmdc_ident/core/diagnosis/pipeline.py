@@ -24,6 +24,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from pmdc_ident.core.assumptions import check_holdout
 from pmdc_ident.core.data import Run, Segment, check_excitation, unique_labels
 from pmdc_ident.core.diagnosis.candidates import (
     DataScales,
@@ -35,6 +36,7 @@ from pmdc_ident.core.diagnosis.candidates import (
 from pmdc_ident.core.diagnosis.choice import Choice, chain_lag_s, choose
 from pmdc_ident.core.diagnosis.cogging import angle_cogging
 from pmdc_ident.core.diagnosis.config import DiagnosisConfig
+from pmdc_ident.core.diagnosis.detection import with_detection_limits
 from pmdc_ident.core.diagnosis.holdout import HoldoutSplit, split_segments, swapped
 from pmdc_ident.core.diagnosis.localization import Localization, localize, regime_masks
 from pmdc_ident.core.diagnosis.results import (
@@ -50,14 +52,12 @@ from pmdc_ident.core.diagnosis.search import (
     Fitted,
     Scoring,
     Search,
-    n_added,
     predictions,
 )
-from pmdc_ident.core.effects import Effect
+from pmdc_ident.core.effects import EFFECT_TYPES, CandidateContext
 from pmdc_ident.core.errors import DataError
 from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit
 from pmdc_ident.core.estimators.output_error import FitResult
-from pmdc_ident.core.estimators.output_error.simulators import FAST_EFFECTS
 from pmdc_ident.core.estimators.start import equation_error_start
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.params import MotorParams
@@ -81,12 +81,15 @@ def diagnose(
     segments = _flatten(runs_or_segments)
     check_excitation(segments)  # a flat record: one line, not a singular fit
     split = split_segments(segments, cfg.holdout or None)
+    check_holdout(split.held_out, split.rule)  # the assumption register: exit 2 if empty
     noise = estimate_noise(segments)
     result = _diagnose_split(segments, split, noise, cfg, progress)
     if result.verdict.status is VerdictStatus.NO_GAP and split.rule == "default" and cfg.swap:
         other = _swapped_look(segments, split, noise, cfg, progress)
         if other is not None:
             result = other
+    if cfg.detection_limits:
+        result = with_detection_limits(result, noise, cfg)
     return replace(result, elapsed_s=time.perf_counter() - t_start)
 
 
@@ -346,34 +349,35 @@ def _single_candidates(
 ) -> tuple[dict[str, str], list[Fitted]]:
     """Every testable effect fitted alone; also what could not be tried, and why.
 
-    Cogging is fitted in the measured shaft angle (:mod:`.cogging`) for the strongest
-    periods of the residuals' angle spectrum, wherever the shaft turned enough to
-    have one.
-    The effects of :data:`TWO_FORMS` are fitted in their one-parameter limit (the heat
-    integral, a hard brush drop, a transport delay); where the limit helps, or where
-    no candidate closes the gap and the second parameter could pay its penalty
-    (:func:`_second_form_can_pay`), they are fitted again with it free (first-order
+    What each effect needs is its own declaration (:mod:`pmdc_ident.core.effects.base`):
+    an effect fitted in the shaft angle (``FIT_IN_SHAFT_ANGLE``, cogging) is fitted
+    there (:mod:`.cogging`) for the strongest periods of the residuals' angle spectrum,
+    wherever the shaft turned enough to have one; one with a ``SETTING_SCAN`` (the
+    Stribeck curve's shape) once per value of the setting. An effect with a
+    ``SECOND_FORM`` is fitted in its one-parameter limit (the heat integral, a hard
+    brush drop, a transport delay); where the limit helps, or where no candidate
+    closes the gap and the second parameter could pay its penalty
+    (:func:`_second_form_can_pay`), it is fitted again with it free (first-order
     heating, a contact film's smooth drop, a first-order lag), and the form with the
-    smaller penalized held-out gap stands for the name. Heating that helps is fitted
-    once more with the magnets losing flux in its heat (:func:`_flux_start`), which
-    stands where it beats that form by its parameter's penalty.
+    smaller penalized held-out gap stands for the name. One with a ``FURTHER_FORM``
+    that helps is fitted once more with that field freed (heating with the magnets
+    losing flux in its heat, :func:`_further_start`), which stands where it beats that
+    form by its parameter's penalty.
     """
     cfg = search.cfg
     periods = list(loc.angle_candidates)
     sc = data_scales(search.split.fit, base.fit.model.params.Kt, periods)
-    untestable: dict[str, str] = {}
-    if not periods:
-        untestable["cogging"] = "the shaft turned too little to show a period in its angle"
-    if "L" in search.fixed:
-        untestable["inductance_saturation"] = "L is held (the data do not resolve L/R)"
+    ctx = CandidateContext(tuple(periods), "L" in search.fixed)
+    untestable = {n: why for n, cls in EFFECT_TYPES.items() if (why := cls.untestable(ctx))}
     names = [n for n in cfg.effects if n not in untestable]
 
     def one(n: str) -> Fitted:
-        if n == "stribeck_friction":
-            return _stribeck_shapes(search, base, sc)
-        if n == "cogging":
+        cls = EFFECT_TYPES[n]
+        if cls.SETTING_SCAN is not None:
+            return _setting_scan(search, base, sc, n)
+        if cls.FIT_IN_SHAFT_ANGLE:
             return _cogging(search, base, sc, loc.angle_periods_per_rev is not None)
-        return search.single(base, n, sc, in_limit if n in TWO_FORMS else None)
+        return search.single(base, n, sc, in_limit if _two_forms(n) else None)
 
     # the costliest fits start first, so the workers finish together (the last one
     # started is not a slow one left running alone); the results stay in vocabulary order
@@ -384,11 +388,11 @@ def _single_candidates(
     # a limit that helps is refined; one that does not, only while no candidate closes
     # the gap (then the second form is what may name the effect, see
     # _second_form_can_pay)
-    open_gap = not any(_closes(f, scoring) for f in singles)
+    open_gap = not any(scoring.score(f).significant and scoring.closes(f.gap) for f in singles)
     seconds = [
         k
         for k, f in enumerate(singles)
-        if f.effects[0] in TWO_FORMS
+        if _two_forms(f.effects[0])
         and (scoring.score(f).significant or (open_gap and _second_form_can_pay(f, scoring)))
     ]
 
@@ -398,56 +402,44 @@ def _single_candidates(
     with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
         fulls = list(pool.map(second, seconds))
     for k, full in zip(seconds, fulls, strict=True):
-        if _penalized(full, scoring) < _penalized(singles[k], scoring):
+        if scoring.penalized(full) < scoring.penalized(singles[k]):
             singles[k] = full
-    # heating that helps is fitted once more with the magnets losing flux in its heat
-    # (a further parameter, at its penalty): never where heating does not help, so
-    # never on an effect-free run's noise
-    heats = [
+    # an effect with a further form that helps (heating: the magnets losing flux in its
+    # heat) is fitted once more with it (a further parameter, at its penalty): never
+    # where the effect does not help, so never on an effect-free run's noise
+    further = [
         k
         for k, f in enumerate(singles)
-        if f.effects[0] == "resistance_drift" and scoring.score(f).significant
+        if EFFECT_TYPES[f.effects[0]].FURTHER_FORM is not None and scoring.score(f).significant
     ]
-    for k in heats:
-        flux = search.single(base, "resistance_drift", sc, start=_flux_start(singles[k]))
-        if _penalized(flux, scoring) < _penalized(singles[k], scoring):
-            singles[k] = flux
+    for k in further:
+        name = singles[k].effects[0]
+        more = search.single(base, name, sc, start=_further_start(singles[k]))
+        if scoring.penalized(more) < scoring.penalized(singles[k]):
+            singles[k] = more
     return untestable, singles
 
 
-# where the flux-loss form of a resistance drift starts: a quarter of the relative
-# rise of R, between NdFeB's 0.31 and half of it (magnets cooler than the winding)
-_FLUX_LOSS_START = 0.2
-
-
-def _flux_start(heating: Fitted) -> Model:
-    """The fitted heating (the heat integral or first-order, as chosen) with its
-    magnets losing flux (:class:`~pmdc_ident.core.effects.ResistanceDrift`'s
-    ``flux_loss_ratio``) freed from its limit 0, the rest where the fit left it."""
-    m = heating.fit.model
+def _further_start(fitted: Fitted) -> Model:
+    """The fitted effect (in the form chosen) with the field of its ``FURTHER_FORM``
+    freed from its limit at the form's start value (a resistance drift's magnets
+    losing flux: ``flux_loss_ratio`` from 0 to 0.2), the rest where the fit left it."""
+    m, name = fitted.fit.model, fitted.effects[0]
+    field_name, start = EFFECT_TYPES[name].FURTHER_FORM or ("", 0.0)
     return Model(
         m.params,
-        tuple(
-            replace(e, flux_loss_ratio=_FLUX_LOSS_START) if e.NAME == "resistance_drift" else e
-            for e in m.effects
-        ),
+        tuple(replace(e, **{field_name: start}) if e.NAME == name else e for e in m.effects),
     )
 
 
-def _closes(f: Fitted, scoring: Scoring) -> bool:
-    """Whether ``f`` helps and closes the gap as an explained verdict requires."""
-    return scoring.score(f).significant and _closes_gap(scoring, f.gap)
-
-
-def _closes_gap(scoring: Scoring, gap: float) -> bool:
-    """Whether a model that leaves ``gap`` closes the baseline's gap: most of it, or
-    down to the noise (the verdict's rule, :func:`_verdict`)."""
-    th = scoring.thresholds
-    return scoring.g0 - gap >= th.explained_shrink * scoring.g0 or gap <= th.no_gap_noise
+def _two_forms(name: str) -> bool:
+    """Whether ``name`` is fitted first in its one-parameter limit, then (where that
+    helps or may pay) with its ``SECOND_FORM`` field free."""
+    return EFFECT_TYPES[name].SECOND_FORM is not None
 
 
 def _second_form_can_pay(limit: Fitted, scoring: Scoring) -> bool:
-    """Whether the second form of a :data:`TWO_FORMS` effect could change the choice
+    """Whether the second form of an effect with one (:func:`_two_forms`) could change the choice
     where its limit does not help: it costs one parameter more than its limit, so it
     stands for the name only where the limit leaves more than that penalty, and it
     helps at all only where the baseline's gap exceeds the penalty of its parameters.
@@ -456,42 +448,30 @@ def _second_form_can_pay(limit: Fitted, scoring: Scoring) -> bool:
     fits worse than the baseline on held-out data where the second form closes the
     gap. (Where another candidate already closes the gap, such a form could at most
     tie with it; it is not fitted then, which keeps an explained run's cost.)"""
-    if limit.effects[0] not in TWO_FORMS:
+    if not _two_forms(limit.effects[0]):
         return False
     e = limit.fit.model.effect(limit.effects[0])
     n_full = len(free_fields(e)) + 1 if e is not None else 2
     return limit.gap > scoring.penalty and scoring.g0 > n_full * scoring.penalty
 
 
-# Effects fitted first in their one-parameter limit, then (where it helps, or where no
-# candidate closes the gap and the second parameter could pay its penalty) with it
-# free: the heat integral / first-order heating with its time constant; the hard brush
-# drop / a contact film's smooth drop with its knee current; a transport delay / one
-# followed by a first-order lag (a drive's output filter).
-TWO_FORMS = ("resistance_drift", "brush_drop", "delay")
-
-
-# Effects whose R or L changes within a sample (re-discretised every sub-step) or whose
-# torque depends on the angle: the slowest simulations, by far (see core.model).
-_VARYING_EFFECTS = ("inductance_saturation", "resistance_drift")
-
-
 def _fit_cost_rank(name: str) -> int:
-    """0 for the slowest candidate fits, 1 for the others the fast kernel lacks (finite-
-    difference Jacobians), 2 for those it fits with analytic sensitivities."""
-    if name in _VARYING_EFFECTS:
-        return 0
-    return 2 if name in FAST_EFFECTS else 1
+    """0 for the slowest candidate fits (R or L re-discretised every sub-step), 1 for
+    the others the fast kernel lacks (finite-difference Jacobians), 2 for those it fits
+    with analytic sensitivities: the effect's ``SIM_PATH``."""
+    return EFFECT_TYPES[name].SIM_PATH.value
 
 
-def _stribeck_shapes(search: Search, base: Fitted, sc: DataScales) -> Fitted:
-    """The Stribeck candidate fitted once per shape of its fall with speed (exponential
-    and Gaussian, the two common laws; measured curves lie between): the coarse scan
-    cannot tell the shape apart from a misplaced Stribeck speed, the fits can. The one
-    closer to the fit segments stands (the held-out data never choose a shape)."""
+def _setting_scan(search: Search, base: Fitted, sc: DataScales, name: str) -> Fitted:
+    """A candidate fitted once per value of its ``SETTING_SCAN`` (the Stribeck curve's
+    shape of its fall with speed: exponential and Gaussian, the two common laws;
+    measured curves lie between): the coarse scan cannot tell the setting apart from a
+    misplaced parameter (a Stribeck speed), the fits can. The one closer to the fit
+    segments stands (the held-out data never choose a setting)."""
+    setting, values = EFFECT_TYPES[name].SETTING_SCAN or ("", ())
     fits = [
-        search.single(base, "stribeck_friction", sc, lambda e, d=d: _shape(e) == d)
-        for d in (1.0, 2.0)
+        search.single(base, name, sc, lambda e, d=d: float(getattr(e, setting)) == d)
+        for d in values
     ]
     ok = [f for f in fits if not f.failed] or fits
     return min(ok, key=lambda f: _fit_gap(f, search.split.fit, search.noise))
@@ -517,14 +497,6 @@ def _cogging(search: Search, base: Fitted, sc: DataScales, periodic: bool) -> Fi
     return in_time
 
 
-def _shape(e: Effect) -> float:
-    return float(getattr(e, "shape_exponent", 2.0))
-
-
-def _penalized(f: Fitted, scoring: Scoring) -> float:
-    return math.inf if f.failed else f.gap + n_added(f.fit.model, f.effects) * scoring.penalty
-
-
 # ---------------------------------------------------------------------------
 # 5. the choice
 # ---------------------------------------------------------------------------
@@ -539,7 +511,7 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
     lag_note = "" if lag is None else f", the signals read {lag * 1e6:.3g} us late (chain lag)"
     # a lag-only choice means no gap when the lag closes the gap (most of it, or down to
     # the noise): the lag is a nuisance, so a gap it leaves is judged as the baseline's
-    closes = _closes_gap(scoring, chosen.gap)
+    closes = scoring.closes(chosen.gap)
     if lag is not None and not named and closes:
         return Verdict(
             VerdictStatus.NO_GAP,
@@ -576,7 +548,7 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
             f"{' + '.join(named)} closes {shrink:.0%} of the held-out gap "
             f"({g0:.3g} -> {chosen.gap:.3g}{lag_note})"
         )
-        if shrink < scoring.thresholds.explained_shrink:
+        if not scoring.closes_most(chosen.gap):
             message += ": what is left is within the noise"
     else:
         status = VerdictStatus.UNEXPLAINED

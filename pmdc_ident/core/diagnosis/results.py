@@ -5,6 +5,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.diagnosis.holdout import HoldoutSplit
@@ -103,6 +104,38 @@ class RegimeShrink:
         }
 
 
+_UNITS = {"current": "A", "speed": "rad/s"}
+
+
+def _ratio(a: float, b: float) -> float:
+    return a / b if b > 0 and math.isfinite(b) else math.nan
+
+
+def _g(x: object) -> str:
+    return "-" if x is None else f"{float(x):.3g}"  # type: ignore[arg-type]
+
+
+def _pct(x: object) -> str:
+    return "-" if x is None else f"{float(x):.2g} %"  # type: ignore[arg-type]
+
+
+def _signal_rms(segments: tuple[Segment, ...], signal: str) -> float:
+    """RMS of a measured signal over the held-out segments (speed: the column, else the
+    position's derivative, as the diagnosis compares it)."""
+    import numpy as np
+
+    parts = [
+        s.current if signal == "current" else s.speed_or_derivative()
+        for s in segments
+        if signal != "current" or s.current is not None
+    ]
+    parts = [p for p in parts if p is not None and p.size]
+    if not parts:
+        return math.nan
+    x = np.concatenate(parts)
+    return float(np.sqrt(np.mean(x[np.isfinite(x)] ** 2)))
+
+
 @dataclass(frozen=True)
 class DiagnosisResult:
     """Everything the diagnosis found; ``to_json`` gives the keys of docs/design.md §4."""
@@ -129,6 +162,8 @@ class DiagnosisResult:
     held_out: tuple[Segment, ...] = field(default=(), repr=False, compare=False)
     predictions_before: tuple[object, ...] = field(default=(), repr=False, compare=False)
     predictions_after: tuple[object, ...] = field(default=(), repr=False, compare=False)
+    # per effect, the smallest size this record could have shown (core.diagnosis.detection)
+    detection_limits: tuple[Any, ...] = ()
 
     @property
     def shrink(self) -> float:
@@ -148,6 +183,7 @@ class DiagnosisResult:
                 "gap_by_signal_after": self.gap_by_signal_after,
                 "rms_error_before": self.rms_before,
                 "rms_error_after": self.rms_after,
+                "by_signal": self.gap_in_units(),
                 "noise_sigma": self.noise_sigma,
                 "gap_definition": (
                     "held-out mean squared simulation error minus the noise variance, "
@@ -160,9 +196,32 @@ class DiagnosisResult:
             "baseline": {p.name: p.to_json() for p in self.baseline},
             "parameters": {p.name: p.to_json() for p in self.augmented},
             "assumptions": list(self.assumptions),
+            "detection_limits": {d.effect: d.to_json() for d in self.detection_limits},
             "elapsed_s": round(self.elapsed_s, 3),
             "n_samples": self.n_samples,
         }
+
+    def gap_in_units(self) -> dict[str, dict[str, object]]:
+        """Per signal, the held-out error in units people read: RMS before and after in the
+        signal's unit, as a percentage of the held-out signal's own RMS, and as a ratio to
+        the noise (1 = the model misses nothing the sensor could show)."""
+        out: dict[str, dict[str, object]] = {}
+        for sig, before in self.rms_before.items():
+            after = self.rms_after.get(sig, math.nan)
+            noise = self.noise_sigma.get(sig, math.nan)
+            level = _signal_rms(self.held_out, sig)
+            out[sig] = {
+                "unit": _UNITS.get(sig, ""),
+                "rms_error_before": finite_or_none(before),
+                "rms_error_after": finite_or_none(after),
+                "signal_rms": finite_or_none(level),
+                "percent_of_signal_before": finite_or_none(100.0 * _ratio(before, level)),
+                "percent_of_signal_after": finite_or_none(100.0 * _ratio(after, level)),
+                "noise_sd": finite_or_none(noise),
+                "times_noise_before": finite_or_none(_ratio(before, noise)),
+                "times_noise_after": finite_or_none(_ratio(after, noise)),
+            }
+        return out
 
     def summary_lines(self) -> list[str]:
         """A short human summary (published by the node, printed by ``make demo``)."""
@@ -172,16 +231,16 @@ class DiagnosisResult:
         ]
         lines.append(v.message)
         lines.append(
-            f"held-out gap {max(self.gap_before, 0):.3g} before, "
-            f"{max(self.gap_after, 0):.3g} after "
-            f"({self.shrink:.0%} shrink); split: {self.split.rule}"
+            f"free-run error on held-out data, before -> after ({self.shrink:.0%} of the "
+            f"excess closed; split: {self.split.rule}):"
         )
-        for sig in self.rms_before:
-            after = self.rms_after.get(sig, math.nan)
-            unit = "A" if sig == "current" else "rad/s"
+        for sig, g in self.gap_in_units().items():
             lines.append(
-                f"  {sig}: RMS error {self.rms_before[sig]:.3g} -> {after:.3g} {unit} "
-                f"(noise {self.noise_sigma.get(sig, math.nan):.2g})"
+                f"  {sig}: RMS {_g(g['rms_error_before'])} -> {_g(g['rms_error_after'])} "
+                f"{g['unit']} = {_pct(g['percent_of_signal_before'])} -> "
+                f"{_pct(g['percent_of_signal_after'])} of its RMS {_g(g['signal_rms'])} "
+                f"{g['unit']}, {_g(g['times_noise_before'])} -> {_g(g['times_noise_after'])} "
+                f"x the noise ({_g(g['noise_sd'])} {g['unit']})"
             )
         lines += [f"  {s}" for s in self.localization.sentences[:4]]
         for t in v.ties:
@@ -195,4 +254,7 @@ class DiagnosisResult:
         for p in names:
             ci = f" [{p.ci95[0]:.3g}, {p.ci95[1]:.3g}]" if p.ci95 else ""
             lines.append(f"  {p.name} = {p.value:.4g}{ci} {p.unit}")
+        if self.detection_limits:
+            lines.append("smallest sizes this record could show (detection limits):")
+            lines += [f"  {d.text()}" for d in self.detection_limits]
         return lines

@@ -7,6 +7,7 @@ the baseline, each added parameter costing ``penalty`` (gap units).
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -150,6 +151,21 @@ class Scoring:
         penalty = max(th.penalty_rel_per_param * max(g0, 0.0), th.penalty_noise_per_param)
         return cls(g0, penalty, th)
 
+    def closes_most(self, gap: float) -> bool:
+        """Whether a model that leaves ``gap`` closes most of the baseline's gap
+        (``explained_shrink`` of it)."""
+        return self.g0 - gap >= self.thresholds.explained_shrink * self.g0
+
+    def closes(self, gap: float) -> bool:
+        """Whether a model that leaves ``gap`` closes the baseline's gap as an explained
+        verdict requires: most of it, or down to the noise (``no_gap_noise``)."""
+        return self.closes_most(gap) or gap <= self.thresholds.no_gap_noise
+
+    def penalized(self, f: Fitted) -> float:
+        """``f``'s held-out gap plus ``penalty`` per parameter it adds (infinite for a
+        fit that failed): the figure candidates are compared by."""
+        return math.inf if f.failed else f.gap + n_added(f.fit.model, f.effects) * self.penalty
+
     def score(self, f: Fitted, parent: Fitted | None = None) -> CandidateScore:
         g0, penalty = self.g0, self.penalty
         k = n_added(f.fit.model, f.effects)
@@ -167,7 +183,7 @@ class Scoring:
             gap=f.gap,
             shrink=(gain / g0) if g0 > 0 else 0.0,
             added_parameters=k,
-            penalized_gap=f.gap + k * penalty,
+            penalized_gap=f.gap + k * penalty,  # as penalized(), reported for a failed fit
             significant=bool(gain_new > k_new * penalty and not f.failed),
             parameters=eff_params,
             fit_seconds=f.seconds,

@@ -30,7 +30,8 @@ from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment, TestKind
 from pmdc_ident.core.errors import DataError
-from pmdc_ident.core.estimators.small_fit import levenberg_marquardt, t_quantile
+from pmdc_ident.core.estimators.solver import least_squares
+from pmdc_ident.core.estimators.student_t import t_quantile
 
 __all__ = [
     "ClassicalResult",
@@ -41,6 +42,7 @@ __all__ = [
     "coast_speed",
     "fit_coastdown",
     "fit_staircase",
+    "staircase_levels",
     "steady_state_points",
 ]
 
@@ -57,7 +59,11 @@ class SteadyPoint:
 
 
 def steady_state_points(segments: Sequence[Segment]) -> list[SteadyPoint]:
-    """Average of the last 30 % of each staircase segment (a table's constant rows)."""
+    """Average of the last 30 % of each staircase level (a table's constant rows).
+
+    A staircase segment is one level, or - a time series recorded as one labelled
+    segment - several: each hold of its voltage (at least :data:`MIN_LEVEL_SAMPLES`
+    samples) is a level of its own (the assumption register's ``staircase-levels``)."""
     pts: list[SteadyPoint] = []
     for s in segments:
         if s.kind is not TestKind.STAIRCASE:
@@ -65,16 +71,39 @@ def steady_state_points(segments: Sequence[Segment]) -> list[SteadyPoint]:
         if s.voltage is None or s.current is None:
             msg = f"staircase segment {s.label!r} needs voltage and current columns"
             raise DataError(msg)
-        k0 = min(int(s.n * (1.0 - STEADY_FRACTION)), s.n - 1)
-        v = s.voltage[k0:]
-        if np.isnan(v).any():
-            msg = f"staircase segment {s.label!r}: the armature is open in its steady part"
-            raise DataError(msg)
-        w = s.speed_or_derivative()[k0:]
-        pts.append(
-            SteadyPoint(s.label, float(v.mean()), float(s.current[k0:].mean()), float(w.mean()))
-        )
+        levels = staircase_levels(s)
+        for k, (a, b) in enumerate(levels):
+            k0 = min(a + int((b - a) * (1.0 - STEADY_FRACTION)), b - 1)
+            v = s.voltage[k0:b]
+            if np.isnan(v).any():
+                msg = f"staircase segment {s.label!r}: the armature is open in its steady part"
+                raise DataError(msg)
+            w = s.speed_or_derivative()[k0:b]
+            label = s.label if len(levels) == 1 else f"{s.label}[{k + 1}]"
+            pts.append(
+                SteadyPoint(label, float(v.mean()), float(s.current[k0:b].mean()), float(w.mean()))
+            )
     return pts
+
+
+MIN_LEVEL_SAMPLES = 10  # a voltage hold this long inside a staircase segment is a level
+
+
+def staircase_levels(s: Segment) -> list[tuple[int, int]]:
+    """Sample ranges of the voltage levels a staircase segment holds (one when it holds
+    one level, as a table's row group does)."""
+    v = s.voltage
+    if v is None or s.n < 2 * MIN_LEVEL_SAMPLES:
+        return [(0, s.n)]
+    finite = v[np.isfinite(v)]
+    span = float(np.ptp(finite)) if finite.size else 0.0
+    if span == 0.0:
+        return [(0, s.n)]
+    jumps = np.flatnonzero(np.abs(np.diff(np.nan_to_num(v))) > 0.02 * span) + 1
+    bounds = [0, *jumps.tolist(), s.n]
+    holds = [(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    long_ = [(a, b) for a, b in holds if b - a >= MIN_LEVEL_SAMPLES]
+    return long_ if len(long_) > 1 else [(0, s.n)]
 
 
 @dataclass(frozen=True)
@@ -238,7 +267,7 @@ def _fit_j(t: FloatArray, w: FloatArray, Tc: float, B: float) -> tuple[float, fl
         # a = B/J and c = Tc/J: d/d(log J) = -a d/da - c d/dc
         return np.column_stack([-(B / J) * d[:, 1] - (Tc / J) * d[:, 2], d[:, 0]])
 
-    sol = levenberg_marquardt(resid, jac, [math.log(j_guess), float(w[0])])
+    sol = least_squares(resid, jac, [math.log(j_guess), float(w[0])])
     r = sol.fun
     dof = max(t.size - 2, 1)
     s2 = float(r @ r) / dof
@@ -263,7 +292,7 @@ def _free_shape(t: FloatArray, w: FloatArray, a0: float, c0: float) -> tuple[flo
         inside = np.abs(z[1:]) < 50.0  # the clip holds the log-rates at +-50
         return np.column_stack([d[:, 0], a * d[:, 1] * inside[0], c * d[:, 2] * inside[1]])
 
-    sol = levenberg_marquardt(resid, jac, [w[0], math.log(a0), math.log(c0)])
+    sol = least_squares(resid, jac, [w[0], math.log(a0), math.log(c0)])
     _, a, c = unpack(sol.x)
     return a, c
 

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from pmdc_ident.core.assumptions import register_json
 from pmdc_ident.core.data import Run, Segment, TestKind, check_excitation, unique_labels
 from pmdc_ident.core.effects import CoulombFriction, parameter_unit
 from pmdc_ident.core.errors import DataError, ParameterError, PmdcError
@@ -43,15 +44,18 @@ from pmdc_ident.core.estimators.frequency import FrequencyResponse, estimate_fre
 from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE, FitResult, fit_output_error
 from pmdc_ident.core.estimators.start import (
     COULOMB_TORQUE,
-    LOAD_TORQUE,
     start_model,
     start_values,
 )
 from pmdc_ident.core.estimators.validation import holdout_score, residual_tests
+from pmdc_ident.core.fixed import IDENTIFY_FIXABLE, FixedValues
 from pmdc_ident.core.model import Model, simulate_linear
 from pmdc_ident.core.motors import Limits
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
 from pmdc_ident.core.progress import ProgressCallback, silent
+from pmdc_ident.core.quality.findings import Finding
+from pmdc_ident.core.quality.fit_checks import FitChecks, check_parameters
+from pmdc_ident.core.quality.misfit import Refit
 from pmdc_ident.core.results import IdentificationResult
 from pmdc_ident.core.segmentation import contiguous_pieces
 
@@ -98,6 +102,13 @@ class _Setup:
         )
 
 
+class WarningCode(enum.Enum):
+    """Warnings a later step of :func:`identify` looks for (by code, not by its text)."""
+
+    OUTPUT_ERROR_FAILED = "output-error-failed"  # a model's output-error fit failed
+    SEGMENTS_WITH_GAPS = "segments-with-gaps"  # segments left out for gaps in time
+
+
 @dataclass
 class _Report:
     """What the steps add to the result as they go."""
@@ -106,6 +117,13 @@ class _Report:
     warnings: list[str] = field(default_factory=list)
     methods: dict[str, dict[str, Any]] = field(default_factory=dict)
     validation: dict[str, Any] = field(default_factory=dict)
+    said: dict[str, str] = field(default_factory=dict)  # register entry -> what was done
+    coded: dict[WarningCode, list[str]] = field(default_factory=dict)
+
+    def warn(self, code: WarningCode, text: str) -> None:
+        """A warning of the result that a later step may look for by ``code``."""
+        self.warnings.append(text)
+        self.coded.setdefault(code, []).append(text)
 
 
 def identify(
@@ -121,12 +139,16 @@ def identify(
     sources: tuple[str, ...] = (),
     seed: int = 0,
     added_inertia: Mapping[str, float] | None = None,
+    findings: Sequence[Finding] = (),
+    expected_rsd: Mapping[str, float] | None = None,
 ) -> IdentificationResult:
     """Identify the motor from ``segments`` (see module docs).
 
     ``added_inertia`` maps segment labels to a known inertia added for them
     (kg*m^2); with runs with and without it, Kt is estimated instead of assumed
-    equal to Ke.
+    equal to Ke. ``findings`` and ``expected_rsd``: the data-quality gate's on these
+    data (the parameters they bias are flagged; its expectation and the fit's verdict
+    become one message): the fit stage of the assumption register.
     """
     say = progress or silent
     setup, report = _setup(segments, _checked_fixed(fixed), closure, model, added_inertia)
@@ -134,7 +156,9 @@ def identify(
     ee = _equation_error(setup, report, say)
     classical = _classical(setup, ee, report, say)
     if not setup.dynamic:
-        return _classical_only(classical, setup.fixed, report, sources, limits)
+        result = _classical_only(classical, setup.fixed, report, sources, limits)
+        checked = register_json(findings, setup.segments, report.said)
+        return replace(result, assumptions_checked=checked)
     fits = _output_error(setup, model, ee, classical, report, say)
     chosen = _choose(fits, model)
     fit = fits[chosen]
@@ -154,6 +178,12 @@ def identify(
     refusal = unidentified_needed(parameters, fit.free)
     if refusal is not None:  # a motor file with a guessed R, Ke or J is no answer: exit 2
         raise DataError(refusal)
+    if not all(report.validation.get("residuals", {}).get("white", {}).values()):
+        say("misfit-robust checks: refits without the starts, on disjoint parts, per signal")
+    checked = _register_checks(
+        setup, fit, chosen, widen, parameters, report, findings, expected_rsd
+    )
+    parameters = checked.parameters
     _one_direction_term(setup.dynamic, parameters, report)
     _quantisation_note(fit, report)
     _initial_state_note(fit, setup.dynamic, report)
@@ -171,23 +201,69 @@ def identify(
         frequency=freq,
         fit_info=_fit_info(fit, setup.dynamic),
         limits=limits,
+        assumptions_checked=register_json(
+            findings, setup.segments, {**report.said, **checked.said}
+        ),
     )
+
+
+def _register_checks(
+    setup: _Setup,
+    fit: FitResult,
+    chosen: str,
+    widen: float,
+    parameters: dict[str, ParameterEstimate],
+    report: _Report,
+    findings: Sequence[Finding],
+    expected_rsd: Mapping[str, float] | None = None,
+) -> FitChecks:
+    """The fit stage of the assumption register (``core/quality/fit_checks.py``)."""
+    white = dict(report.validation.get("residuals", {}).get("white", {}))
+    checked = check_parameters(
+        parameters,
+        fit=fit,
+        dyn=setup.dynamic,
+        refit=_refit(setup, fit),
+        white=white,
+        widen=widen,
+        findings=findings,
+        expected_rsd=expected_rsd,
+        fixed=setup.fixed,
+        closure=setup.closure,
+    )
+    report.warnings.extend(checked.warnings)
+    return checked
+
+
+def _refit(setup: _Setup, fit: FitResult) -> Refit:
+    """The chosen model refitted on other data, signal weights or fixed values (the
+    misfit-robust checks), with the setup's closure and added inertia."""
+
+    def refit(
+        segs: Sequence[Segment],
+        *,
+        weights: Mapping[str, float] | None = None,
+        fixed: Mapping[str, float] | None = None,
+        model: Model | None = None,
+    ) -> FitResult:
+        m = model or fit.model
+        return fit_output_error(
+            segs,
+            m,
+            fixed={**_fixed_for(setup.fixed, m), **(fixed or {})},
+            closure=setup.closure,
+            added_inertia=_added_for(setup.added, segs),
+            weights=weights,
+        )
+
+    return refit
 
 
 # ---------------------------------------------------------------------------
 # 1. arguments and segments
 # ---------------------------------------------------------------------------
 def _checked_fixed(fixed: Mapping[str, float] | None) -> dict[str, float]:
-    out = {str(k): float(v) for k, v in (fixed or {}).items()}
-    known = set(PARAMETER_NAMES) | {TC, LOAD_TORQUE}
-    for k, v in out.items():
-        if k not in known:
-            msg = f"--fix {k}: unknown parameter (known: {', '.join(sorted(known))})"
-            raise ParameterError(msg)
-        if not math.isfinite(v) or (k in PARAMETER_NAMES and (v < 0 or (v == 0 and k != "B"))):
-            msg = f"--fix {k}={v:g}: must be a positive number in {parameter_unit(k)}"
-            raise ParameterError(msg)
-    return out
+    return dict(FixedValues(fixed or {}, known=IDENTIFY_FIXABLE))
 
 
 def _setup(
@@ -246,10 +322,11 @@ def _dynamic_segments(
             "left out)"
         )
     if skipped:
-        report.warnings.append(
+        report.warn(
+            WarningCode.SEGMENTS_WITH_GAPS,
             "segments with gaps in time (a sample period off the median by more than 25 %), "
             f"left out of the dynamic fit: {', '.join(s.label for s in skipped)} "
-            f"({_worst_gap(skipped)})"
+            f"({_worst_gap(skipped)})",
         )
     return dyn
 
@@ -395,6 +472,16 @@ def _classical(
     except DataError as exc:
         report.warnings.append(f"classical chain skipped: {exc}")
         return None
+    from pmdc_ident.core.estimators.classical import staircase_levels
+
+    for s in setup.segments:
+        if s.kind is TestKind.STAIRCASE and len(levels := staircase_levels(s)) > 1:
+            line = (
+                f"staircase segment {s.label!r} holds {len(levels)} voltage levels: each is "
+                "one steady level of the classical chain"
+            )
+            report.assumptions.append(line)
+            report.said["staircase-levels"] = line
     if "R" not in setup.fixed and "R" in cfix:
         note = (
             f"classical: R = {cfix['R']:.4g} ohm taken from the equation-error "
@@ -455,9 +542,9 @@ def _output_error(
                 progress=lambda it, cost, k=kind: say(f"  {k}: iteration {it}, cost {cost:.6g}"),
             )
         except PmdcError as exc:
-            report.warnings.append(f"output error ({kind}) failed: {exc}")
+            report.warn(WarningCode.OUTPUT_ERROR_FAILED, f"output error ({kind}) failed: {exc}")
     if not fits:
-        why = "; ".join(w for w in report.warnings if w.startswith("output error ("))
+        why = "; ".join(report.coded.get(WarningCode.OUTPUT_ERROR_FAILED, []))
         msg = f"the output-error fit failed on every model: {why}"
         raise DataError(msg)
     _restart_coulomb(setup, fits, say)
@@ -754,7 +841,7 @@ def _classical_only(
     """The result when there is no time series: the classical chain's values, with
     placeholders for what the tables cannot give."""
     if classical is None or not classical.values:
-        gaps = [w for w in report.warnings if w.startswith("segments with gaps in time")]
+        gaps = report.coded.get(WarningCode.SEGMENTS_WITH_GAPS, [])
         if gaps:
             msg = f"no dynamic fit possible and no staircase/coast-down table: {gaps[0]}"
         else:
@@ -773,16 +860,22 @@ def _classical_only(
     }
     for name in PARAMETER_NAMES + (TC,):
         if name in vals:
+            assumed = name == "Kt" and name not in fixed
             params[name] = ParameterEstimate(
                 name,
                 float(vals[name]),
-                None if name in fixed else classical.ci95.get(name),
+                None if name in fixed or assumed else classical.ci95.get(name),
                 parameter_unit(name),
-                True,
-                stderr=None if name in fixed else classical.stderr.get(name),
+                not assumed,
+                stderr=None if name in fixed or assumed else classical.stderr.get(name),
                 reason="fixed by the user"
                 if name in fixed
-                else ("assumed equal to Ke (closure Kt = Ke in SI units)" if name == "Kt" else ""),
+                else (
+                    "assumed equal to Ke (closure Kt = Ke in SI units): not measured by these "
+                    "data; --fix Kt=... holds a value you know"
+                    if name == "Kt"
+                    else ""
+                ),
                 method="fixed" if name in fixed else "classical",
             )
         else:

@@ -15,8 +15,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
 
+from pmdc_ident.core.estimate import ParameterEstimate
 from pmdc_ident.core.quality.findings import Finding, Severity
-from pmdc_ident.core.results import IdentificationResult
 
 __all__ = ["BIASED_BY", "flag_biased"]
 
@@ -32,13 +32,14 @@ _WHAT = {
 
 
 def flag_biased(
-    result: IdentificationResult,
+    parameters: Mapping[str, ParameterEstimate],
     findings: Iterable[Finding],
     fixed: Mapping[str, float] | None = None,
-) -> IdentificationResult:
-    """``result`` with each parameter a warning in ``findings`` biases marked not
-    identifiable (a value the user fixed is left alone)."""
-    params = dict(result.parameters)
+) -> tuple[dict[str, ParameterEstimate], str | None]:
+    """``parameters`` with each one a warning in ``findings`` biases marked not
+    identifiable (a value the user fixed is left alone), and the warning that says
+    which (None when none)."""
+    params = dict(parameters)
     said: list[str] = []
     for f in findings:
         if f.severity is not Severity.WARNING:
@@ -57,9 +58,9 @@ def flag_biased(
             )
             said.append(f"{name} ({f.code})")
     if not said:
-        return result
+        return params, None
     warning = (
         f"not identifiable because the record's sensor or timing biases it: {', '.join(said)}; "
         "the value written is the fit's, the interval withheld"
     )
-    return replace(result, parameters=params, warnings=(*result.warnings, warning))
+    return params, warning

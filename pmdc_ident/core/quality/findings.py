@@ -14,6 +14,7 @@ __all__ = ["CODES", "Finding", "QualityReport", "Severity"]
 CODES: tuple[str, ...] = (
     "check-failed",
     "clipping",
+    "continuity",
     "current-filter",
     "current-missing",
     "current-unit",

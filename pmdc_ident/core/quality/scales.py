@@ -115,6 +115,34 @@ def check_speed_position(
     ]
 
 
+# Current plausibility (issue 22: a 48 V, 0.05 ohm traction motor draws 205 A): a motor's
+# current grows with its voltage class, and no brushed motor at <= 60 V has a winding
+# whose stall current V/R is beyond STALL_MAX_A. A current column in mA of a small motor
+# reads as hundreds of "A" with a "winding" of a few milliohm.
+CURRENT_PER_12V_A = 200.0
+STALL_MAX_A = 2500.0
+
+
+def current_ceiling_a(v_max: float) -> float:
+    """The 95th-percentile current above which amperes are doubted at ``v_max`` volts."""
+    return CURRENT_PER_12V_A * max(1.0, v_max / 12.0)
+
+
+def stall_plausible(stall_a: float | None) -> bool:
+    """A stall current V/R some brushed motor has (unknown R: not plausible)."""
+    return stall_a is not None and 0.0 < stall_a <= STALL_MAX_A
+
+
+def _stall_current(segments: Sequence[Segment], v_max: float) -> float | None:
+    """``v_max / R`` with R from the record's own voltage equation, when it is measured."""
+    from pmdc_ident.core.quality.regress import electrical_fit
+
+    el = electrical_fit(segments)
+    if el is None or not el["R"] > 0 or el.t("R") < 6.0:
+        return None
+    return v_max / el["R"]
+
+
 def check_magnitudes(
     where: str, segments: Sequence[Segment], declared: frozenset[str]
 ) -> list[Finding]:
@@ -156,15 +184,24 @@ def check_magnitudes(
         i = np.abs(np.concatenate(cur))
         p95 = float(np.percentile(i, 95))
         integers = bool(np.all(i == np.round(i))) and float(np.ptp(i)) >= 20.0
-        if (v_max <= 60.0 and p95 > 200.0) or (v_max <= 60.0 and integers and p95 >= 20.0):
+        stall = _stall_current(segments, v_max)
+        big = v_max <= 60.0 and p95 > current_ceiling_a(v_max) and not stall_plausible(stall)
+        if big or (v_max <= 60.0 and integers and p95 >= 20.0):
             hint = " in whole numbers" if integers else ""
+            why = (
+                f", and the record's own winding resistance ({v_max / stall:.3g} ohm) makes "
+                f"its stall current {stall:.3g} A"
+                if stall is not None and not integers
+                else ""
+            )
             out.append(
                 Finding(
                     "current-unit",
                     Severity.ERROR,
                     where,
                     f"current reaches {p95:.5g} A (95th percentile){hint} at no more than "
-                    f"{v_max:.3g} V: milliamps? (pass --current-unit A if it really is amperes)",
+                    f"{v_max:.3g} V{why}: milliamps? (pass --current-unit A if it really is "
+                    "amperes)",
                     "--current-unit mA",
                     value=p95,
                     unit="A",

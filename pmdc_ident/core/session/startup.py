@@ -54,7 +54,14 @@ ABORT_FRACTION = 0.9  # default session aborts: this fraction of the driver's tr
 SAMPLES_STALE_S = 0.5  # no driver sample for this long: the driver is not streaming
 RECORDED_TOPICS = ("current", "voltage_applied", "encoder")  # the driver's data topics
 # read from the driver node before anything moves
-DRIVER_PARAMETERS = ("voltage_limit_v", "current_limit_a", "speed_limit_rad_s", "motor", "rate_hz")
+DRIVER_PARAMETERS = (
+    "voltage_limit_v",
+    "current_limit_a",
+    "speed_limit_rad_s",
+    "motor",
+    "rate_hz",
+    "joint_name",  # the exports name the driver's joint
+)
 
 
 class StartCheck(enum.Enum):

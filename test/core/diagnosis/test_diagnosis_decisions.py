@@ -255,7 +255,7 @@ def test_an_effect_that_leaves_only_noise_explains_the_gap_whatever_its_share(g0
 
     chosen = SimpleNamespace(effects=("inductance_saturation",), gap=left)
     choice = SimpleNamespace(chosen=chosen, gap_significant=True, ties=[])
-    scoring = SimpleNamespace(g0=g0, thresholds=Thresholds())
+    scoring = Scoring(g0, 0.3, Thresholds())
     v = _verdict(choice, scoring, 1e-3)  # type: ignore[arg-type]
     assert v.status is status
     assert v.effects == (("inductance_saturation",) if status is VerdictStatus.EXPLAINED else ())

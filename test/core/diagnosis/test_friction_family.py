@@ -15,7 +15,7 @@ from pmdc_ident.core.data import Segment
 from pmdc_ident.core.diagnosis import DiagnosisConfig, VerdictStatus, diagnose
 from pmdc_ident.core.diagnosis.candidates import data_scales, fit_model
 from pmdc_ident.core.diagnosis.holdout import split_segments
-from pmdc_ident.core.diagnosis.pipeline import _baseline, _stribeck_shapes
+from pmdc_ident.core.diagnosis.pipeline import _baseline, _setting_scan
 from pmdc_ident.core.diagnosis.scoring import estimate_noise
 from pmdc_ident.core.diagnosis.search import Fitted, Search
 from pmdc_ident.core.effects import CoulombFriction, Delay, StribeckFriction
@@ -86,7 +86,7 @@ def test_the_stribeck_candidate_takes_the_shape_of_the_data(shape):
     noise = estimate_noise(segs)
     base = Fitted((), fit_model(segs, Model(p), max_nfev=30), None, 0.0, 0.0)  # type: ignore[arg-type]
     search = Search(split_segments(segs), noise, DiagnosisConfig(), None)
-    f = _stribeck_shapes(search, base, sc)
+    f = _setting_scan(search, base, sc, "stribeck_friction")
     e = f.fit.model.effect("stribeck_friction")
     assert isinstance(e, StribeckFriction) and e.shape_exponent == shape
     assert e.speed_rad_s == pytest.approx(truth.speed_rad_s, rel=0.2)

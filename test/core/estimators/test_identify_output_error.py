@@ -70,7 +70,8 @@ def test_seed000_inductance_from_the_bound_at_1khz_and_flagged_with_a_rate_when_
     res_tiny = fit_output_error(synthesize_run(tiny, plan, spec.sensors, seed=1).segments, init)
     assert not res_tiny.identifiable["L"]
     assert res_tiny.ci95["L"] is None
-    assert "sample at >= " in res_tiny.reasons["L"] and "LCR" in res_tiny.reasons["L"]
+    # resolving L/R = 0.7 us needs a rate no drive samples at: only the meter is advice
+    assert "LCR" in res_tiny.reasons["L"] and "sample at" not in res_tiny.reasons["L"]
     assert any(w.startswith("L:") for w in res_tiny.warnings)
     run = synthesize_run(spec.model, plan, spec.sensors, seed=1)
     res = fit_output_error(run.segments, init)

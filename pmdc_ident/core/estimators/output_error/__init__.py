@@ -15,9 +15,9 @@ measurement noise. Parameters:
 
 Two simulators share one Levenberg-Marquardt solver:
 
-* the **fast path** (the linear model plus ``coulomb_friction``, ``stribeck_friction``,
-  ``quadratic_drag``, ``load_torque``,
-  ``current_offset``): one exact zero-order-hold step per sample, with the
+* the **fast path** (the linear model plus the effects whose ``SIM_PATH`` is
+  ``FAST``: ``coulomb_friction``, ``stribeck_friction``, ``quadratic_drag``,
+  ``load_torque``, ``current_offset``): one exact zero-order-hold step per sample, with the
   sensitivity equations propagated alongside the state in a numba kernel (the
   sensitivity equations are themselves linear ZOH systems; their matrices come
   from Van Loan block exponentials), so the Jacobian is analytic;
@@ -32,8 +32,9 @@ B)`` are known up to a common factor. ``closure="Kt=Ke"`` (the default) ties
 Modules, in the order the data flow through them: :mod:`.segments` (segments
 prepared for the fit, noise levels), :mod:`.parameters` (names, bounds, scaling),
 :mod:`.kernel` and :mod:`.simulators` (the two simulators), :mod:`.problem`
-(residuals and normal equations), :mod:`.solver` (Levenberg-Marquardt),
-:mod:`.results` (:class:`FitResult`) and :mod:`.fit` (:func:`fit_output_error`).
+(residuals and normal equations), the package's one Levenberg-Marquardt solver
+(:mod:`pmdc_ident.core.estimators.solver`), :mod:`.results` (:class:`FitResult`) and
+:mod:`.fit` (:func:`fit_output_error`).
 """
 
 from __future__ import annotations

@@ -36,7 +36,7 @@ from pmdc_ident.core.estimators.output_error.segments import (
     prepare_segments,
 )
 from pmdc_ident.core.estimators.output_error.simulators import FAST_EFFECTS
-from pmdc_ident.core.estimators.output_error.solver import LMState, levenberg_marquardt
+from pmdc_ident.core.estimators.solver import LMSettings, LMState, levenberg_marquardt
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.params import PARAMETER_NAMES
 from pmdc_ident.core.quantisation import record_steps
@@ -181,6 +181,12 @@ def _check_weights(weights: Mapping[str, float] | None) -> None:
             raise ParameterError(msg)
 
 
+_START_DIVERGES = (
+    "the fit cannot start: simulating the start model on these data diverges "
+    "(are the signals in SI units, and is the voltage the armature's?)"
+)
+
+
 def _solve(
     prob: Problem,
     max_nfev: int,
@@ -193,14 +199,15 @@ def _solve(
     refit, unless the weights barely change (then the optimum does not move beyond a
     small fraction of its standard error).
     """
-    z, lm = levenberg_marquardt(prob, prob.z0(), max_nfev, progress)
+    settings = LMSettings(max_nfev=max_nfev, start_error=_START_DIVERGES)
+    z, lm = levenberg_marquardt(prob, prob.z0(), settings, progress)
     if not refine_noise:
         return z, lm
     new_noise = prob.residual_noise(z)
     moved = any(not 0.9 < new_noise[k] / prob.noise[k] < 1.1 for k in new_noise)
     prob.noise = new_noise
     if moved:
-        z, lm2 = levenberg_marquardt(prob, z, max_nfev, progress)
+        z, lm2 = levenberg_marquardt(prob, z, settings, progress)
         lm = LMState(lm2.cost, lm.nfev + lm2.nfev, lm.it + lm2.it, lm2.converged, lm2.message)
     return z, lm
 

@@ -16,6 +16,17 @@ import math
 import numpy as np
 
 from pmdc_ident.core._jit import njit
+from pmdc_ident.core.effects.layout import (
+    COL_CQ,
+    COL_I0,
+    COL_TC,
+    COL_TH0,
+    COL_TL,
+    COL_TS,
+    COL_W0,
+    COL_WS,
+    N_SENS,
+)
 from pmdc_ident.core.model import effects_kernel, stribeck_fall
 
 __all__ = [
@@ -32,12 +43,10 @@ __all__ = [
     "fast_kernel",
 ]
 
-# Sensitivity column layout of the kernel: R..B per log of the value, then Coulomb and
-# load torque, the initial current, speed and angle, Stribeck torque and speed, drag.
-N_SENS = 14
+# Sensitivity column layout of the kernel (core.effects.layout): R..B per log of the
+# value, then Coulomb and load torque, the initial current, speed and angle, Stribeck
+# torque and speed, drag. An effect on the fast path names its columns (FAST_COLUMNS).
 COL = {"R": 0, "L": 1, "Ke": 2, "Kt": 3, "J": 4, "B": 5}
-COL_TC, COL_TL, COL_I0, COL_W0, COL_TH0 = 6, 7, 8, 9, 10
-COL_TS, COL_WS, COL_CQ = 11, 12, 13
 
 
 @njit
@@ -103,8 +112,8 @@ def fast_kernel(
     A = np.zeros((m, m))
     g = np.zeros(m)
     jr = np.zeros(m)
-    s = np.zeros((3, 14))
-    sn = np.zeros((3, 14))
+    s = np.zeros((3, N_SENS))
+    sn = np.zeros((3, N_SENS))
     need6 = np.zeros(6, dtype=np.bool_)
     for c in nc:
         if c < 6:
@@ -142,11 +151,11 @@ def fast_kernel(
     x[0], x[1], x[2] = x0[0], x0[1], x0[2]
     if cmode:
         x[0] = imeas[0]
-    s[0, 8] = 1.0
-    s[1, 9] = 1.0
-    s[2, 10] = 1.0
+    s[0, COL_I0] = 1.0
+    s[1, COL_W0] = 1.0
+    s[2, COL_TH0] = 1.0
     if cmode:
-        s[0, 8] = 0.0
+        s[0, COL_I0] = 0.0
     stuck = t_static > 0.0 and x[1] == 0.0
     for k in range(n):
         X[k, 0] = x[0]
@@ -254,12 +263,12 @@ def fast_kernel(
                         + dga[j, a, 0] * u0
                         + dga[j, a, 1] * u1
                     )
-                sn[a, 6] += ga[a, 1] * sg
-                sn[a, 7] += ga[a, 1]
+                sn[a, COL_TC] += ga[a, 1] * sg
+                sn[a, COL_TL] += ga[a, 1]
                 if ts > 0.0:
-                    sn[a, 11] += ga[a, 1] * sg * ex
-                    sn[a, 12] += ga[a, 1] * sg * ts * ex * ds * xd / ws
-                sn[a, 13] += ga[a, 1] * w * abs(w)
+                    sn[a, COL_TS] += ga[a, 1] * sg * ex
+                    sn[a, COL_WS] += ga[a, 1] * sg * ts * ex * ds * xd / ws
+                sn[a, COL_CQ] += ga[a, 1] * w * abs(w)
                 if dt_dw != 0.0:
                     for c in nc:
                         sn[a, c] += ga[a, 1] * dt_dw * s[1, c]

@@ -11,17 +11,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from pmdc_ident.core.effects import EFFECT_TYPES
+from pmdc_ident.core.effects.layout import COL_I0, COL_MEASURED_CURRENT, N_SENS
 from pmdc_ident.core.errors import ParameterError
-from pmdc_ident.core.estimators.output_error.kernel import (
-    COL,
-    COL_CQ,
-    COL_I0,
-    COL_TC,
-    COL_TL,
-    COL_TS,
-    COL_WS,
-    N_SENS,
-)
+from pmdc_ident.core.estimators.output_error.kernel import COL
 from pmdc_ident.core.estimators.output_error.parameters import (
     build_model,
     model_values,
@@ -253,7 +246,7 @@ class Problem:
     def _mixing(
         self, z: FloatArray, model: Model, ps: PreparedSegment
     ) -> tuple[FloatArray, FloatArray]:
-        """Kernel sensitivities (11 columns) -> local Jacobian columns; offset column mask."""
+        """Kernel sensitivities (N_SENS columns) -> local Jacobian columns; offset column mask."""
         vals = model_values(model)
         dvdz = self.dvalue_dz(z)
         m_loc = self.n_global + len(ps.nuis)
@@ -266,21 +259,12 @@ class Problem:
                 mx[COL[name], j] = dvdz[j] / seen
                 if name == "Ke" and self.tie_kt:
                     mx[COL["Kt"], j] = dvdz[j] / vals[name]
-            elif name == "coulomb_friction.torque_nm":
-                mx[COL_TC, j] = dvdz[j]
-            elif name == "load_torque.torque_nm":
-                mx[COL_TL, j] = dvdz[j]
-            elif name == "stribeck_friction.torque_nm":
-                mx[COL_TS, j] = dvdz[j]
-            elif name == "stribeck_friction.speed_rad_s":
-                mx[COL_WS, j] = dvdz[j]
-            elif name == "quadratic_drag.coeff_nm_s2":
-                mx[COL_CQ, j] = dvdz[j]
-            elif name == "current_offset.offset_a":
-                off[j] = dvdz[j]
             else:
-                msg = f"parameter {name} has no analytic sensitivity"
-                raise ParameterError(msg)
+                col = _fast_column(name)
+                if col == COL_MEASURED_CURRENT:
+                    off[j] = dvdz[j]
+                else:
+                    mx[col, j] = dvdz[j]
         for k, sidx in enumerate(ps.nuis):
             mx[COL_I0 + sidx, self.n_global + k] = 1.0
         return mx, off
@@ -355,6 +339,18 @@ class Problem:
             rms = float(np.sqrt(np.mean(res**2)))
             out[k] = max(rms, 1e-3 * self.noise[k], 1e-12)
         return out
+
+
+def _fast_column(name: str) -> int:
+    """The fast kernel's sensitivity column of an ``"<effect>.<field>"`` (the effect's
+    ``FAST_COLUMNS``), or :data:`COL_MEASURED_CURRENT` for one added to the current."""
+    eff, _, fld = name.partition(".")
+    cls = EFFECT_TYPES.get(eff)
+    col = cls.FAST_COLUMNS.get(fld) if cls is not None else None
+    if col is None:
+        msg = f"parameter {name} has no analytic sensitivity"
+        raise ParameterError(msg)
+    return col
 
 
 def _bounded(a: FloatArray, cap: float = 1e100) -> bool:

@@ -20,6 +20,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment, heat_state
+from pmdc_ident.core.effects import EFFECT_TYPES, SimPath
+from pmdc_ident.core.effects.layout import CQ, DS, I_OFF, TC, TL, TS, WS
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.estimators.output_error.kernel import N_SENS, fast_kernel
 from pmdc_ident.core.model import (
@@ -48,9 +50,8 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 _T = TypeVar("_T")
 _R = TypeVar("_R")
-FAST_EFFECTS = frozenset(
-    {"coulomb_friction", "stribeck_friction", "quadratic_drag", "load_torque", "current_offset"}
-)
+#: effects the fast kernel simulates with analytic sensitivities (``SimPath.FAST``)
+FAST_EFFECTS = frozenset(n for n, cls in EFFECT_TYPES.items() if cls.SIM_PATH is SimPath.FAST)
 # sub-steps for samples where friction acts at zero speed (as core.model.simulate)
 SUBSTEPS = 8
 
@@ -123,24 +124,13 @@ class FastSim:
     def __init__(self, model: Model) -> None:
         self.model = model
         self.p = model.params
-        tc = model.effect("coulomb_friction")
-        tl = model.effect("load_torque")
-        off = model.effect("current_offset")
-        st = model.effect("stribeck_friction")
-        qd = model.effect("quadratic_drag")
-        self.fx = np.array(
-            [
-                float(getattr(st, "torque_nm", 0.0)) if st is not None else 0.0,
-                float(getattr(st, "speed_rad_s", 1.0)) if st is not None else 1.0,
-                float(getattr(qd, "coeff_nm_s2", 0.0)) if qd is not None else 0.0,
-                float(getattr(st, "shape_exponent", 2.0)) if st is not None else 2.0,
-            ]
-        )
-        self.tc = float(getattr(tc, "torque_nm", 0.0)) if tc is not None else 0.0
-        self.tl = float(getattr(tl, "torque_nm", 0.0)) if tl is not None else 0.0
-        self.off = float(getattr(off, "offset_a", 0.0)) if off is not None else 0.0
+        # the fast kernel's numbers, from the slots every effect writes (core.effects.layout)
+        self.coef = c = effect_coefficients(model)
+        self.fx = np.array([c[TS], c[WS], c[CQ], c[DS]])
+        self.tc = float(c[TC])
+        self.tl = float(c[TL])
+        self.off = float(c[I_OFF])
         self._cache: dict[float, tuple[FloatArray, ...]] = {}
-        self.coef = effect_coefficients(model)
 
     def mats(self, dt: float, dJ: float = 0.0) -> tuple[FloatArray, ...]:
         key = (float(f"{dt:.9g}"), dJ)  # segments of one run share one period

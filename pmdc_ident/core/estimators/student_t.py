@@ -1,88 +1,20 @@
-"""Small fits without scipy: a dense Levenberg-Marquardt and Student's t quantile.
+"""Student's t quantile without scipy, for the classical chain's intervals.
 
-The classical chain fits two or three parameters to a coast-down curve and puts
-Student-t intervals on regressions. scipy's ``least_squares`` and ``stdtrit`` would
-do it, but importing ``scipy.optimize`` (with ``scipy.linalg`` and ``scipy.special``)
-costs about 0.3 s of CPU in every ``pmdc-ident identify``, several times what these
-fits take. Here they are in numpy and :mod:`math`:
+:func:`t_quantile` is Student's t quantile: Newton steps on the regularised incomplete
+beta function (a continued fraction) below 300 degrees of freedom, the expansion in
+1/dof from 300 on; within 1e-11 of scipy's ``stdtrit`` (a test compares them).
 
-* :func:`levenberg_marquardt` minimises ``|r(x)|^2`` with an analytic Jacobian,
-  Marquardt's scaling (the normal matrix's diagonal, as ``x_scale="jac"``) and a
-  convergence tighter than MINPACK's defaults (relative step 1e-12);
-* :func:`t_quantile` is Student's t quantile: Newton steps on the regularised
-  incomplete beta function (a continued fraction) below 300 degrees of freedom, the
-  expansion in 1/dof from 300 on; within 1e-11 of scipy's ``stdtrit`` (a test compares them).
+Kept by hand on a measurement: ``scipy.special.stdtrit`` needs ``import scipy.special``,
+about 0.3 s of CPU on this project's 2-core machine, while ``pmdc-ident identify`` of a
+staircase table takes about 0.4 s in all; ``benchmarks/bench_scipy_imports.py`` measures
+both, and the quantile's agreement, in one run.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
-import numpy as np
-from numpy.typing import NDArray
-
-__all__ = ["LsqSolution", "levenberg_marquardt", "t_quantile"]
-
-FloatArray = NDArray[np.float64]
-
-
-class LsqSolution:
-    """The minimiser ``x``, the residuals ``fun`` and the Jacobian ``jac`` there."""
-
-    __slots__ = ("fun", "jac", "nfev", "x")
-
-    def __init__(self, x: FloatArray, fun: FloatArray, jac: FloatArray, nfev: int) -> None:
-        self.x, self.fun, self.jac, self.nfev = x, fun, jac, nfev
-
-
-def _cost(r: FloatArray) -> float:
-    c = float(r @ r)
-    return c if math.isfinite(c) else math.inf
-
-
-def levenberg_marquardt(
-    fun: Callable[[FloatArray], FloatArray],
-    jac: Callable[[FloatArray], FloatArray],
-    x0: FloatArray | list[float],
-    *,
-    max_nfev: int = 500,
-    xtol: float = 1e-12,
-) -> LsqSolution:
-    """Minimise ``|fun(x)|^2`` from ``x0``; ``jac(x)`` is d fun / d x (rows: residuals)."""
-    x = np.asarray(x0, dtype=float).copy()
-    r = fun(x)
-    cost = _cost(r)
-    nfev = 1
-    lam = 1e-3
-    while nfev < max_nfev:
-        J = jac(x)
-        A = J.T @ J
-        g = J.T @ r
-        d = np.maximum(np.diag(A), 1e-300)
-        step_taken = False
-        while nfev < max_nfev and lam < 1e16:
-            try:
-                dx = np.linalg.solve(A + lam * np.diag(d), -g)
-            except np.linalg.LinAlgError:
-                lam *= 10.0
-                continue
-            x_new = x + dx
-            r_new = fun(x_new)
-            nfev += 1
-            c_new = _cost(r_new)
-            if c_new <= cost:
-                small = bool(np.all(np.abs(dx) <= xtol * (np.abs(x) + xtol)))
-                x, r, cost = x_new, r_new, c_new
-                lam = max(lam / 3.0, 1e-12)
-                step_taken = True
-                if small or c_new == 0.0:
-                    return LsqSolution(x, r, jac(x), nfev)
-                break
-            lam *= 4.0
-        if not step_taken:
-            break
-    return LsqSolution(x, r, jac(x), nfev)
+__all__ = ["t_quantile"]
 
 
 # ---------------------------------------------------------------------------

@@ -1,9 +1,10 @@
 """The scipy-free pieces of the classical chain and the equation error agree with scipy.
 
 ``t_quantile`` against ``scipy.special.stdtrit``, ``logm_2x2`` against
-``scipy.linalg.logm`` on motor-like matrices, the small Levenberg-Marquardt on a curve
-with a known minimum; and the classical chain imports neither ``scipy.optimize`` nor
-``scipy.special`` (their import was 0.3 s of CPU in every ``pmdc-ident identify``).
+``scipy.linalg.logm`` on motor-like matrices, the package's one Levenberg-Marquardt
+solver on a curve with a known minimum; and the classical chain imports neither
+``scipy.optimize`` nor ``scipy.special`` (their import was 0.3 s of CPU in every
+``pmdc-ident identify``: ``benchmarks/bench_scipy_imports.py``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ from scipy.special import stdtrit
 
 from pmdc_ident.core.estimators.classical import coast_speed, coast_speed_jacobian
 from pmdc_ident.core.estimators.equation_error import logm_2x2
-from pmdc_ident.core.estimators.small_fit import levenberg_marquardt, t_quantile
+from pmdc_ident.core.estimators.solver import least_squares
+from pmdc_ident.core.estimators.student_t import t_quantile
 
 
 @pytest.mark.parametrize("p", [0.975, 0.95, 0.995, 0.9, 0.6, 0.025])
@@ -67,11 +69,11 @@ def test_logm_2x2_of_rotations_and_negative_eigenvalues() -> None:
     assert logm_2x2(np.diag([0.5, 0.0])) is None
 
 
-def test_levenberg_marquardt_finds_a_coast_curves_parameters() -> None:
+def test_the_solver_finds_a_coast_curves_parameters() -> None:
     t = np.linspace(0.0, 4.0, 400)
     truth = (120.0, 0.4, 15.0)
     w = coast_speed(t, *truth) + np.random.default_rng(1).normal(0.0, 0.01, t.size)
-    sol = levenberg_marquardt(
+    sol = least_squares(
         lambda z: coast_speed(t, *z) - w,
         lambda z: coast_speed_jacobian(t, *z),
         [100.0, 0.2, 10.0],

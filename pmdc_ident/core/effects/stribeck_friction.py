@@ -1,0 +1,60 @@
+"""``stribeck_friction``: extra breakaway torque at low speed, falling with speed."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from pmdc_ident.core.effects import layout
+from pmdc_ident.core.effects.base import DataScales, Effect, Ladder, ParamSpec, SimPath
+
+__all__ = ["StribeckFriction"]
+
+
+@dataclass(frozen=True)
+class StribeckFriction(Effect):
+    NAME: ClassVar[str] = "stribeck_friction"
+    DESCRIPTION: ClassVar[str] = "extra breakaway torque at low speed"
+    SPECS: ClassVar[dict[str, ParamSpec]] = {
+        "torque_nm": ParamSpec("N*m", 0.0, 1e4, "extra breakaway torque at rest"),
+        "speed_rad_s": ParamSpec("rad/s", 1e-3, 1e4, "Stribeck speed"),
+        # the shape of the fall: 1 Tustin's exponential, 2 the Gaussian (Armstrong);
+        # measured curves lie between (a setting the diagnosis scans, not a fitted value)
+        "shape_exponent": ParamSpec(
+            "1", 0.5, 2.0, "exponent d of the fall exp(-(|w|/ws)^d)", False
+        ),
+    }
+    KERNEL_SLOTS = {"torque_nm": layout.TS, "speed_rad_s": layout.WS, "shape_exponent": layout.DS}
+    KERNEL_NEUTRAL = {layout.WS: 1.0, layout.DS: 2.0}
+    SIM_PATH = SimPath.FAST
+    FAST_COLUMNS = {"torque_nm": layout.COL_TS, "speed_rad_s": layout.COL_WS}
+    PRIOR = 40
+    # the coarse scan cannot tell the shape from a misplaced Stribeck speed; the fits can
+    SETTING_SCAN = ("shape_exponent", (1.0, 2.0))
+    SEPARATING_TESTS = {
+        "load_torque": (
+            "run in reverse and a slow staircase near zero speed: Stribeck friction changes "
+            "sign with the direction and falls off with speed, a load torque does neither"
+        ),
+        "quadratic_drag": (
+            "a staircase from near zero to full speed: Stribeck friction falls with speed, "
+            "drag grows with its square"
+        ),
+    }
+    BENCHMARK_LADDER = Ladder("% rated torque", (6.0, 12.0, 25.0, 50.0))
+    MUJOCO_NOT_CARRIED = "extra breakaway torque at low speed (MuJoCo's frictionloss is constant)"
+
+    torque_nm: float
+    speed_rad_s: float
+    shape_exponent: float = 2.0
+
+    @classmethod
+    def starts(cls, sc: DataScales) -> list[StribeckFriction]:
+        # the fall's speed over two decades of the top speed, in both common shapes
+        # (exponential and Gaussian: measured curves lie between); the fit places the
+        # torque, a start need only be of its order
+        return [
+            cls.clipped(sc.torque_nm * 0.25, max(sc.speed_rad_s * g, 1e-3), shape)
+            for shape in (1.0, 2.0)
+            for g in (0.005, 0.02, 0.08, 0.3)
+        ]
