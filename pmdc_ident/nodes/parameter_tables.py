@@ -430,7 +430,9 @@ def main(argv: list[str] | None = None) -> int:
             continue
         stale.append(path)
         if args.write:
-            path.write_text(text, encoding="utf-8")
+            from pmdc_ident.core.safe_write import write_text
+
+            write_text(path, text)  # complete under its name, or not there
     for path in stale:
         verb = "wrote" if args.write else "out of date:"
         print(f"{verb} {path.relative_to(args.repo)}")

@@ -169,6 +169,31 @@ def test_a_link_is_followed_only_to_a_file_of_its_kind_or_a_special_file(tmp_pat
     assert not list(tmp_path.glob(".*partial*"))
 
 
+def test_plan_writes_through_the_one_writer(tmp_path, capsys):
+    """``plan`` (issue 25) had its own temp-file-and-rename: the plan replaced a symlink
+    by a file, left a replaced file readable by its owner only (0600), and a temporary
+    that a ``kill -9`` left stayed for good. Now it keeps the link and the mode and sweeps
+    a dead process's temporary, as every other output does."""
+    real = tmp_path / "plans" / "plan.csv"
+    real.parent.mkdir()
+    real.write_text("an older plan\n")
+    real.chmod(0o644)
+    link = tmp_path / "plan.csv"
+    link.symlink_to(real)
+    stale = real.parent / ".plan.csv.999999999.0123abcd.partial"
+    stale.write_text("from a plan killed with -9")
+    pre = tmp_path / "pre.csv"
+    pre.write_text("an older pre-test\n")
+    pre.chmod(0o640)
+    assert main(["plan", "seed001_110v", "--csv", str(link)]) in (0, 3), capsys.readouterr().err
+    assert main(["plan", "seed001_110v", "--pretest", str(pre)]) == 0, capsys.readouterr().err
+    assert link.is_symlink() and real.read_text().startswith("#")
+    assert real.stat().st_mode & 0o777 == 0o644
+    assert pre.stat().st_mode & 0o777 == 0o640 and "segment" in pre.read_text()
+    assert not stale.exists()
+    assert sorted(p.name for p in real.parent.iterdir()) == ["plan.csv"]
+
+
 # ---------------------------------------------------------------------------
 # A full disk: the previous file stays, no partial file under any final name
 # ---------------------------------------------------------------------------
@@ -181,6 +206,8 @@ FULL_CASES = {
         "rep/identify.json",
     ),
     "export --bag": (["export", "{run}", "--bag", "{out}/bag"], None),
+    "plan --csv": (["plan", "seed001_110v", "--csv", "{out}/plan.csv"], "plan.csv"),
+    "plan --pretest": (["plan", "seed001_110v", "--pretest", "{out}/pre.csv"], "pre.csv"),
 }
 
 
