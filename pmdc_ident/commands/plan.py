@@ -186,6 +186,7 @@ def _identified(args: argparse.Namespace, fixed: dict[str, float]):  # type: ign
 
 
 def run(args: argparse.Namespace) -> int:
+    from pmdc_ident.commands._bounds import Bound, check_bounds
     from pmdc_ident.commands.outputs import check_distinct, check_file_output
     from pmdc_ident.core.design import parse_target, plan_csv_text, plan_experiment, session_limits
     from pmdc_ident.core.enums import SafeMode
@@ -195,6 +196,24 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.rate_hz) and 0 < args.rate_hz <= 1e6):
         msg = f"--rate-hz must lie in (0, 1e6], got {args.rate_hz}"
         raise ParameterError(msg)
+    # one line before any work: a negative margin let the plan run past the travel range
+    check_bounds(
+        [
+            (Bound("--start-rad", -1e9, 1e9, "the joint's angle at the start"), args.start_rad),
+            (
+                Bound("--travel-margin-rad", 0.0, 1e9, "kept from each end of the travel"),
+                args.travel_margin_rad,
+            ),
+            (Bound("--current-noise", 0.0, 1e6, "the current's sd, A"), args.current_noise),
+            (Bound("--speed-noise", 0.0, 1e9, "the speed's sd, rad/s"), args.speed_noise),
+            (
+                Bound(
+                    "--counts-per-rev", 0.0, 1e12, "encoder counts per revolution", open_low=True
+                ),
+                args.counts_per_rev,
+            ),
+        ]
+    )
     for name in ("voltage_max", "current_max", "speed_max", "heat_a2s", "budget_s"):
         v = getattr(args, name)
         if v is not None and not (math.isfinite(v) and v > 0):
