@@ -148,17 +148,20 @@ def _signals() -> Iterator[None]:
 
 
 def _signal_of(exc: BaseException) -> int | None:
-    """The signal that ended the command (``exc`` or its cause), None for none."""
+    """The signal that ended the command (``exc`` or its cause), None for none: the first
+    one sent when a second landed while the first was being handled (Ctrl-C, then SIGTERM
+    during the clean-up: the command stopped because of the Ctrl-C)."""
     seen: set[int] = set()
     e: BaseException | None = exc
+    found: int | None = None
     while e is not None and id(e) not in seen:
         if isinstance(e, Terminated):
-            return e.signum
-        if isinstance(e, KeyboardInterrupt):
-            return int(signal.SIGINT)
+            found = e.signum
+        elif isinstance(e, KeyboardInterrupt):
+            found = int(signal.SIGINT)
         seen.add(id(e))
         e = e.__cause__ or e.__context__
-    return None
+    return found
 
 
 def main(argv: Sequence[str] | None = None) -> int:

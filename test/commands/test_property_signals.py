@@ -70,6 +70,7 @@ COMMANDS = [
         None,
     ),
     (["check", "{csv}"], "--json", ".json"),
+    (["plan", "{csv}"], "--csv", ".csv"),  # a plan designed from a recorded pre-test
 ]
 TARGETS = ("new", "existing", "the input", "its sidecar name", "inside the bag", "a link")
 
@@ -102,6 +103,10 @@ def _complete(path: Path) -> bool:
         json.loads(data)
     elif suffix in (".yaml", ".yml"):
         assert yaml.safe_load(data) is not None
+    elif suffix == ".csv" and data.startswith(b"# pmdc-ident plan"):  # a planned voltage
+        from pmdc_ident.core.design import plan_from_csv_text
+
+        assert plan_from_csv_text(data.decode()).duration_s > 0
     elif suffix == ".csv":
         read_csv(path)
     elif suffix == ".png":
