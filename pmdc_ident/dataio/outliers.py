@@ -134,13 +134,24 @@ def _isolated(flag: NDArray[np.bool_], longest: int = 2) -> NDArray[np.bool_]:
     return out
 
 
-def _near_edges(v: FloatArray, width: int = 2) -> NDArray[np.bool_]:
-    """Samples within ``width`` of a change of the voltage command (an edge or opening)."""
+def _near_edges(
+    v: FloatArray, width: int = 2, before: FloatArray | None = None
+) -> NDArray[np.bool_]:
+    """Samples within ``width`` of a change of the voltage command (an edge or opening).
+
+    The first sample is one when the command before it (``before``: the segment's
+    history) differs from it, or is unknown and the first sample drives the motor: a log
+    that starts with its first level already on holds the current's transient from rest
+    in its first samples (a 500 Hz log's peak at its second sample is physics)."""
     finite = np.isfinite(v)
     vv = np.where(finite, v, 0.0)
     span = float(np.ptp(vv[finite])) if finite.any() else 0.0
     change = np.zeros(v.size, dtype=bool)
     change[1:] = (np.abs(np.diff(vv)) > 0.01 * span) | (finite[1:] != finite[:-1])
+    if v.size:
+        prev = float(before[-1]) if before is not None and before.size else 0.0
+        prev = prev if np.isfinite(prev) else 0.0
+        change[0] = abs(float(vv[0]) - prev) > 0.01 * max(span, abs(float(vv[0])))
     near = change.copy()
     for k in range(1, width + 1):
         near[:-k] |= change[k:]
@@ -192,7 +203,11 @@ def find_outliers(run: Run) -> list[Outlier]:
     found: list[Outlier] = []
     row0 = 0
     for seg in run.segments:
-        near = _near_edges(seg.voltage) if seg.voltage is not None else None
+        near = (
+            _near_edges(seg.voltage, before=seg.history_voltage)
+            if seg.voltage is not None
+            else None
+        )
         for name in SIGNALS:
             x = getattr(seg, name)
             if x is None or seg.n < MIN_SAMPLES:
