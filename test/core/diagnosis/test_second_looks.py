@@ -3,7 +3,7 @@ backward step of the combination search, and the signal chain's lag on top of an
 effect when the lag alone helped only as a chain lag.
 
 The records come from the independent benchmark generator (its own plant and effect
-equations, :mod:`pmdc_ident.benchmark`), drawn as the README's benchmark figures draw
+equations, :mod:`pmdc_ident.benchmark`), drawn as the benchmark figures of docs/results.md draw
 them (24 runs per effect, 30 clean): a winding heating as the integral of i^2 and an
 inductance saturating piecewise, both visible in the run (residual visibility above
 one noise RMS) but only in segments the default split fits; a quadratic drag whose
@@ -27,7 +27,7 @@ from pmdc_ident.dataio import load_data
 
 @cache
 def _cases(seed: int = 1) -> dict[str, Case]:
-    # the draws of the README's benchmark figures (24 runs per effect, 30 clean)
+    # the draws of docs/results.md's benchmark figures (24 runs per effect, 30 clean)
     return {c.name: c for c in build_cases(24, 30, 4, 12, seed)}
 
 
