@@ -148,8 +148,17 @@ class IdentificationNode(Node):
         for pub in (self.pub_cmd, self.pub_segment, self.pub_status, self.pub_progress):
             left = max(0.0, end - time.monotonic())
             done = pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and done
-        left = max(0.0, end - time.monotonic())
-        return self.pub_result.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and done
+        # the typed result topics are made when the result comes: a reader known to the
+        # graph may not be matched to them yet, and would miss the value if we left now
+        pubs = [self.pub_result, *self._pub_arrays.values()]
+        while time.monotonic() < end and any(
+            p.get_subscription_count() < self.count_subscribers(p.topic_name) for p in pubs
+        ):
+            time.sleep(0.02)
+        for pub in pubs:
+            left = max(0.0, end - time.monotonic())
+            done = pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and done
+        return done
 
     # -- callbacks -> controller --------------------------------------------------------------
     # Raw subscriptions: the CDR bytes are decoded by parse_joint_state, no message objects.
