@@ -19,12 +19,13 @@ from collections.abc import Sequence
 
 from pmdc_ident import __version__
 from pmdc_ident._blas import limit_blas_threads
+from pmdc_ident.core.enums import ExitCode
 
 __all__ = ["EXIT_INTERNAL_ERROR", "EXIT_INTERRUPTED", "EXIT_USER_ERROR", "main"]
 
-EXIT_INTERNAL_ERROR = 1
-EXIT_USER_ERROR = 2
-EXIT_INTERRUPTED = 130
+EXIT_INTERNAL_ERROR = ExitCode.FAILED
+EXIT_USER_ERROR = ExitCode.USER_ERROR
+EXIT_INTERRUPTED = ExitCode.INTERRUPTED
 
 # command name -> module under pmdc_ident.commands
 COMMANDS: dict[str, str] = {

@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
 
 __all__ = ["main", "run_session_demo"]
@@ -126,10 +127,10 @@ def main(argv: list[str] | None = None) -> int:
         return run_session_demo(output_dir=args.output_dir, motor=args.motor)
     except PmdcError as exc:
         print(f"demo: {exc}", file=sys.stderr)
-        return 1
+        return ExitCode.FAILED
     except KeyboardInterrupt:
         print("demo: interrupted", file=sys.stderr)
-        return 130
+        return ExitCode.INTERRUPTED
 
 
 if __name__ == "__main__":
