@@ -41,12 +41,13 @@ from contextlib import contextmanager  # noqa: E402
 
 from pmdc_ident import __version__  # noqa: E402
 from pmdc_ident._blas import limit_blas_threads  # noqa: E402
+from pmdc_ident.core.enums import ExitCode  # noqa: E402
 
 __all__ = ["EXIT_INTERNAL_ERROR", "EXIT_INTERRUPTED", "EXIT_USER_ERROR", "main"]
 
-EXIT_INTERNAL_ERROR = 1
-EXIT_USER_ERROR = 2
-EXIT_INTERRUPTED = 130
+EXIT_INTERNAL_ERROR = ExitCode.FAILED
+EXIT_USER_ERROR = ExitCode.USER_ERROR
+EXIT_INTERRUPTED = ExitCode.INTERRUPTED
 
 # command name -> module under pmdc_ident.commands
 COMMANDS: dict[str, str] = {

@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
 
 __all__ = ["main", "run_session_demo"]
@@ -129,13 +130,13 @@ def main(argv: list[str] | None = None) -> int:
         return run_session_demo(output_dir=args.output_dir, motor=args.motor)
     except PmdcError as exc:
         _say(f"demo: {exc}")
-        return 1
+        return ExitCode.FAILED
     except KeyboardInterrupt:
         _say("demo: interrupted")
-        return 130
+        return ExitCode.INTERRUPTED
     except OSError as exc:  # the terminal went away (SIGHUP): nothing left to tell
         _say(f"demo: {exc.strerror or exc}")
-        return 1
+        return ExitCode.FAILED
 
 
 def _say(line: str) -> None:

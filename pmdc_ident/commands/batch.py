@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import ParameterError, PmdcError
 
 __all__ = [
@@ -302,7 +303,7 @@ def run_batch(
     )
     for o in failed:
         print(f"FAILED {o.item.path}: {o.error}")
-    return 2 if failed else 0
+    return ExitCode.USER_ERROR if failed else ExitCode.OK
 
 
 def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:

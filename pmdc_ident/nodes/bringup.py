@@ -28,6 +28,7 @@ from typing import IO, Any
 
 import yaml
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.motors import share_file
 from pmdc_ident.core.workers import pdeathsig_preexec
 from pmdc_ident.nodes.dds_domain import HELD_ENV, DomainBusyError, child_env, lock_domain
@@ -458,7 +459,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         name, sep, value = rest.partition("=")
         if node not in extra or not sep or not name:
             print(f"bringup: error: bad --param {item!r} (NODE:NAME=VALUE)", file=sys.stderr)
-            return 2
+            return ExitCode.USER_ERROR
         extra[node][name] = yaml.safe_load(value)
     extra["driver"]["backend"] = args.backend
     if args.port:
@@ -475,7 +476,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     except DomainBusyError as exc:
         print(f"bringup: error: {exc} (--domain-id)", file=sys.stderr)
-        return 2
+        return ExitCode.USER_ERROR
     print(f"bringup: session took {res.wall_s:.1f} s")
     if res.bag is not None:
         closed = "" if res.bag_complete else " (INCOMPLETE: its recorder did not close it)"

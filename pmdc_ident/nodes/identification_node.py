@@ -51,6 +51,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.session.controller import SessionController
 from pmdc_ident.core.session.ports import IdentificationJob
@@ -91,7 +92,7 @@ class IdentificationNode(Node):
         values = declare(self, IDENTIFICATION)
         config = controller_config(values, namespace=self.get_namespace())
         self.controller = SessionController(config, ports=self)
-        self.exit_code = 0
+        self.exit_code: int = ExitCode.OK
         self._worker: IdentificationWorker | None = None
         self._param_future: Any = None
         self._param_names: tuple[str, ...] = ()
