@@ -120,8 +120,13 @@ def _unraisable(hook: object) -> object:
 
 
 @contextmanager
-def _signals() -> Iterator[None]:
-    """Ctrl-C, SIGTERM and SIGHUP as exceptions while the command runs (main thread)."""
+def _signals(program: bool = False) -> Iterator[None]:
+    """Ctrl-C, SIGTERM and SIGHUP as exceptions while the command runs (main thread).
+
+    ``program``: this process is ``pmdc-ident`` itself and ends with the command, so a
+    signal that comes once the command is over stays held (the work is done and its
+    outputs are in place): restored to the default, it would raise in whatever runs
+    between here and the exit (a late import, the heap freeze) as a traceback."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
@@ -141,7 +146,7 @@ def _signals() -> Iterator[None]:
         yield
     finally:
         for s, h in old.items():
-            if h is _hold:
+            if h is _hold and not program:
                 h = signal.default_int_handler if s == signal.SIGINT else signal.SIG_DFL
             if h is not None:
                 signal.signal(s, h)
@@ -190,7 +195,7 @@ def _run(argv: Sequence[str] | None) -> int:
         command = next((w for w in words if w in COMMANDS), "")
         # Everything below, the imports of the command modules included, is
         # inside the try: a Ctrl-C at any moment is one line and exit 130.
-        with _signals():
+        with _signals(program=argv is None):
             limit_blas_threads()  # before numpy is imported (batch workers inherit it)
             from pmdc_ident.core.errors import PmdcError
             from pmdc_ident.core.safe_write import reading_scope

@@ -112,3 +112,25 @@ def test_a_second_signal_during_the_clean_up_keeps_the_first_ones_status(capsys)
         status = _exit_status("export", exc, ())
     assert status == 130
     assert capsys.readouterr().err.strip() == "pmdc-ident export: interrupted"
+
+
+def test_a_signal_after_the_command_is_held_in_the_program_not_raised_on_the_way_out():
+    # the program (argv None) ends with its command: a Ctrl-C between the command's end
+    # and the exit stays held (raised there, it was a traceback from a late import);
+    # an in-process caller gets its own handler back
+    import signal as _signal
+
+    from pmdc_ident import cli
+
+    before = _signal.getsignal(_signal.SIGINT)
+    try:
+        _signal.signal(_signal.SIGINT, cli._hold)
+        with cli._signals(program=True):
+            pass
+        assert _signal.getsignal(_signal.SIGINT) is cli._hold
+        with cli._signals(program=False):
+            pass
+        assert _signal.getsignal(_signal.SIGINT) is _signal.default_int_handler
+    finally:
+        _signal.signal(_signal.SIGINT, before)
+        cli._EARLY.clear()
