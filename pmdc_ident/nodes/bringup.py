@@ -495,13 +495,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def session_outcome(res: BringupResult) -> str:
     """'aborted', 'interrupted', 'failed' or 'refused', from the identification node's
-    exit status (``core.session.controller``), for the one line that says so."""
-    from pmdc_ident.core.session.controller import EXIT_ABORTED, EXIT_INTERRUPTED, EXIT_REFUSED
-
+    exit status (``core.enums.ExitCode``), for the one line that says so."""
     return {
-        EXIT_ABORTED: "ABORTED",
-        EXIT_INTERRUPTED: "interrupted",
-        EXIT_REFUSED: "refused",
+        ExitCode.ABORTED: "ABORTED",
+        ExitCode.INTERRUPTED: "interrupted",
+        ExitCode.USER_ERROR: "refused",
     }.get(res.identification_rc or -1, "failed")
 
 
