@@ -75,13 +75,17 @@ def load_inputs(options: InputOptions, progress: Show | None = None) -> list[Loa
     return out
 
 
-def loaded_run(options: InputOptions, run: Run, path: str) -> list[LoadedInput]:
+def loaded_run(
+    options: InputOptions, run: Run, path: str, origin: str = "samples in SI units"
+) -> list[LoadedInput]:
     """A run already in SI units (a session's samples, assembled as its bag would be)
     as the one input of ``options``, named ``path``: screened for outliers as
-    :func:`load_inputs` screens a file."""
+    :func:`load_inputs` screens a file. ``origin``: where the units came from (the
+    document's ``inputs.<path>.units.origin``)."""
     from pmdc_ident.dataio.units import InputSpec, LoadedInput
 
-    return [_screen(LoadedInput(path, run, InputSpec(), ()), options.drop_outliers)]
+    spec = InputSpec(origin=origin)
+    return [_screen(LoadedInput(path, run, spec, ()), options.drop_outliers)]
 
 
 def _screen(x: LoadedInput, drop: bool) -> LoadedInput:

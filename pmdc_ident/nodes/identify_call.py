@@ -107,7 +107,8 @@ def identify_session_run(
     options = IdentifyOptions(
         data=(path,), fixed=FixedValues(fixed or {}), names=NODE_NAMES, motor_name=name
     )
-    docs = identify_inputs(options, loaded=loaded_run(options, run, path), extra=extra)
+    loaded = loaded_run(options, run, path, origin="the node's driver samples (SI units)")
+    docs = identify_inputs(options, loaded=loaded, extra=extra)
     return IdentifyOutput(
         json_text=docs.json_text,
         yaml_text=docs.yaml_text,
