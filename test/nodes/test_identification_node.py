@@ -317,6 +317,8 @@ def test_offline_reidentification_of_the_bag_matches_the_online_result(short_ses
     # the whole document: the node runs the command's service (gate, segments, fit, bias
     # flag, JSON), so only the session's own entries and what the bag file adds differ
     # (docs/reference.md, "The result document")
+    assert set(by_cli) <= set(online), set(by_cli) - set(online)  # inputs, recording, ...
+    assert set(online) - set(by_cli) <= {"driver_samples", "exports", "experiment_design"}
     node_doc, cli_doc = _without_session_fields(online), _without_session_fields(by_cli)
     assert node_doc.keys() == cli_doc.keys()
     differ = [k for k in node_doc if node_doc[k] != cli_doc[k]]
