@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "LONG_SAMPLES",
+    "Show",
     "check_ignore",
     "gate",
     "input_json",
@@ -33,6 +34,7 @@ __all__ = [
     "loaded_run",
     "prepare_inputs",
     "quality",
+    "quiet",
     "recording_of",
     "segment_inputs",
     "show_incomplete",
@@ -43,8 +45,8 @@ __all__ = [
 Show = Callable[[str], None]
 
 
-def _quiet(_: str) -> None:
-    """A progress callback that says nothing."""
+def quiet(_: str) -> None:
+    """A ``show``/``progress`` callback that says nothing."""
 
 
 def load_inputs(options: InputOptions, progress: Show | None = None) -> list[LoadedInput]:
@@ -460,7 +462,7 @@ def gate(
 def prepare_inputs(
     options: InputOptions,
     show: Show,
-    progress: Show = _quiet,
+    progress: Show = quiet,
     loaded: list[LoadedInput] | None = None,
 ) -> tuple[list[LoadedInput], QualityReport]:
     """What ``identify`` and ``diagnose`` do first: read the DATA (their notes as

@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from pmdc_ident.app.inputs import (
+    Show,
     check_ignore,
     input_json,
     is_long,
@@ -31,6 +32,7 @@ from pmdc_ident.app.inputs import (
     long_subset,
     prepare_inputs,
     quality,
+    quiet,
     segment_inputs,
     show_incomplete,
     show_quality,
@@ -55,12 +57,6 @@ __all__ = [
     "diagnose_inputs",
     "identify_inputs",
 ]
-
-Show = Callable[[str], None]
-
-
-def _quiet(_: str) -> None:
-    """A callback that says nothing."""
 
 
 def _collect(lines: list[str], show: Show | None) -> Show:
@@ -121,7 +117,7 @@ def identify_inputs(
     options: IdentifyOptions,
     *,
     show: Show | None = None,
-    progress: Show = _quiet,
+    progress: Show = quiet,
     loaded: list[LoadedInput] | None = None,
     extra: Mapping[str, Any] | None = None,
 ) -> IdentifyDocuments:
@@ -250,7 +246,7 @@ def diagnose_inputs(
     options: DiagnoseOptions,
     *,
     show: Show | None = None,
-    progress: Show = _quiet,
+    progress: Show = quiet,
     loaded: list[LoadedInput] | None = None,
 ) -> DiagnoseDocuments:
     """Gate, segment and diagnose the DATA of ``options`` (or the ``loaded`` inputs)."""
@@ -309,7 +305,7 @@ class CheckDocuments:
 
 
 def check_inputs(
-    options: CheckOptions, *, show: Show | None = None, progress: Show = _quiet
+    options: CheckOptions, *, show: Show | None = None, progress: Show = quiet
 ) -> CheckDocuments:
     """The data-quality gate alone, every finding shown with its measurement. Does not
     raise on the gate's errors: :meth:`CheckDocuments.stop_on_errors` does (after the
