@@ -55,7 +55,6 @@ def load_inputs(options: InputOptions, progress: Show | None = None) -> list[Loa
     A recording that is not whole (an interrupted session, a truncated bag, segments
     cut short, a topic at another rate) carries what was left out in its notes, so
     the gate, the progress lines and the JSON (:func:`input_json`) say so."""
-    from dataclasses import replace
 
     from pmdc_ident.dataio.units import load_input, spec_from_args
 
@@ -68,13 +67,19 @@ def load_inputs(options: InputOptions, progress: Show | None = None) -> list[Loa
             except OSError:
                 size = ""
             progress(f"reading {p}{size}")
-        x = load_input(p, spec)
-        state = recording_of(x.path)
-        if state is not None:
-            lines = state.lines(truncation=False)
-            x = replace(x, notes=(*x.notes, *(s.removeprefix(f"{state.source}: ") for s in lines)))
-        out.append(_screen(x, options.drop_outliers))
+        out.append(_screen(_with_recording_notes(load_input(p, spec)), options.drop_outliers))
     return out
+
+
+def _with_recording_notes(x: LoadedInput) -> LoadedInput:
+    """``x`` with what its recording left out in its notes (a bag; a CSV has none)."""
+    from dataclasses import replace
+
+    state = recording_of(x.path)
+    if state is None:
+        return x
+    lines = state.lines(truncation=False)
+    return replace(x, notes=(*x.notes, *(s.removeprefix(f"{state.source}: ") for s in lines)))
 
 
 def loaded_run(
@@ -82,12 +87,13 @@ def loaded_run(
 ) -> list[LoadedInput]:
     """A run already in SI units (a session's samples, assembled as its bag would be)
     as the one input of ``options``, named ``path``: screened for outliers as
-    :func:`load_inputs` screens a file. ``origin``: where the units came from (the
-    document's ``inputs.<path>.units.origin``)."""
+    :func:`load_inputs` screens a file, with what its assembly left out in its notes
+    (:func:`pmdc_ident.dataio.bagio.assemble_run` of ``path`` in this process, as for a
+    bag). ``origin``: where the units came from (``inputs.<path>.units.origin``)."""
     from pmdc_ident.dataio.units import InputSpec, LoadedInput
 
-    spec = InputSpec(origin=origin)
-    return [_screen(LoadedInput(path, run, spec, ()), options.drop_outliers)]
+    x = _with_recording_notes(LoadedInput(path, run, InputSpec(origin=origin), ()))
+    return [_screen(x, options.drop_outliers)]
 
 
 def _screen(x: LoadedInput, drop: bool) -> LoadedInput:
