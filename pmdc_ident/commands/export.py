@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         loaded = load_input(src, spec)
         data, notes = loaded.run, loaded.notes
-    from pmdc_ident.commands._inputs import recording_of
+    from pmdc_ident.app.inputs import recording_of
 
     state = recording_of(str(src))
     if state is not None and not state.complete:

@@ -28,7 +28,11 @@ from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec, motor_to_yaml
 from pmdc_ident.core.schema import SCHEMA_VERSION
 
+# the first line of every motor file identify writes (command line and node alike)
+MOTOR_YAML_HEADER = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
+
 __all__ = [
+    "MOTOR_YAML_HEADER",
     "IdentificationResult",
     "format_polynomial",
     "transfer_function_dict",
@@ -212,12 +216,16 @@ class IdentificationResult:
             f"({self.model_kind} model){note}",
         )
 
+    def motor_yaml(self, name: str = "identified") -> str:
+        """The motor file of the identified motor (:data:`MOTOR_YAML_HEADER` first), as
+        ``pmdc-ident identify --yaml`` and the identification node write it."""
+        return MOTOR_YAML_HEADER + motor_to_yaml(self.motor_spec(name))
+
     def write_motor_yaml(self, path: str | Path, name: str | None = None) -> Path:
         from pmdc_ident.core.safe_write import write_text
 
         p = Path(path)
-        header = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
-        return write_text(p, header + motor_to_yaml(self.motor_spec(name or p.stem)))
+        return write_text(p, self.motor_yaml(name or p.stem))
 
 
 def _in_range(model: Model) -> tuple[Model, str]:

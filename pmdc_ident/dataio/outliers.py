@@ -19,7 +19,13 @@ inertia forbid it), so such samples are found by a robust residual test:
   its peak: the sample after it is still near it), and neither end of a segment is
   tested;
 * the current is not tested within two samples of a voltage edge (a PRBS's one-sample
-  pulse is a command, and the current follows it).
+  pulse is a command, and the current follows it);
+* a voltage sample inside the range the command swept in the ``LEAD_SAMPLES`` before
+  it (the segment's history included) is the command, not a glitch: a segment marker
+  that arrives a few samples after the command changed leaves the previous segment's
+  last levels (a sweep's) at the start of the next one (a session's coast after its
+  sweep: 6.18 V between 7.75 V and the 24 V spin-up, in range of the sweep's last
+  samples, was refused as an outlier).
 
 :func:`find_outliers` reports them (segment, sample, time, value, what the
 neighbours read); :func:`drop_outliers` removes those samples, so the fit steps over
@@ -42,6 +48,7 @@ __all__ = ["K_NOISE", "Outlier", "drop_outliers", "find_outliers"]
 FloatArray = NDArray[np.float64]
 K_NOISE = 12.0  # robust standard deviations
 MIN_SAMPLES = 9  # shorter segments (a table's few rows) are not tested
+LEAD_SAMPLES = 50  # the voltage's own recent range (history included) a command stays in
 SIGNALS = ("current", "speed", "position", "voltage", "terminal_voltage")
 _UNITS = {"current": "A", "speed": "rad/s", "position": "rad", "voltage": "V"}
 
@@ -159,7 +166,12 @@ def _near_edges(
     return near
 
 
-def _signal_outliers(x: FloatArray, skip: NDArray[np.bool_] | None) -> NDArray[np.intp]:
+def _signal_outliers(
+    x: FloatArray, skip: NDArray[np.bool_] | None, before: FloatArray | None = None
+) -> NDArray[np.intp]:
+    """The isolated outliers of ``x`` (indices). ``before``: a command's samples before
+    ``x`` (the segment's history voltage): a sample within the range of the
+    :data:`LEAD_SAMPLES` before it is a command."""
     finite = np.isfinite(x)
     if finite.sum() < MIN_SAMPLES:
         return np.zeros(0, dtype=np.intp)
@@ -193,9 +205,21 @@ def _signal_outliers(x: FloatArray, skip: NDArray[np.bool_] | None) -> NDArray[n
             b += 1
         if a < 0 or b >= x.size:
             continue
-        if min(abs(xs[k] - xs[a]), abs(xs[k] - xs[b])) > limit:
+        if min(abs(xs[k] - xs[a]), abs(xs[k] - xs[b])) > limit and not _in_lead(x, k, before):
             keep.append(k)
     return np.asarray(keep, dtype=np.intp)
+
+
+def _in_lead(x: FloatArray, k: int, before: FloatArray | None) -> bool:
+    """``x[k]`` lies within the range of the :data:`LEAD_SAMPLES` before it (``before``
+    first), where ``before`` is given (a command's own recent levels)."""
+    if before is None:
+        return False
+    lead = x[max(0, k - LEAD_SAMPLES) : k]
+    if k < LEAD_SAMPLES and before.size:
+        lead = np.concatenate((before[-(LEAD_SAMPLES - k) :], lead))
+    lead = lead[np.isfinite(lead)]
+    return bool(lead.size) and float(lead.min()) <= float(x[k]) <= float(lead.max())
 
 
 def find_outliers(run: Run) -> list[Outlier]:
@@ -214,7 +238,11 @@ def find_outliers(run: Run) -> list[Outlier]:
                 continue
             x = np.asarray(x, dtype=float)
             skip = near if name in ("current", "terminal_voltage") else None
-            idx = _signal_outliers(x, skip)
+            before = None
+            if name == "voltage":
+                hv = seg.history_voltage
+                before = np.asarray(hv, dtype=float) if hv is not None else np.zeros(0)
+            idx = _signal_outliers(x, skip, before)
             if not idx.size:
                 continue
             med = _median5(_filled(x))

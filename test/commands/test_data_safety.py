@@ -250,7 +250,7 @@ def test_an_interrupted_batch_rerun_keeps_the_previous_complete_results(
     before = _tree(out)
     assert all(before.values())
 
-    import pmdc_ident.commands._inputs as inputs
+    import pmdc_ident.app.inputs as inputs
 
     real = inputs.prepare_inputs
     calls = []
@@ -262,9 +262,9 @@ def test_an_interrupted_batch_rerun_keeps_the_previous_complete_results(
         return real(*a, **k)
 
     monkeypatch.setattr(inputs, "prepare_inputs", interrupted)
-    import pmdc_ident.commands.identify as identify
+    import pmdc_ident.app.service as service
 
-    monkeypatch.setattr(identify, "prepare_inputs", interrupted)
+    monkeypatch.setattr(service, "prepare_inputs", interrupted)
     assert main(argv) == EXIT_INTERRUPTED
     capsys.readouterr()
     after = _tree(out)

@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 
-import pmdc_ident.commands._inputs as inputs_mod
+import pmdc_ident.app.inputs as inputs_mod
 from pmdc_ident.cli import EXIT_USER_ERROR, main
 from pmdc_ident.core.data import Run, link_history
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run

@@ -14,6 +14,7 @@ import pytest
 from helpers.motor_records import Motor, prbs, simulate, steps, write_csv
 
 from pmdc_ident.cli import EXIT_USER_ERROR, main
+from pmdc_ident.core.data import Run
 from pmdc_ident.dataio.csvio import read_csv
 
 RATE = 1000.0
@@ -81,3 +82,27 @@ def test_fitted_around_only_on_request(tmp_path, capsys):
         assert abs(doc["parameters"][name]["value"] / truth - 1) < 0.005, name
     codes = [f["code"] for f in doc["quality"]["findings"]]
     assert "outlier" in codes  # said, as a warning
+
+
+def test_a_segment_that_starts_in_the_previous_segment_s_sweep_is_not_a_glitch():
+    """A session's marker a few samples late: the coast starts with the sweep's last
+    levels (7.75, 7.75, 6.18 V) before its 24 V spin-up; 6.18 V is in the sweep's range
+    (the history), so it is a command. The same dip in a steady 24 V is a glitch."""
+    from pmdc_ident.core.data import Segment
+    from pmdc_ident.dataio.outliers import find_outliers
+
+    rng = np.random.default_rng(1)
+    n = 4000  # the lead-in is < 0.5 % of the samples: outside the range of the rest
+    t = np.arange(n) / RATE
+    v = np.concatenate([[7.749, 7.749, 6.179], np.full(n - 3, 24.0)])
+    i = 9.7 + 0.01 * rng.normal(size=n)
+    sweep = 10.0 + 5.0 * np.sin(np.arange(500) * 0.3)  # 5 .. 15 V
+    coast = Segment("coast", t, v, i, speed=np.linspace(0, 300, n), history_voltage=sweep)
+    assert find_outliers(Run((coast,), "session")) == []
+    dip = v.copy()
+    dip[2000] = 6.179  # far outside 24 V and its own last 50 samples
+    glitch = Segment("coast", t, dip, i, speed=np.linspace(0, 300, n), history_voltage=sweep)
+    assert [(o.signal, o.index) for o in find_outliers(Run((glitch,), "x"))] == [("voltage", 2000)]
+    # and without the history, the lead-in is judged on the segment alone (as before)
+    alone = Segment("coast", t, v, i, speed=np.linspace(0, 300, n))
+    assert [o.index for o in find_outliers(Run((alone,), "x"))] == [2]
