@@ -31,6 +31,7 @@ import numpy as np
 
 from pmdc_ident.app.options import CLI_NAMES
 from pmdc_ident.core.data import Run
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.motors import MotorSpec
@@ -178,9 +179,13 @@ def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
         write_text(job.output_dir / "parameters.json", result.json_text)
         write_text(job.output_dir / "parameters.yaml", result.yaml_text)
     except PmdcError as exc:
-        return IdentificationOutcome(error=str(exc), exit_code=2, notes=tuple(notes))
+        return IdentificationOutcome(
+            error=str(exc), exit_code=ExitCode.USER_ERROR, notes=tuple(notes)
+        )
     except Exception as exc:  # noqa: BLE001 - report in one line, keep the node alive
-        return IdentificationOutcome(error=repr(exc), exit_code=1, notes=tuple(notes))
+        return IdentificationOutcome(
+            error=repr(exc), exit_code=ExitCode.FAILED, notes=tuple(notes)
+        )
     return IdentificationOutcome(
         json_text=result.json_text,
         table=result.table,
@@ -320,7 +325,7 @@ class IdentificationWorker:
         code = self._process.exitcode
         return IdentificationOutcome(
             error=f"the identification process ended without a result (exit code {code})",
-            exit_code=1,
+            exit_code=ExitCode.FAILED,
         )
 
     def terminate(self) -> None:
