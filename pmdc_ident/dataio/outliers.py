@@ -15,6 +15,9 @@ inertia forbid it), so such samples are found by a robust residual test:
   that range by half its width, in at most two consecutive samples (a longer
   excursion is a real event, not a glitch; a pulse inside the range, a PRBS's, is a
   command);
+* a quantised speed or angle (an encoder's: one count per sample period) moves by its
+  steps: a departure of up to two of them (``QUANTA``) is never an outlier (a steady
+  speed read as one value and a count more in one sample was refused);
 * the sample must also jump away from both of its neighbours (a transient decays from
   its peak: the sample after it is still near it), and neither end of a segment is
   tested;
@@ -49,6 +52,7 @@ FloatArray = NDArray[np.float64]
 K_NOISE = 12.0  # robust standard deviations
 MIN_SAMPLES = 9  # shorter segments (a table's few rows) are not tested
 LEAD_SAMPLES = 50  # the voltage's own recent range (history included) a command stays in
+QUANTA = 2.5  # a step of up to two of a quantised signal's steps is never an outlier
 SIGNALS = ("current", "speed", "position", "voltage", "terminal_voltage")
 _UNITS = {"current": "A", "speed": "rad/s", "position": "rad", "voltage": "V"}
 
@@ -167,7 +171,10 @@ def _near_edges(
 
 
 def _signal_outliers(
-    x: FloatArray, skip: NDArray[np.bool_] | None, before: FloatArray | None = None
+    x: FloatArray,
+    skip: NDArray[np.bool_] | None,
+    before: FloatArray | None = None,
+    quantised: bool = False,
 ) -> NDArray[np.intp]:
     """The isolated outliers of ``x`` (indices). ``before``: a command's samples before
     ``x`` (the segment's history voltage): a sample within the range of the
@@ -178,15 +185,19 @@ def _signal_outliers(
     xs = _filled(x)  # open-armature voltage cells: tested as the value before them
     lo, hi = np.percentile(x[finite], [0.5, 99.5])
     span = float(hi - lo)
+    q = _quantum(x[finite]) if quantised else 0.0
     r = xs - _median5(xs)
     r[~finite] = 0.0
     sd = 1.4826 * float(np.median(np.abs(r[finite])))
-    limit = max(K_NOISE * sd, 0.5 * span)
+    limit = max(K_NOISE * sd, 0.5 * span, QUANTA * q)
     if limit <= 0.0:  # a constant signal: any departure from it is one
         limit = 1e-12 * max(1.0, float(np.max(np.abs(x[finite]))))
     # a spike against its neighbours AND outside the signal's own range: a command's
-    # one-sample pulse inside its range (a PRBS) is not a glitch
-    outside = (x > hi + 0.5 * span) | (x < lo - 0.5 * span)
+    # one-sample pulse inside its range (a PRBS) is not a glitch; nor is a step of a
+    # few of the signal's quanta (an encoder's speed at a steady level: its range is
+    # one value, and a count more or less in a sample is the encoder, not a glitch)
+    reach = max(0.5 * span, QUANTA * q)
+    outside = (x > hi + reach) | (x < lo - reach)
     flag = (np.abs(r) > limit) & finite & outside
     flag[:1] = flag[-1:] = False  # a record's end has a neighbour on one side only
     if skip is not None:
@@ -208,6 +219,14 @@ def _signal_outliers(
         if min(abs(xs[k] - xs[a]), abs(xs[k] - xs[b])) > limit and not _in_lead(x, k, before):
             keep.append(k)
     return np.asarray(keep, dtype=np.intp)
+
+
+def _quantum(x: FloatArray) -> float:
+    """The signal's resolution where it is quantised (an encoder's speed: one count per
+    sample period), from the smallest step between the values it takes; ~0 for a
+    continuous signal."""
+    v = np.unique(x)
+    return float(np.min(np.diff(v))) if v.size > 1 else 0.0
 
 
 def _in_lead(x: FloatArray, k: int, before: FloatArray | None) -> bool:
@@ -242,7 +261,9 @@ def find_outliers(run: Run) -> list[Outlier]:
             if name == "voltage":
                 hv = seg.history_voltage
                 before = np.asarray(hv, dtype=float) if hv is not None else np.zeros(0)
-            idx = _signal_outliers(x, skip, before)
+            # an encoder's speed and angle move in counts (a command's few levels
+            # are no quantum: a lead-in between them is judged on its own)
+            idx = _signal_outliers(x, skip, before, quantised=name in ("speed", "position"))
             if not idx.size:
                 continue
             med = _median5(_filled(x))

@@ -81,6 +81,11 @@ NODE_NAMES: dict[str, str] = {
         for key, flag in CLI_NAMES.items()
         if key not in {"data", "fix"}
     },
+    # a session runs unattended: a one-sample glitch (an ADC read mid-switch, a stale
+    # command applied for one sample under load) is fitted around and reported, not a
+    # reason to throw the session away; the command refuses it unless told otherwise
+    "drop_outliers": "an unattended session fits around them; `pmdc-ident identify BAG` "
+    "refuses them",
 }
 
 
@@ -92,9 +97,10 @@ def identify_session_run(
     source: str | None = None,
 ) -> IdentifyOutput:
     """Identify a session's run through the service ``pmdc-ident identify`` calls
-    (:func:`pmdc_ident.app.identify_inputs`, that command's default options;
-    ``fixed`` is its ``--fix`` list): the same gate (outliers, the assumption register,
-    a long record's representative subset), the same fit and the same JSON document.
+    (:func:`pmdc_ident.app.identify_inputs`, that command's default options but
+    ``--drop-outliers``: see ``NODE_NAMES``; ``fixed`` is its ``--fix`` list): the same
+    gate (outliers, the assumption register, a long record's representative subset), the
+    same fit and the same JSON document.
 
     ``source``: the name of the input in the document (the session's bag path; default
     the run's source). ``extra`` entries are added to the JSON document (the node adds
@@ -106,7 +112,11 @@ def identify_session_run(
 
     path = source or run.source or "session"
     options = IdentifyOptions(
-        data=(path,), fixed=FixedValues(fixed or {}), names=NODE_NAMES, motor_name=name
+        data=(path,),
+        fixed=FixedValues(fixed or {}),
+        names=NODE_NAMES,
+        motor_name=name,
+        drop_outliers=True,
     )
     loaded = loaded_run(options, run, path, origin="the node's driver samples (SI units)")
     docs = identify_inputs(options, loaded=loaded, extra=extra)

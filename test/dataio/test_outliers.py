@@ -106,3 +106,23 @@ def test_a_segment_that_starts_in_the_previous_segment_s_sweep_is_not_a_glitch()
     # and without the history, the lead-in is judged on the segment alone (as before)
     alone = Segment("coast", t, v, i, speed=np.linspace(0, 300, n))
     assert [o.index for o in find_outliers(Run((alone,), "x"))] == [2]
+
+
+def test_an_encoders_speed_a_count_off_at_a_steady_level_is_not_an_outlier():
+    # a serial board's speed at 1 kHz with 480 counts/rev: one count per sample is
+    # 13.09 rad/s; at a steady 39.27 rad/s nearly every sample reads 39.27 (the range is
+    # one value) and one reads 26.18: the encoder, not a glitch (a session was refused)
+    from pmdc_ident.core.data import Segment
+    from pmdc_ident.dataio.outliers import find_outliers
+
+    quantum = 2 * np.pi / 480 / 1e-3
+    n = 400
+    t = np.arange(n) * 1e-3
+    speed = np.full(n, 3 * quantum)
+    speed[200] = 2 * quantum
+    speed[300] = 4 * quantum
+    seg = Segment("staircase_03", t, np.full(n, 6.0), np.full(n, 0.4), speed=speed)
+    assert find_outliers(Run((seg,))) == []
+    speed[250] = 40 * quantum  # a real glitch still is one
+    seg = Segment("staircase_03", t, np.full(n, 6.0), np.full(n, 0.4), speed=speed.copy())
+    assert [o.index for o in find_outliers(Run((seg,)))] == [250]

@@ -103,19 +103,22 @@ def test_the_worker_writes_the_document_of_pmdc_ident_identify_json(tmp_path):
     assert node.yaml_text.startswith("# Motor file written by `pmdc-ident identify`")
 
 
-def test_the_worker_refuses_an_outlier_as_the_command_does_in_its_own_words():
+def test_the_worker_fits_around_an_outlier_and_says_so_in_its_own_words():
+    # an unattended session is not thrown away for a one-sample glitch: the worker
+    # fits around it (the command's --drop-outliers) and the lines say what was left
+    # out and that the command refuses it
     from dataclasses import replace
 
     from pmdc_ident.core.data import Run
-    from pmdc_ident.core.errors import DataError
 
     run = _session_like_run(seed=4)
+    clean = identify_session_run(run, source="/bags/session_x")
     seg = run.segments[1]
     current = seg.current.copy()
     current[seg.n // 2] = 50.0 * float(abs(current).max())  # a one-sample glitch
     run = Run((run.segments[0], replace(seg, current=current), *run.segments[2:]), run.source)
-    with pytest.raises(DataError, match="outlier") as err:
-        identify_session_run(run, source="/bags/session_x")
-    # the node has no `drop_outliers` or `ignore` parameter: the hint names the command
-    assert "`pmdc-ident identify BAG --drop-outliers`" in str(err.value)
-    assert "`pmdc-ident identify BAG --ignore` CODE goes on anyway" in str(err.value)
+    out = identify_session_run(run, source="/bags/session_x")
+    assert "1 isolated current outlier(s) left out" in out.table
+    assert "`pmdc-ident identify BAG` refuses them" in out.table
+    for k in ("R", "Ke", "J"):
+        assert out.values[k] == pytest.approx(clean.values[k], rel=1e-3)
