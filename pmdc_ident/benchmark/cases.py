@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pmdc_ident.benchmark import plant as pl
-from pmdc_ident.benchmark.motors import MOTORS, BenchMotor
+from pmdc_ident.benchmark.motors import ALL_MOTORS, MOTORS, BenchMotor
 from pmdc_ident.benchmark.sensors import SensorSetup, measure
 from pmdc_ident.benchmark.truth import (
     EQUATIONS,
@@ -61,6 +61,7 @@ class Case:
     seed: int
     visibility: float = math.nan  # residual visibility (filled by the runner)
     visibility_raw: float = math.nan
+    plant: str = "generator"  # who simulates it: the generator's RK4 plant or "mujoco"
 
     @property
     def truth(self) -> tuple[str, ...]:
@@ -68,7 +69,7 @@ class Case:
 
     @property
     def bench_motor(self) -> BenchMotor:
-        return MOTORS[self.motor]
+        return ALL_MOTORS[self.motor]
 
 
 @dataclass(frozen=True)
