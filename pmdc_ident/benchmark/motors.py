@@ -235,7 +235,7 @@ MOTORS: dict[str, BenchMotor] = {
 MUJOCO_MOTORS: dict[str, BenchMotor] = {
     # 48 V, 0.06 ohm (stall 800 A), 3,300 rpm at 4 A no load, 150 uH; rotor 6e-3 kg m^2 +
     # the vehicle reflected to the shaft 0.015; 35 A continuous (1.5 kW at 3,000 rpm);
-    # 24 cogging periods per turn; a 12-bit current sense over +-500 A and a 64-line
+    # 24 cogging periods per turn; a 12-bit current sense over +-1000 A and a 64-line
     # encoder (256 counts), logged at 500 Hz to 2 kHz.
     "traction_48v": BenchMotor(
         name="traction_48v",
@@ -254,7 +254,7 @@ MUJOCO_MOTORS: dict[str, BenchMotor] = {
         gear_ratio=1.0,
         power_rated_w=1500.0,
         rates_hz=(500.0, 1000.0, 2000.0),
-        sensors=DriverSensors(500.0, 12, 0.5, 256.0, ("position", "tacho"), 0.3),
+        sensors=DriverSensors(1000.0, 12, 0.5, 256.0, ("position", "tacho"), 0.3),
         cogging_motor_periods=(24,),
     ),
 }
