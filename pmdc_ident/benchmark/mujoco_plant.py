@@ -375,6 +375,17 @@ def simulate_plant(
     """Simulate a whole record from rest in MuJoCo (NaN command = armature open); the
     benchmark's :class:`~pmdc_ident.benchmark.plant.SimOutput` (true and analog-filtered
     signals at each sample's start; the winding's temperature rise in K)."""
+    from pmdc_ident.exports.mujoco_replay import mujoco_warnings_caught
+
+    with mujoco_warnings_caught() as caught:
+        out = _simulate(p, command_v, dt_s, chain, filters, friction_timeconst_s, max_substeps)
+    if caught:
+        msg = f"MuJoCo's simulation went unstable: {caught[0].strip()}"
+        raise ValueError(msg)
+    return out
+
+
+def _simulate(p, command_v, dt_s, chain, filters, friction_timeconst_s, max_substeps):  # type: ignore[no-untyped-def]
     import mujoco
 
     from pmdc_ident.benchmark.plant import SimOutput
