@@ -14,8 +14,9 @@ reads the command from MuJoCo's own history buffer. The hinge joint carries the
 rotor's inertia (``armature``), a polynomial damping ``-(a w + b w|w| + c w^3)`` and
 a Coulomb ``frictionloss`` (a soft constraint of MuJoCo's solver). A load can sit
 behind the shaft on a second body: a mass on a slide joint tied to the shaft by a
-soft joint equality (a cable on a drum, under gravity), or a load inertia on a
-second hinge with a spring and a damper, or with free play (joint limits: backlash).
+fixed tendon with a spring and a damper (a cable on a drum, under gravity), or a load
+inertia on a second hinge with a spring and a damper, or with free play (joint
+limits: backlash).
 
 What a driver adds outside the motor is applied outside MuJoCo, at every MuJoCo step:
 the drive's dead zone and its first-order output lag on the commanded voltage, a
@@ -188,8 +189,9 @@ class MjPlant:
     # loads on the joint
     applied_nm: float = 0.0  # a constant torque opposing +w (qfrc_applied)
     lift_mass_kg: float = 0.0  # a mass on a slide joint, under gravity ...
-    drum_radius_m: float = 0.0  # ... tied to the shaft by a cable on a drum (x = r theta)
-    cable_timeconst_s: float = 0.0  # the cable's compliance (the equality's solref)
+    drum_radius_m: float = 0.0  # ... tied to the shaft by a cable on a drum (x = r theta):
+    cable_stiffness: float = 0.0  # a fixed tendon x - r theta with a spring (N/m) ...
+    cable_damping: float = 0.0  # ... and a damper (N*s/m)
     load_inertia: float = 0.0  # a second body on a hinge behind the rotor ...
     coupling_stiffness: float = 0.0  # ... through a spring (N*m/rad) ...
     coupling_damping: float = 0.0  # ... and a damper
@@ -262,9 +264,11 @@ def plant_mjcf(p: MjPlant, timestep_s: float, friction_timeconst_s: float) -> st
             "      </body>",
         ]
     bodies.append("    </body>")
-    equality = ""
+    tendon = ""
     if p.lift_mass_kg > 0:
-        tc = max(p.cable_timeconst_s, 2.0 * timestep_s)
+        # a cable on a drum: a fixed tendon x - r theta with a spring and a damper (a
+        # soft joint equality is no cable: its force falls with the drum's speed, MuJoCo's
+        # constraint impedance letting the mass slip)
         bodies += [
             '    <body name="lift" pos="1 0 0">',
             f'      <inertial pos="0 0 0" mass="{_f(p.lift_mass_kg)}" '
@@ -272,12 +276,14 @@ def plant_mjcf(p: MjPlant, timestep_s: float, friction_timeconst_s: float) -> st
             '      <joint name="lift" type="slide" axis="0 0 1"/>',
             "    </body>",
         ]
-        # the mass rises by r theta: x = r theta (the cable on the drum, its stretch soft)
-        equality = (
-            "  <equality>\n"
-            f'    <joint joint1="lift" joint2="shaft" polycoef="0 {_f(p.drum_radius_m)} 0 0 0" '
-            f'solref="{_f(tc)} 0.5"/>\n'
-            "  </equality>\n"
+        tendon = (
+            "  <tendon>\n"
+            f'    <fixed name="cable" stiffness="{_f(p.cable_stiffness)}" '
+            f'damping="{_f(p.cable_damping)}" springlength="0">\n'
+            '      <joint joint="lift" coef="1"/>\n'
+            f'      <joint joint="shaft" coef="{_f(-p.drum_radius_m)}"/>\n'
+            "    </fixed>\n"
+            "  </tendon>\n"
         )
     motor = [
         f'    <dcmotor name="motor" joint="shaft" gear="{_f(p.gear)}" '
@@ -309,7 +315,7 @@ def plant_mjcf(p: MjPlant, timestep_s: float, friction_timeconst_s: float) -> st
         'integrator="Euler">\n'
         '    <flag contact="disable"/>\n'
         "  </option>\n"
-        "  <worldbody>\n" + "\n".join(bodies) + "\n  </worldbody>\n" + equality + "  <actuator>\n"
+        "  <worldbody>\n" + "\n".join(bodies) + "\n  </worldbody>\n" + tendon + "  <actuator>\n"
         "" + "\n".join(actuators) + "\n  </actuator>\n</mujoco>\n"
     )
 
@@ -326,8 +332,9 @@ def substeps_for(p: MjPlant, chain: Chain, dt_s: float) -> int:
         limits.append(0.3 / math.sqrt(k * (1.0 / p.J + 1.0 / p.load_inertia)))
     if p.load_inertia > 0 and p.backlash_rad > 0 and p.limit_timeconst_s > 0:
         limits.append(p.limit_timeconst_s / 4.0)
-    if p.lift_mass_kg > 0 and p.cable_timeconst_s > 0:
-        limits.append(p.cable_timeconst_s / 4.0)
+    if p.lift_mass_kg > 0 and p.cable_stiffness > 0:
+        m_eff = 1.0 / (1.0 / p.lift_mass_kg + p.drum_radius_m**2 / p.J)
+        limits.append(0.3 / math.sqrt(p.cable_stiffness / m_eff))
     if chain.brush_v > 0 and chain.brush_knee_a > 0:
         # the drop's slope Vb/i0 is a resistance applied one step late: keep it below
         # the winding's L/step
@@ -410,6 +417,8 @@ def _simulate(p, command_v, dt_s, chain, filters, friction_timeconst_s, max_subs
     k_motor = float(model.actuator_gainprm[motor, 1])
     if p.applied_nm:
         data.qfrc_applied[0] = -p.applied_nm
+    if p.lift_mass_kg > 0 and p.cable_stiffness > 0:
+        data.qpos[1] = -p.lift_mass_kg * GRAVITY / p.cable_stiffness  # the cable stretched
 
     cmd = np.asarray(command_v, dtype=float)
     n = cmd.size
