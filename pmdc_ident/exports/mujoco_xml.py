@@ -47,7 +47,13 @@ from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.params import MotorParams
 
-__all__ = ["MUJOCO_FLAVOURS", "MujocoExport", "installed_mujoco_flavour", "mujoco_xml"]
+__all__ = [
+    "MUJOCO_FLAVOURS",
+    "MujocoExport",
+    "installed_mujoco_flavour",
+    "mapping_table",
+    "mujoco_xml",
+]
 
 MUJOCO_FLAVOURS: tuple[str, ...] = ("dcmotor", "general")
 
@@ -176,6 +182,20 @@ def mujoco_xml(
         notes=tuple(notes),
         carried=terms.carried,
     )
+
+
+def mapping_table() -> str:
+    """Every effect of the registry and what the MuJoCo export makes of it (markdown;
+    docs/mujoco.md prints it, a test keeps the two equal)."""
+    from pmdc_ident.core.effects import EFFECT_TYPES
+
+    lines = ["| effect | in MuJoCo | how |", "|---|---|---|"]
+    for name, cls in EFFECT_TYPES.items():
+        if cls.MUJOCO_MAPPING:
+            lines.append(f"| `{name}` | carried | {cls.MUJOCO_MAPPING} |")
+        else:
+            lines.append(f"| `{name}` | not carried | {cls.MUJOCO_NOT_CARRIED} |")
+    return "\n".join(lines)
 
 
 def _check_arguments(flavour: str, reduction: float, timestep_s: float) -> None:

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from helpers.paths import REPO
 
 from pmdc_ident.cli import main
 from pmdc_ident.core.data import Segment
@@ -25,7 +26,7 @@ from pmdc_ident.core.params import MotorParams
 from pmdc_ident.exports import write_exports
 from pmdc_ident.exports.diagnosis import motor_with_diagnosis
 from pmdc_ident.exports.mujoco_replay import SegmentStart, replay_segments
-from pmdc_ident.exports.mujoco_xml import mujoco_xml
+from pmdc_ident.exports.mujoco_xml import mapping_table, mujoco_xml
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -171,3 +172,7 @@ def test_write_exports_puts_the_diagnosis_into_the_mjcf_beside_the_bag(tmp_path)
     assert m.dof_damping[0] == pytest.approx(spec.model.params.B)
     assert "quadratic_drag" in paths[0].read_text().split("-->")[0]
     assert motor_with_diagnosis(spec, doc).effects == ("quadratic_drag",)
+
+
+def test_the_mapping_table_in_docs_is_the_registry_s():
+    assert mapping_table() in (REPO / "docs" / "mujoco.md").read_text()

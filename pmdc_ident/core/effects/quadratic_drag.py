@@ -42,7 +42,7 @@ class QuadraticDrag(Effect):
     BENCHMARK_LADDER = Ladder("% rated torque at w0", (5.0, 10.0, 20.0, 40.0))
     MUJOCO_MAPPING = (
         'joint `damping="B N^2 Cq N^3"`: the quadratic term b of MuJoCo\'s polynomial '
-        "damping -(a w + b w|w|)"
+        "damping -(a w + b w abs(w))"
     )
 
     coeff_nm_s2: float

@@ -52,7 +52,7 @@ class StribeckFriction(Effect):
     }
     BENCHMARK_LADDER = Ladder("% rated torque", (6.0, 12.0, 25.0, 50.0))
     MUJOCO_MAPPING = (
-        '`<dcmotor lugre="sigma0 sigma1 Fc Fc+Ts vs">`: LuGre\'s Gaussian Stribeck curve '
+        '`<dcmotor lugre="sigma0 0 Fc Fc+Ts vs">`: LuGre\'s Gaussian Stribeck curve '
         "g(v) = Fc + Ts exp(-(v/vs)^2), vs = ws for the Gaussian fall (shape 2), 2 ws/sqrt(pi) "
         "for the exponential one (shape 1: the Gaussian of the same area); Fc the Coulomb "
         "friction's torque, at least 2 % of Ts (MuJoCo's bristle equation needs g > 0); "
