@@ -37,6 +37,7 @@ COMMANDS: dict[str, str] = {
     "virtual-board": "virtual_board",
     "benchmark": "benchmark",
     "roundtrip": "roundtrip",
+    "plan": "plan",
 }
 
 

@@ -9,7 +9,9 @@ board's sample counter on its own clock, never the host's arrival time. Gaps
 in the counter are counted as dropped samples and flag :attr:`Fault.LINK` on
 the next sample. Speed is the backward difference of the encoder count over
 the counter interval (the mean speed over the previous period; 0 on the first
-sample of a stream).
+sample of a session's stream, where the rotor starts at rest; a stream that resumes
+after a link loss or a board reset publishes from its second sample, the first only
+starts the count: the rotor may be coasting then).
 
 Link loss: a failing port (unplugged), telemetry that stops for
 ``telemetry_timeout_s``, a board that resets (BOOT frame, counter going back,
@@ -213,6 +215,7 @@ class SerialBackend:
         self._pos_counts = 0
         self._pos_offset_rad = 0.0
         self._last_position = 0.0
+        self._resumed = False  # the stream resumes after a link loss: the rotor may turn
         self._link_flag = False
         self._last_faults = Fault.NONE
         self._lost_at = 0.0
@@ -547,6 +550,7 @@ class SerialBackend:
             self._counter_acc = 0
             self._pos_offset_rad = self._last_position
             self._pos_counts = 0
+            self._resumed = self._samples_total > 0
             self._last_faults = Fault.NONE
             self._last_rx = now
             self._last_write = now
@@ -561,6 +565,15 @@ class SerialBackend:
             step = 1
             delta = 0
             self._last_count = t.encoder_count
+            if self._resumed:
+                # A stream resumed after a link loss or a board reset: the rotor may still
+                # turn (it coasts while the board reboots), and one count gives no speed.
+                # Publishing 0 would be a false reading (a 265 rad/s coast read 0 for one
+                # sample): this sample only starts the count, the next is the first out.
+                self._resumed = False
+                self._last_counter = t.counter
+                self._last_rx = time.monotonic()
+                return
         else:
             step = (t.counter - self._last_counter) & 0xFFFFFFFF
             if step == 0 or step >= 0x80000000:

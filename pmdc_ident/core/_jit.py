@@ -50,6 +50,7 @@ KERNEL_SOURCES = (
     "core/model.py",
     "core/estimators/output_error/kernel.py",
     "core/drift_estimator.py",
+    "core/design/information.py",
     "dataio/mcap_scan.py",
     "benchmark/plant.py",
 )

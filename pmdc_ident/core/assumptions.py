@@ -110,7 +110,8 @@ REGISTER: tuple[Assumption, ...] = (
         "samples come on a uniform clock",
         "intervals off the median period by more than 25 % (gaps) or 5 % (jitter)",
         Treatment.CHANGE,
-        "a segment with gaps is fitted as its contiguous pieces, each from its own state; "
+        "a segment with gaps is fitted as its contiguous pieces, each from its own state, "
+        "and the gate's checks read the same pieces (none compares samples across a gap); "
         "jitter: each segment simulated on its median period (`gaps`, `jitter` warnings)",
         Stage.DATA,
         ("gaps", "jitter"),

@@ -16,12 +16,13 @@ confidence (one-sided: the estimate's lower bound against the threshold):
 The overall level is the worst one. A re-identification is suggested, and the
 suggestion latched until :meth:`DriftMonitor.reset_suggestion`, when any level
 reaches ERROR or stays at WARN for ``suggest_after_s``. The reset also starts the
-estimates over from the identified values (their prior intervals) and the levels at
-OK, so the suggestion latches again only on evidence gathered after it, never from
-the estimate that raised it. :func:`diagnostic_status` is what ``/diagnostics`` says:
-STALE before the first report and whenever no driver sample came for a while. The
-winding temperature rise follows from R with the copper coefficient:
-``dT = (R/R0 - 1)/alpha``.
+estimates over from the identified values and the levels at OK, so the suggestion
+latches again only on evidence gathered after it, never from the estimate that raised
+it. Each restarted interval also admits the last estimate: the motor did not cool at
+the reset, and an interval that excluded its hot R would push R's misfit onto Ke.
+:func:`diagnostic_status` is what ``/diagnostics`` says: STALE before the first report
+and whenever no driver sample came for a while. The winding temperature rise follows
+from R with the copper coefficient: ``dT = (R/R0 - 1)/alpha``.
 
 The delay's interval includes half a sample period: the current's path between
 samples is not observed (on the simulator the estimate reads about 0.35 ms at
@@ -251,17 +252,29 @@ class DriftMonitor:
 
     def reset_suggestion(self) -> None:
         """Clear the latched suggestion (after a re-identification) and start over: the
-        estimates from the identified values with their prior intervals, every level
-        at OK. A drift must then be proven again on samples that come after the reset
-        (``hold_s`` apart), so the suggestion cannot re-latch from the old estimate."""
+        estimates from the identified values, every level at OK. A drift must then be
+        proven again on samples that come after the reset (``hold_s`` apart), so the
+        suggestion cannot re-latch from the old estimate. Each interval is the prior's
+        widened by the distance to the last estimate, so it admits both (see below)."""
         self._suggest = False
         self._suggest_reason = ""
         self._warn_since = None
         self._levels = dict.fromkeys(QUANTITIES, DriftLevel.OK)
         self._pending.clear()
-        fresh = new_state(*self._prior)  # the signal filters keep their state
+        theta_e, var_e, theta_m, var_m = self._prior
+        # The motor did not change at the reset: a prior that excludes what the monitor
+        # has just measured (a hot winding's R back at the cold value +-5 %) would load
+        # R's misfit onto Ke at the next operating point and "prove" a back-EMF drift
+        # that is not there. So each estimate starts at its identified value with an
+        # interval that also admits the last estimate (no drift can be proven from it).
+        var_e = var_e + (self._state["th_e"] - theta_e) ** 2
+        var_m = var_m + float(self._state["th_m"][0] - theta_m) ** 2
+        fresh = new_state(theta_e, var_e, theta_m, var_m)  # the signal filters keep theirs
         for key in ("th_e", "p_e", "th_m", "p_m"):
             self._state[key][...] = fresh[key]
+        # the random walk's caps must not clip that interval back at the next sample
+        self._consts[13:16] = np.maximum(4.0 * self._prior_var, var_e)
+        self._consts[16] = max(4.0 * self._prior_var_m, var_m)
         self._next_report = -math.inf
 
     # -- internals -----------------------------------------------------------

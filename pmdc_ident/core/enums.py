@@ -49,3 +49,4 @@ class AbortReason(enum.Enum):
     PEER_CRASHED = "peer_crashed"
     INTERRUPTED = "interrupted"
     DRIVER_FAULT = "driver_fault"
+    OUT_OF_TRAVEL = "out_of_travel"  # the measured position left the joint's travel range

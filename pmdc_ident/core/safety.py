@@ -13,6 +13,8 @@ keeps both thin and lets them be tested without ROS.
   ``stall_time_s`` (an infinite ``stall_current_a`` disables it);
 * a non-finite reading, when ``non_finite_trips`` (the driver's sensors may report
   "not measured"; the session must not run on one);
+* travel: the measured position outside ``[position_min_rad, position_max_rad]`` (a
+  joint with end stops; infinite bounds disable it, a non-finite position trips it then);
 * the watchdog (``watchdog_s > 0``) fires once when the armature is driven and no
   command came within ``watchdog_s``; the next valid command clears it.
 
@@ -52,8 +54,14 @@ class SafetyConfig:
     data_timeout_s: float = 3.0
     watchdog_s: float = 0.0
     non_finite_trips: bool = True
+    position_min_rad: float = -math.inf
+    position_max_rad: float = math.inf
 
     def __post_init__(self) -> None:
+        lo, hi = float(self.position_min_rad), float(self.position_max_rad)
+        if math.isnan(lo) or math.isnan(hi) or not lo < hi:
+            msg = f"safety travel range must be MIN < MAX (rad), got {lo} {hi}"
+            raise ParameterError(msg)
         for f in ("current_max_a", "speed_max_rad_s", "stall_current_a", "stall_time_s"):
             v = float(getattr(self, f))
             if not v > 0:
@@ -123,9 +131,34 @@ class SafetyMonitor:
         self._stall_since = None
 
     # -- checks -----------------------------------------------------------------------
-    def check(self, t_s: float, current_a: float, speed_rad_s: float) -> AbortReason | None:
+    def check(
+        self,
+        t_s: float,
+        current_a: float,
+        speed_rad_s: float,
+        position_rad: float | None = None,
+    ) -> AbortReason | None:
         """The first limit this sample newly trips (``None`` if none)."""
-        return self._latch(self._violations(t_s, current_a, speed_rad_s))
+        trips = self._violations(t_s, current_a, speed_rad_s)
+        travel = self._travel(t_s, position_rad)
+        return self._latch([*trips, travel] if travel else trips)
+
+    def _travel(self, t_s: float, position_rad: float | None) -> tuple[AbortReason, str] | None:
+        c = self.config
+        if position_rad is None or (
+            c.position_min_rad == -math.inf and c.position_max_rad == math.inf
+        ):
+            return None
+        if (
+            not math.isfinite(position_rad)
+            or not c.position_min_rad <= position_rad <= c.position_max_rad
+        ):
+            return (
+                AbortReason.OUT_OF_TRAVEL,
+                f"out of travel: position {position_rad:.4g} rad outside "
+                f"[{c.position_min_rad:.4g}, {c.position_max_rad:.4g}] rad at t={t_s:.3f} s",
+            )
+        return None
 
     def report(self, faults: Fault, t_s: float) -> AbortReason | None:
         """Trips a backend reports in its own fault bits (it trips at the sample itself,

@@ -54,6 +54,7 @@ from std_srvs.srv import Trigger
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.session.controller import SessionController
 from pmdc_ident.core.session.ports import IdentificationJob
+from pmdc_ident.core.session.sequential import DesignOutcome
 from pmdc_ident.dataio.bagio import parse_joint_state
 from pmdc_ident.nodes.identify_call import IdentificationWorker
 from pmdc_ident.nodes.parameter_tables import IDENTIFICATION
@@ -179,7 +180,13 @@ class IdentificationNode(Node):
         self._collect_driver_parameters()
         if self._worker is not None:
             outcome = self._worker.poll()
-            if outcome is not None:
+            if isinstance(outcome, DesignOutcome):
+                self.controller.on_design(outcome, time.monotonic())
+            elif outcome is not None and self.controller.design_pending:
+                # the worker died under a plan: auto re-fit: end the session safely
+                stop = DesignOutcome("stop", message=f"re-fit failed: {outcome.error}")
+                self.controller.on_design(stop, time.monotonic())
+            elif outcome is not None:
                 self.controller.on_identified(outcome)
         self.controller.tick(time.monotonic())
 
@@ -235,9 +242,14 @@ class IdentificationNode(Node):
         self._param_names = names
         return True
 
-    def prepare_identification(self, nominal: MotorSpec) -> None:
+    def prepare_identification(self, nominal: MotorSpec | None) -> None:
         if self._worker is None or not self._worker.alive:
             self._worker = IdentificationWorker(nominal)
+
+    def start_design(self, job: object) -> None:
+        if self._worker is None or not self._worker.alive:
+            self._worker = IdentificationWorker()
+        self._worker.submit(job)  # type: ignore[arg-type]
 
     def start_identification(self, job: IdentificationJob) -> None:
         if self._worker is None or not self._worker.alive:

@@ -32,6 +32,7 @@ from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.motors import MotorSpec, motor_to_yaml
 from pmdc_ident.core.session.ports import ExportRequest, IdentificationJob, IdentificationOutcome
 from pmdc_ident.core.session.recording import SessionSamples
+from pmdc_ident.core.session.sequential import DesignJob, DesignOutcome
 from pmdc_ident.dataio.bagio import DriverArrays, assemble_run
 from pmdc_ident.dataio.completeness import Completeness, completeness
 
@@ -158,9 +159,8 @@ def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
         notes.append(
             ("warning" if found.missing else "info", f"session {job.session}: {found.line()}")
         )
-        result = identify_session_run(
-            run, job.fixed, name=job.session, extra={"driver_samples": found.to_dict()}
-        )
+        extra = {"driver_samples": found.to_dict(), **dict(job.extra or {})}
+        result = identify_session_run(run, job.fixed, name=job.session, extra=extra)
         job.output_dir.mkdir(parents=True, exist_ok=True)
         if job.exports is not None:
             made = write_session_exports(result.spec, job.output_dir, job.exports, notes)
@@ -178,6 +178,24 @@ def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
         output_dir=str(job.output_dir),
         notes=tuple(notes),
     )
+
+
+def run_design_job(job: DesignJob) -> DesignOutcome:
+    """A ``plan: auto`` session's re-fit and design (:mod:`pmdc_ident.core.session.
+    sequential`) on the samples so far, assembled as the bag would be. Never raises."""
+    from pmdc_ident.core.session.sequential import run_design_job as decide
+
+    try:
+        run = assemble_run(_driver_arrays(job.samples), source=job.source, session=job.session)
+        return decide(job, run)
+    except PmdcError as exc:
+        return DesignOutcome(
+            "stop", design=job.design, message=f"re-fit failed: {exc}", error=str(exc)
+        )
+    except Exception as exc:  # noqa: BLE001 - one line, the node ends the session safely
+        return DesignOutcome(
+            "stop", design=job.design, message=f"re-fit failed: {exc!r}", error=repr(exc)
+        )
 
 
 def _driver_arrays(s: SessionSamples) -> DriverArrays:
@@ -243,7 +261,7 @@ class IdentificationWorker:
     def alive(self) -> bool:
         return self._process.is_alive()
 
-    def submit(self, job: IdentificationJob) -> None:
+    def submit(self, job: IdentificationJob | DesignJob) -> None:
         """Hand a finished session over; :meth:`poll` returns its outcome.
 
         Sent from a thread: a session's samples are megabytes, more than the pipe
@@ -252,7 +270,8 @@ class IdentificationWorker:
         self._busy = True
         if self._process.pid is not None:
             _set_nice(WORKER_NICE, self._process.pid)  # were it still warming up
-            if self._rt_priority:
+            # a plan: auto re-fit runs while the motor does: never at real-time priority
+            if self._rt_priority and not isinstance(job, DesignJob):
                 _set_policy(self._process.pid, os.SCHED_RR, self._rt_priority)
         threading.Thread(
             target=self._send, args=(job,), name="pmdc_ident job", daemon=True
@@ -264,7 +283,7 @@ class IdentificationWorker:
         except (OSError, ValueError):
             pass  # the child is gone (or we closed): poll() says so
 
-    def poll(self) -> IdentificationOutcome | None:
+    def poll(self) -> IdentificationOutcome | DesignOutcome | None:
         """The outcome of the submitted job once the child has it (``None`` meanwhile,
         and while no job is submitted)."""
         while self._busy and self._conn.poll():
@@ -272,6 +291,11 @@ class IdentificationWorker:
                 msg = self._conn.recv()
             except (EOFError, OSError):
                 break
+            if isinstance(msg, DesignOutcome):
+                self._busy = False
+                if self._rt_priority and self._process.pid is not None:
+                    _set_policy(self._process.pid, os.SCHED_OTHER, 0)
+                return replace(msg, notes=(*msg.notes, *self._notes))
             if isinstance(msg, IdentificationOutcome):
                 self._busy = False
                 if self._rt_priority and self._process.pid is not None:
@@ -349,6 +373,9 @@ def _serve(conn: Any, nominal: MotorSpec | None) -> None:
         except (EOFError, OSError):
             return  # the node is gone
         t0, cpu0 = time.monotonic(), time.process_time()
+        if isinstance(job, DesignJob):
+            conn.send(run_design_job(job))
+            continue
         outcome = run_identification_job(job)
         took = (
             "info",

@@ -257,6 +257,19 @@ IDENTIFICATION = ParameterTable(
           "(0 = a tenth of the current loop's)", 0.0, 1e5),
         P("export_phase_margin_deg", 60.0, "exports: phase margin of both loops, deg",
           20.0, 85.0),
+        P("plan", "default", "which plan: 'default' (the sequence below), 'auto' (a pre-test, "
+          "then a designed plan, re-fitted until the target is met) or a plan CSV "
+          "(pmdc-ident plan --csv)"),
+        P("plan_target", "", "auto: relative sd per parameter, e.g. R=1%,Tc=5%,L=off (empty: "
+          "R, L, Ke, J, B 1 %, Tc 5 %)"),
+        P("plan_travel_rad", [0.0, 0.0], "[MIN, MAX] travel of the joint in the encoder's frame, "
+          "rad: plans stay inside, the session aborts outside ([0, 0]: no limit)"),
+        P("plan_budget_s", 0.0, "auto: most motor time, s (0 = the default sequence's length)",
+          0.0, 1e5),
+        P("plan_heat_a2s", 0.0, "auto: winding heat budget int i^2 dt, A^2*s (0 = the default "
+          "sequence's)", 0.0, 1e9),
+        P("plan_reveal", "", "auto: effects to make visible first, e.g. "
+          "cogging,stribeck_friction"),
         *_from_dataclass("sequence.", SequenceConfig, _SEQUENCE_TEXT),
         *_from_dataclass("steady_state.", SteadyStateConfig, _STEADY_TEXT),
     ),

@@ -20,6 +20,7 @@ from pmdc_ident.core.fixed import parse_fix
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.session.controller import ControllerConfig
 from pmdc_ident.core.session.ports import ExportRequest
+from pmdc_ident.core.session.sequential import PlanSetting
 from pmdc_ident.core.session.startup import SessionSettings, StartRules
 from pmdc_ident.core.session.steady_state import SteadyStateConfig
 
@@ -88,7 +89,15 @@ def controller_config(
         fixed=fixed,
         exports=_exports(v),
         namespace=namespace,
+        plan=_plan(v),
     )
+
+
+def _plan(v: Mapping[str, Any]) -> PlanSetting:
+    try:
+        return PlanSetting.from_values(v)
+    except PmdcError as exc:
+        raise PmdcError(f"parameter plan: {exc}") from None
 
 
 def _exports(v: Mapping[str, Any]) -> ExportRequest | None:

@@ -282,9 +282,10 @@ def test_a_board_reset_is_reported_and_re_handshaken(board: VirtualBoard) -> Non
     c = Collector(be)
     try:
         be.command_voltage(6.0)
-        c.run(0.1)
+        c.run(0.4)  # the rotor turns (tau_m 0.3 s) when the board resets
         board.reset()
         assert c.until(lambda: bool(c.errors), 1.0)
+        n_before = len(c.samples)
         assert "reset" in c.errors[0]
         assert board.armature_open
         assert c.until(lambda: be.state is LinkState.STREAMING, 2.0)
@@ -295,6 +296,14 @@ def test_a_board_reset_is_reported_and_re_handshaken(board: VirtualBoard) -> Non
         assert c.until(lambda: c.samples[-1].voltage_cmd_v == pytest.approx(3.0), 1.0)
     finally:
         be.close()
+    last, first = c.samples[n_before - 1], c.samples[n_before]
+    assert first.sample_index > last.sample_index + 1  # the outage is a gap in the stamps
+    # The rotor coasts through the reboot: the first sample published after it reads
+    # that speed (it read 0 rad/s, the board's count having no previous one), and the
+    # position goes on from the last one (the angle turned in the outage is unknown).
+    assert last.speed_rad_s > 30.0
+    assert first.speed_rad_s == pytest.approx(last.speed_rad_s, rel=0.3)
+    assert 0.0 < first.position_rad - last.position_rad < 2.0 * first.speed_rad_s * DT_S
 
 
 def test_port_unplugged_mid_run_is_reported_and_never_hangs(board: VirtualBoard) -> None:

@@ -173,12 +173,22 @@ def test_the_suggestion_is_latched_and_reset_by_service(session):  # noqa: D103
     assert got["suggest"][-1]["suggest_reidentify"] is True
     assert "resistance" in got["suggest"][-1]["reason"]
     before = got["suggest"][-1]
+    # The motor stops being driven: its armature open, the data say nothing about R.
+    # The watchdog would open it 0.5 s after the last command, but the reset below can
+    # come sooner than that (the tests before it take milliseconds): then the still-hot
+    # motor, driven, would rightly prove its R drift again. So open it, and wait for
+    # the monitor to report on samples of the open armature.
+    client.open_armature()
+    opened_s = client.get_clock().now().nanoseconds * 1e-9
+    end = time.monotonic() + 10.0
+    while time.monotonic() < end and got["drift"][-1]["t_s"] < opened_s + 0.2:
+        client.spin_once(0.05)
+    assert got["drift"][-1]["t_s"] >= opened_s + 0.2, "the monitor reported nothing after"
     n = len(got["suggest"])
     assert client.trigger("reset_suggestion") == "re-identify suggestion cleared"
-    # The reset publishes False and starts the estimates over: the motor stopped being
-    # commanded (its armature is open, the data say nothing about R), so no new evidence
-    # comes and the suggestion stays cleared. It used to re-latch at the next report,
-    # 20 ms later, from the old estimate (issue 24).
+    # The reset publishes False and starts the estimates over: no new evidence comes, so
+    # the suggestion stays cleared. It used to re-latch at the next report, 20 ms later,
+    # from the old estimate (issue 24).
     end = time.monotonic() + 3.0
     while time.monotonic() < end:
         client.spin_once(0.05)

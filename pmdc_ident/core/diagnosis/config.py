@@ -36,6 +36,7 @@ class DiagnosisConfig:
     workers: int = 2
     thresholds: Thresholds = field(default_factory=Thresholds)
     swap: bool = True
+    detection_limits: bool = True  # per effect, the smallest size the record could show
 
     def __post_init__(self) -> None:
         unknown = [e for e in self.effects if e not in EFFECT_NAMES]

@@ -36,6 +36,7 @@ from pmdc_ident.core.diagnosis.candidates import (
 from pmdc_ident.core.diagnosis.choice import Choice, chain_lag_s, choose
 from pmdc_ident.core.diagnosis.cogging import angle_cogging
 from pmdc_ident.core.diagnosis.config import DiagnosisConfig
+from pmdc_ident.core.diagnosis.detection import with_detection_limits
 from pmdc_ident.core.diagnosis.holdout import HoldoutSplit, split_segments, swapped
 from pmdc_ident.core.diagnosis.localization import Localization, localize, regime_masks
 from pmdc_ident.core.diagnosis.results import (
@@ -87,6 +88,8 @@ def diagnose(
         other = _swapped_look(segments, split, noise, cfg, progress)
         if other is not None:
             result = other
+    if cfg.detection_limits:
+        result = with_detection_limits(result, noise, cfg)
     return replace(result, elapsed_s=time.perf_counter() - t_start)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.diagnosis.holdout import HoldoutSplit
@@ -161,6 +162,8 @@ class DiagnosisResult:
     held_out: tuple[Segment, ...] = field(default=(), repr=False, compare=False)
     predictions_before: tuple[object, ...] = field(default=(), repr=False, compare=False)
     predictions_after: tuple[object, ...] = field(default=(), repr=False, compare=False)
+    # per effect, the smallest size this record could have shown (core.diagnosis.detection)
+    detection_limits: tuple[Any, ...] = ()
 
     @property
     def shrink(self) -> float:
@@ -193,6 +196,7 @@ class DiagnosisResult:
             "baseline": {p.name: p.to_json() for p in self.baseline},
             "parameters": {p.name: p.to_json() for p in self.augmented},
             "assumptions": list(self.assumptions),
+            "detection_limits": {d.effect: d.to_json() for d in self.detection_limits},
             "elapsed_s": round(self.elapsed_s, 3),
             "n_samples": self.n_samples,
         }
@@ -250,4 +254,7 @@ class DiagnosisResult:
         for p in names:
             ci = f" [{p.ci95[0]:.3g}, {p.ci95[1]:.3g}]" if p.ci95 else ""
             lines.append(f"  {p.name} = {p.value:.4g}{ci} {p.unit}")
+        if self.detection_limits:
+            lines.append("smallest sizes this record could show (detection limits):")
+            lines += [f"  {d.text()}" for d in self.detection_limits]
         return lines

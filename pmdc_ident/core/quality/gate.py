@@ -31,7 +31,7 @@ from pmdc_ident.core.quality.signals import (
     check_quantisation,
     check_wrap,
 )
-from pmdc_ident.core.quality.timing import check_time_unit, check_timing
+from pmdc_ident.core.quality.timing import check_time_unit, check_timing, cut_at_gaps
 
 __all__ = ["GateInput", "check_inputs"]
 
@@ -84,23 +84,26 @@ def _per_input(x: GateInput) -> list[Finding]:
     segs: tuple[Segment, ...] = x.run.segments
     d = x.declared
     out = [Finding("units", Severity.INFO, x.name, note) for note in x.notes]
-    time_unit, factor = check_time_unit(x.name, segs, declared="time" in d)
+    # every check but the timing's reads the pieces between gaps in time: none compares a
+    # sample with one the gap separates it from (cut_at_gaps)
+    pieces = cut_at_gaps(segs)
+    time_unit, factor = check_time_unit(x.name, pieces, declared="time" in d)
     out += time_unit
     # the speed/position check in the time unit the gate suggests (else it blames the speed)
-    in_s = segs if factor == 1.0 else tuple(replace(s, t=s.t * factor) for s in segs)
+    in_s = pieces if factor == 1.0 else tuple(replace(s, t=s.t * factor) for s in pieces)
     checks: list[Callable[[], list[Finding]]] = [
         lambda: check_timing(x.name, segs),
-        lambda: check_columns(x.name, segs),
-        lambda: check_magnitudes(x.name, segs, d),
+        lambda: check_columns(x.name, pieces),
+        lambda: check_magnitudes(x.name, pieces, d),
         lambda: check_speed_position(x.name, in_s, declared=bool({"speed", "position"} & d)),
-        lambda: check_quantisation(x.name, segs, position_declared="position" in d),
-        lambda: check_clipping(x.name, segs),
-        lambda: check_power_balance(x.name, segs),
-        lambda: check_delay(x.name, segs),
-        lambda: check_current_filter(x.name, segs),
-        lambda: check_no_current(x.name, segs),
+        lambda: check_quantisation(x.name, pieces, position_declared="position" in d),
+        lambda: check_clipping(x.name, pieces),
+        lambda: check_power_balance(x.name, pieces),
+        lambda: check_delay(x.name, pieces),
+        lambda: check_current_filter(x.name, pieces),
+        lambda: check_no_current(x.name, pieces),
     ]
-    for seg in segs:
+    for seg in pieces:
         checks.append(lambda seg=seg: check_wrap(x.name, seg, position_declared="position" in d))
     checks.append(lambda: data_findings(x.name, x.run))  # the assumption register's
     for check in checks:
@@ -161,9 +164,10 @@ def _check_inputs(
     for x in inputs:
         findings += _per_input(x)
     segs = [s for x in inputs for s in x.run.segments]
+    pieces = [p for x in inputs for p in cut_at_gaps(x.run.segments)]  # as the fit reads them
     if segs:
         names = ", ".join(x.name for x in inputs)
-        findings += check_direction(names, segs)
+        findings += check_direction(names, pieces) if pieces else []
         has_v = [s for s in segs if s.voltage is not None]
         if has_v and all(s.open_mask.all() for s in has_v) and len(has_v) == len(segs):
             findings.append(
@@ -180,11 +184,11 @@ def _check_inputs(
             )
         findings += _excitation(names, segs, findings)
     rsd: dict[str, float] = {}
-    if segs and not any(f.severity is Severity.ERROR and f.code not in ignore for f in findings):
+    if pieces and not any(f.severity is Severity.ERROR and f.code not in ignore for f in findings):
         from pmdc_ident.core.quality.information import information_findings
 
         def information() -> list[Finding]:
-            more, expected = information_findings(names, segs, fixed or {})
+            more, expected = information_findings(names, pieces, fixed or {})
             rsd.update(expected)
             return more
 

@@ -11,14 +11,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.quality.findings import Finding, Severity
-from pmdc_ident.core.quality.regress import arx_pole, dynamic, memoised
+from pmdc_ident.core.quality.regress import MIN_DYNAMIC, arx_pole, dynamic, memoised
 
-__all__ = ["check_time_unit", "check_timing", "time_constants_s"]
+__all__ = ["check_time_unit", "check_timing", "cut_at_gaps", "time_constants_s"]
 
 # Largest plausible electrical (L/R) and mechanical time constants of a motor, s.
 TAU_E_MAX_S = 0.5
@@ -36,6 +37,41 @@ def _fmt_period(dt_s: float) -> str:
     if dt_s >= 0.9999e-3:
         return f"{dt_s * 1e3:.4g} ms"
     return f"{dt_s * 1e6:.4g} us"
+
+
+def cut_at_gaps(segments: Sequence[Segment]) -> tuple[Segment, ...]:
+    """Each time series cut at its gaps (an interval over ``_GAP`` median periods: samples
+    missing) into the pieces between them, ``label.1``, ``label.2``...; tables and
+    series without a gap as they are.
+
+    What the checks that compare a sample with the next one read: across a gap nobody
+    knows what the motor did (a board that reset mid-run restarts its encoder count, a
+    dropped burst of samples hides half a turn), so a position difference, a current
+    step or a regression row spanning it says nothing about units or physics, and a
+    record must never be refused for what its gap alone breaks. The fit reads such a
+    segment as its contiguous pieces too. Pieces too short for a time series
+    (``MIN_DYNAMIC``) are left out; the gap itself is :func:`check_timing`'s finding.
+    """
+    out: list[Segment] = []
+    for s in segments:
+        d = np.diff(s.t)
+        if s.n < MIN_DYNAMIC or not s.dt_s > 0:
+            out.append(s)
+            continue
+        breaks = np.flatnonzero(d > _GAP * s.dt_s) + 1
+        if not breaks.size:
+            out.append(s)
+            continue
+        bounds = [0, *breaks.tolist(), s.n]
+        k = 0
+        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+            if hi - lo < MIN_DYNAMIC:
+                continue
+            k += 1
+            piece = s.slice(lo, hi, label=f"{s.label}.{k}")
+            # the commands before the gap did not drive this piece's start as recorded
+            out.append(piece if lo == 0 else replace(piece, history_voltage=None))
+    return tuple(out)
 
 
 def check_timing(where: str, segments: Sequence[Segment]) -> list[Finding]:

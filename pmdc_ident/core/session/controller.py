@@ -33,6 +33,7 @@ from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.schema import SCHEMA_VERSION
 from pmdc_ident.core.session.link import CommandPolicy, Latency, SafeConfirmation
 from pmdc_ident.core.session.machine import Session, SessionState, SessionStep
+from pmdc_ident.core.session.markers import MarkerEvent
 from pmdc_ident.core.session.ports import (
     ControllerPorts,
     ExportRequest,
@@ -41,6 +42,12 @@ from pmdc_ident.core.session.ports import (
 )
 from pmdc_ident.core.session.recording import Recording
 from pmdc_ident.core.session.remedy import abort_remedy
+from pmdc_ident.core.session.sequential import (
+    DesignJob,
+    DesignOutcome,
+    PlanSetting,
+    build_planned_session,
+)
 from pmdc_ident.core.session.startup import (
     DRIVER_PARAMETERS,
     Peers,
@@ -71,6 +78,9 @@ LATE_TICK_S = 0.1  # a timer this late means the node itself was held up
 # can drain a backlog of encoder samples before the current samples of the same stamps
 CURRENT_WAIT_S = 0.1
 LATE_TICK_GRACE_S = 0.05
+# plan: auto starts its pre-test once the driver has applied this session's 0 V this long
+RELEASE_AFTER_NS = 100_000_000
+RELEASE_TIMEOUT_S = 10.0
 
 
 class Phase(enum.Enum):
@@ -95,6 +105,7 @@ class ControllerConfig:
     fixed: Mapping[str, float] = field(default_factory=dict)
     exports: ExportRequest | None = None  # write the exports beside the results
     namespace: str = ""  # the node's namespace: part of the default session name
+    plan: PlanSetting = field(default_factory=PlanSetting)  # default, auto or a plan CSV
 
 
 class SessionController:
@@ -117,13 +128,23 @@ class SessionController:
         self._prep_deadline_s = 0.0
         self._last_current_a = 0.0
         self._currents: deque[tuple[int, float]] = deque(maxlen=8192)  # (stamp, A)
-        self._held: deque[tuple[int, float, float]] = deque()  # (stamp, speed, arrived)
+        self._held: deque[tuple[int, float, float, float]] = (
+            deque()
+        )  # stamp, speed, arrived, angle
         self._last_tick_s: float | None = None
         self._suspect_until_s = 0.0
         self._last_progress_s = 0.0
         self._flush_deadline_s = 0.0
         self._session_count = 0
         self._stopped_idle = False  # a stop that cut nothing short (see confirm_tick)
+        # plan: auto (core.session.sequential): the design state, a job at the worker
+        self.design: Any = None
+        self._design_pending = False
+        self._design_seen = 0  # segment ends already re-fitted
+        self._design_samples = 0  # samples recorded at the last re-fit
+        self._applied_since = 0  # plan: auto: the driver applies our command since (stamp)
+        self._running_since_s = 0.0
+        self._last_position = 0.0
 
     # -- state ---------------------------------------------------------------------------
     @property
@@ -189,6 +210,13 @@ class SessionController:
         self.peers.on_stamp("voltage_applied", stamp_ns)
         if self.recording_samples:
             self.recording.voltage.append(stamp_ns, voltage_v, terminal_v)
+            s = self.session
+            if s is not None and s.awaiting_release and voltage_v == voltage_v:
+                # plan: auto: the driver applies this session's command (not NaN: the
+                # armature closed on it): the pre-test may start
+                self._applied_since = self._applied_since or stamp_ns
+                if stamp_ns - self._applied_since >= RELEASE_AFTER_NS:
+                    self._apply(s.release(), self._last_tick_s or 0.0)
         elif self.confirmation.pending:
             state = self.confirmation.on_voltage(stamp_ns, voltage_v)
             if state:
@@ -200,6 +228,7 @@ class SessionController:
         """A driver sample; ``now_ns`` is the host's wall clock (the latency's)."""
         self.peers.last_sample_s = now_s
         self.peers.on_stamp("encoder", stamp_ns)
+        self._last_position = position_rad
         lag_ns = self.latency.update(stamp_ns, now_ns)
         if not self.recording_samples:
             return
@@ -213,7 +242,7 @@ class SessionController:
             self._held.clear()
             self._apply(s.abort(AbortReason.LOST_DRIVER_DATA, stamp_ns * 1e-9, detail), now_s)
             return
-        self._held.append((stamp_ns, speed_rad_s, now_s))
+        self._held.append((stamp_ns, speed_rad_s, now_s, position_rad))
         self._release(now_s)
 
     def _release(self, now_s: float | None) -> None:
@@ -224,7 +253,7 @@ class SessionController:
         :data:`CURRENT_WAIT_S`, and not at all from a driver that sends no current."""
         held, cur = self._held, self._currents
         while held and self.phase is Phase.RUNNING and self.session is not None:
-            stamp_ns, speed_rad_s, arrived_s = held[0]
+            stamp_ns, speed_rad_s, arrived_s, position_rad = held[0]
             waiting = cur and cur[-1][0] < stamp_ns
             if waiting and (now_s is None or now_s - arrived_s < CURRENT_WAIT_S):
                 return
@@ -234,7 +263,7 @@ class SessionController:
             if cur and cur[0][0] <= stamp_ns:
                 self._last_current_a = cur[0][1]
             step = self.session.on_sample(
-                stamp_ns * 1e-9, self._last_current_a, speed_rad_s, arrived_s
+                stamp_ns * 1e-9, self._last_current_a, speed_rad_s, arrived_s, position_rad
             )
             self._apply(step, arrived_s)
         held.clear()  # the session is over: nothing left to step
@@ -285,6 +314,7 @@ class SessionController:
             self._prepare(now_s)
         elif self.phase is Phase.RUNNING and self.session is not None:
             self._watch_running(self.session, now_s)
+            self._design_tick(now_s)
         elif self.phase is Phase.FLUSHING:
             self._maybe_identify(now_s)
         elif self.phase is Phase.FINISHED:
@@ -336,7 +366,18 @@ class SessionController:
         if check is not StartCheck.READY:
             return
         try:
-            session = build_session(self.config.session, self.peers.driver, self._next_name())
+            if self.config.plan.default:
+                session = build_session(self.config.session, self.peers.driver, self._next_name())
+            else:
+                session, self.design = build_planned_session(
+                    self.config.session,
+                    self.config.plan,
+                    self.peers.driver,
+                    self._next_name(),
+                    self._last_position,
+                )
+                self._design_pending, self._design_seen, self._design_samples = False, 0, 0
+                self._applied_since, self._running_since_s = 0, now_s
         except PmdcError as exc:
             self._fail(str(exc))
             return
@@ -346,7 +387,10 @@ class SessionController:
         session.start()
         self.phase = Phase.RUNNING
         # the identification warms up while the motor runs: the end costs only the fit
-        self.ports.prepare_identification(self.config.session.nominal)
+        # (plan: auto needs its worker at once, for the pre-test: no warm-up run first)
+        self.ports.prepare_identification(
+            None if self.design is not None else self.config.session.nominal
+        )
         self.ports.log(
             "info",
             f"session {session.name}: {len(session.plan.segments)} segments, nominal "
@@ -502,8 +546,82 @@ class SessionController:
                 output_dir=self._output_dir(s.name),
                 fixed=dict(self.config.fixed),
                 exports=self._exports(s),
+                extra=(
+                    {
+                        "experiment_design": self.design.report(
+                            sum(s.held_samples.values()) * s.dt_s
+                        )
+                    }
+                    if self.design is not None
+                    else None
+                ),
             )
         )
+
+    # -- plan: auto (core.session.sequential) ----------------------------------------------
+    @property
+    def design_pending(self) -> bool:
+        return self._design_pending
+
+    def _design_tick(self, now_s: float) -> None:
+        """Hand the worker a re-fit when the pre-test or the plan has run out (the
+        session holds meanwhile), or when a segment has ended since the last one."""
+        s = self.session
+        if self.design is None or s is None or self._design_pending or not s.active:
+            return
+        if s.awaiting_release:
+            if now_s - self._running_since_s > RELEASE_TIMEOUT_S:
+                detail = (
+                    f"the driver did not apply this session's commands within "
+                    f"{RELEASE_TIMEOUT_S:g} s (voltage_cmd not reaching it?)"
+                )
+                self._apply(s.abort(AbortReason.DRIVER_FAULT, None, detail), now_s)
+            return
+        ends = [m for m in s.markers if m.event is MarkerEvent.END]
+        if not ends:
+            return
+        if not s.holding and len(ends) <= self._design_seen:
+            return
+        if not s.holding and self.design.designs == 0:
+            return  # the pre-test: designed once it is over
+        if not s.holding and self.recording.encoder.n < 1.25 * self._design_samples:
+            return  # a re-fit while the plan runs: once a quarter more data is in
+        end_ns = round(ends[-1].t_s * 1e9)
+        if not self.recording.complete_until(end_ns) and now_s - self.peers.last_sample_s < 1.0:
+            return  # its last samples are still arriving
+        self._design_seen = len(ends)
+        self._design_samples = self.recording.encoder.n
+        self._design_pending = True
+        self.ports.start_design(
+            DesignJob(
+                samples=self.recording.samples(s.markers),
+                session=s.name,
+                source=f"session {s.name}",
+                design=self.design,
+                plan_done=s.holding,
+                position_rad=self._last_position,
+            )
+        )
+
+    def on_design(self, outcome: DesignOutcome, now_s: float) -> None:
+        """The worker's decision for a ``plan: auto`` session."""
+        self._design_pending = False
+        if outcome.design is not None:
+            self.design = outcome.design
+        for level, text in outcome.notes:
+            self.ports.log(level, text)
+        s = self.session
+        if s is None or not s.active or self.phase is not Phase.RUNNING:
+            return
+        self.ports.log("info", f"session {s.name}: plan auto: {outcome.action}: {outcome.message}")
+        if outcome.action == "extend":
+            try:
+                self._apply(s.extend(outcome.segments), now_s)
+            except PmdcError as exc:
+                self._apply(s.finish(f"plan not extended: {exc}"), now_s)
+        elif outcome.action == "stop":
+            self._apply(s.finish(outcome.message), now_s)
+        # continue: the plan runs on; a hold is re-fitted at the next tick
 
     def _exports(self, s: Session) -> ExportRequest | None:
         """The configured exports at the session's sample rate (the gains' rate)."""

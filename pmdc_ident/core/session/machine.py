@@ -5,12 +5,12 @@ from __future__ import annotations
 import enum
 import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 from pmdc_ident.core.data import TestKind
 from pmdc_ident.core.enums import AbortReason, SafeMode
 from pmdc_ident.core.errors import ParameterError, PmdcError
-from pmdc_ident.core.excitation import TestPlan
+from pmdc_ident.core.excitation import PlannedSegment, TestPlan
 from pmdc_ident.core.safety import SafetyConfig, SafetyMonitor
 from pmdc_ident.core.schema import SCHEMA_VERSION
 from pmdc_ident.core.session.markers import Marker, MarkerEvent
@@ -87,6 +87,8 @@ class Session:
         steady: SteadyStateConfig | None = None,
         safe_mode: SafeMode = SafeMode.ZERO,
         name: str = "session",
+        open_ended: bool = False,
+        hold_first: bool = False,
     ) -> None:
         if not plan.segments:
             msg = "the plan holds no segment"
@@ -109,6 +111,12 @@ class Session:
         self.skipped_samples = 0  # driver samples that never reached the session
         self.held_samples: dict[str, int] = {}  # label -> samples actually held
         self.settled: dict[str, bool] = {}  # staircase label -> steady state reached
+        # plan: auto: when the plan runs out the session holds the safe command (no
+        # segment open) until more segments come (extend) or it is told to end (finish)
+        self.open_ended = open_ended
+        # hold_first: the safe command until release() (the driver shown to apply it)
+        self.holding = hold_first
+        self.awaiting_release = hold_first
 
     # -- public -----------------------------------------------------------------
     @property
@@ -155,7 +163,12 @@ class Session:
         )
 
     def on_sample(
-        self, t_s: float, current_a: float, speed_rad_s: float, wall_s: float | None = None
+        self,
+        t_s: float,
+        current_a: float,
+        speed_rad_s: float,
+        wall_s: float | None = None,
+        position_rad: float | None = None,
     ) -> SessionStep:
         """Consume the driver sample at ``t_s``; return the command for the next sample.
 
@@ -168,7 +181,7 @@ class Session:
         t_prev = self._t_last_s
         if not self.active:
             return SessionStep(None)
-        reason = self.monitor.check(t_s, current_a, speed_rad_s)
+        reason = self.monitor.check(t_s, current_a, speed_rad_s, position_rad)
         if reason is not None:
             self._t_last_s = max(t_s, t_prev)
             return self.abort(reason, t_s, self.monitor.detail)
@@ -178,6 +191,8 @@ class Session:
             self.state = SessionState.RUNNING
             t_next = t_s + self.dt_s
             markers.append(self._mark(MarkerEvent.SESSION_START, "", t_next))
+            if self.holding:  # until release(): 0 V at rest (closes the armature)
+                return SessionStep(Command(0.0), tuple(markers))
             markers.append(self._mark(MarkerEvent.START, self.plan.segments[0].label, t_next))
             self.detector.reset()
             return SessionStep(Command(self._next_voltage()), tuple(markers))
@@ -186,10 +201,14 @@ class Session:
             return SessionStep(None)
         self._t_last_s = t_s
         self.skipped_samples += steps - 1
+        if self.holding:
+            return SessionStep(Command(0.0) if self.awaiting_release else self.safe_command)
         for j in range(steps):
             t = t_prev + (j + 1) * self.dt_s
             if self._advance(t, current_a, speed_rad_s, markers, real=j == steps - 1):
                 return SessionStep(self.safe_command, tuple(markers))
+        if self._c.seg >= len(self.plan.segments):
+            return SessionStep(self.safe_command, tuple(markers))
         return SessionStep(Command(self._next_voltage()), tuple(markers))
 
     def _advance(
@@ -211,6 +230,9 @@ class Session:
         c.seg += 1
         c.pos = 0
         self.detector.reset()
+        if c.seg >= len(self.plan.segments) and self.open_ended:
+            self.holding = True  # more may come (extend) or the end (finish)
+            return True
         if c.seg >= len(self.plan.segments):
             self.state = SessionState.DONE
             markers.append(self._mark(MarkerEvent.SESSION_END, "", t_next))
@@ -232,6 +254,52 @@ class Session:
         c.last_v = v
         return v
 
+    def extend(self, segments: tuple[PlannedSegment, ...]) -> SessionStep:
+        """More segments for an open-ended session (``plan: auto``): they run after the
+        current plan; from a hold, the first starts at the next driver sample."""
+        if not self.active or not segments or self.awaiting_release:
+            return SessionStep(None)
+        known = set(self.plan_labels)
+        clash = [s.label for s in segments if s.label in known]
+        if clash:
+            msg = f"segments {', '.join(clash)} are already in the plan"
+            raise ParameterError(msg)
+        self.plan = replace(self.plan, segments=self.plan.segments + tuple(segments))
+        if not self.holding:
+            return SessionStep(None)
+        self.holding = False
+        t_next = self._t_last_s + self.dt_s
+        mark = self._mark(MarkerEvent.START, self.plan.segments[self._c.seg].label, t_next)
+        return SessionStep(Command(self._next_voltage()), (mark,))
+
+    def release(self) -> SessionStep:
+        """Start the plan of a session built with ``hold_first``, at the next sample."""
+        if not self.awaiting_release or self.state is not SessionState.RUNNING:
+            return SessionStep(None)
+        self.awaiting_release = False
+        self.holding = False
+        t_next = self._t_last_s + self.dt_s
+        mark = self._mark(MarkerEvent.START, self.plan.segments[0].label, t_next)
+        self.detector.reset()
+        return SessionStep(Command(self._next_voltage()), (mark,))
+
+    def finish(self, detail: str = "") -> SessionStep:
+        """End an open-ended session now (its target is met, or nothing is left to run):
+        the segment running ends at the next sample, and the session with it."""
+        if not self.active:
+            return SessionStep(None)
+        t = self._t_last_s + self.dt_s
+        markers: list[Marker] = []
+        if self.state is SessionState.RUNNING and not self.holding:
+            if self._c.seg < len(self.plan.segments):
+                label = self.plan.segments[self._c.seg].label
+                self.held_samples[label] = self._c.pos
+                markers.append(self._mark(MarkerEvent.END, label, t))
+        markers.append(self._mark(MarkerEvent.SESSION_END, "", t, detail))
+        self.state = SessionState.DONE
+        self.holding = False
+        return SessionStep(self.safe_command, tuple(markers))
+
     def check_link(self, wall_s: float) -> SessionStep | None:
         """Lost driver data: no sample within ``data_timeout_s`` of wall time."""
         timeout = self.monitor.config.data_timeout_s
@@ -251,7 +319,8 @@ class Session:
             return SessionStep(self.safe_command, (), self.abort_reason)
         t = (self._last_t() if t_s is None else t_s) + self.dt_s
         markers: list[Marker] = []
-        if self.state is SessionState.RUNNING:
+        running = self.state is SessionState.RUNNING and not self.holding
+        if running and self._c.seg < len(self.plan.segments):
             label = self.plan.segments[self._c.seg].label
             self.held_samples[label] = self._c.pos
             markers.append(self._mark(MarkerEvent.END, label, t))

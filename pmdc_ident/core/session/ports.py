@@ -36,6 +36,7 @@ class IdentificationJob:
     output_dir: Path
     fixed: Mapping[str, float]
     exports: ExportRequest | None = None  # None: no exports
+    extra: Mapping[str, object] | None = None  # entries added to the result (plan: auto)
 
 
 @dataclass(frozen=True)
@@ -71,9 +72,14 @@ class ControllerPorts(Protocol):
         """Ask the driver node for ``names``; False when it is not reachable yet. The
         answer comes back through :meth:`SessionController.on_driver_parameters`."""
 
-    def prepare_identification(self, nominal: MotorSpec) -> None:
+    def prepare_identification(self, nominal: MotorSpec | None) -> None:
         """A session started: get the identification ready (imports, compiled kernels)
         while it runs, so that :meth:`start_identification` costs only the fit."""
+
+    def start_design(self, job: object) -> None:
+        """Run a ``plan: auto`` re-fit and design job (:class:`~.sequential.DesignJob`) off
+        the I/O callbacks; its outcome comes back through
+        :meth:`SessionController.on_design`."""
 
     def start_identification(self, job: IdentificationJob) -> None:
         """Run the job off the I/O callbacks; its outcome comes back through

@@ -201,6 +201,35 @@ def test_gaps_jitter_clipping_and_delay_are_warnings(base, tmp_path):
     assert "shift the voltage column 2 sample(s) later" in lag.line()
 
 
+@pytest.mark.parametrize("position", ["held", "restarted"])
+def test_a_gap_while_the_motor_turns_refuses_nothing_the_gap_alone_breaks(
+    base, tmp_path, position
+):
+    """A board that resets mid-run (the emulated Uno's AVR reset): 250 samples missing
+    while the rotor turns at 12 V, and the encoder's count lost over them. The serial
+    backend holds the position at its last value across the re-handshake (speed 0 on the
+    first sample of the new stream); a logger of the raw count restarts it at 0. Either
+    way speed and d(position)/dt disagree only across the gap, which nobody observed:
+    the gate says 'gaps' and refuses nothing (it used to read speed = 33 x
+    d(position)/dt there and ask for --speed-unit counts/s)."""
+    keep = np.ones(base.t.size, dtype=bool)
+    keep[500:750] = False
+    pos = base.position.copy()
+    speed = base.speed.copy()
+    if position == "held":
+        pos[750:] -= pos[750] - pos[499]
+        speed[750] = 0.0
+    else:
+        pos[750:] -= pos[750]
+    rec = Record(base.t[keep], base.voltage[keep], base.current[keep], speed[keep], pos[keep])
+    x = load_input(write_csv(tmp_path / f"reset_{position}.csv", rec))
+    report = check_inputs([GateInput(x.path, x.run, notes=x.notes)])
+    assert not report.errors, report.lines()
+    assert [f.code for f in report.findings if f.code == "gaps"] == ["gaps"]
+    ratio = next(f for f in report.findings if f.code == "speed-position")
+    assert ratio.value == pytest.approx(1.0, abs=0.01)  # read on the pieces between
+
+
 def test_no_false_alarm_on_seed000_tables(capsys):
     files = [str(FIX / "seed000_table4.csv"), str(FIX / "seed000_retardation.csv")]
     rc = main(["check", *files])

@@ -15,7 +15,11 @@ import pytest
 from helpers.motor_records import Motor, prbs, simulate, steps, write_csv
 
 from pmdc_ident.cli import main
-from pmdc_ident.core.quality.information import expected_information, rate_for_inductance_hz
+from pmdc_ident.core.quality.information import (
+    advice_for,
+    expected_information,
+    rate_for_inductance_hz,
+)
 from pmdc_ident.core.quality.linsim import first_order_scan, zoh, zoh_response
 from pmdc_ident.dataio.units import load_input
 
@@ -109,3 +113,15 @@ def test_50_hz_with_a_faster_rotor_says_j_is_not_resolved(tmp_path, capsys):
     line = next(ln for ln in out.splitlines() if "identifiability" in ln and " J: " in ln)
     assert "the mechanical time constant is not resolved at this rate: at best weakly" in line
     assert "sample at least 10x faster (>= 500 Hz)" in line
+
+
+def test_l_rate_advice_resolves_the_smallest_l_the_interval_allows():
+    """The fit's advice for L plans the rate for the low end of L's 95 % interval. An L
+    the data do not bound (87 % relative sd, L/R 3.7 us as fitted from a 0.7 us motor
+    at 1 kHz) needs MHz there: only the meter is advice (the estimate alone said
+    75 kHz). A weakly identifiable L still gets a rate; an enormous sd no error."""
+    unbounded = advice_for("L", 0.867, tau_e=3.65e-6, dt_s=1e-3)
+    assert unbounded.startswith("fix L from an LCR meter") and "sample at" not in unbounded
+    weak = advice_for("L", 0.2, tau_e=2e-4, dt_s=1e-3)
+    assert weak.startswith("sample at >= ") and "LCR meter" in weak
+    assert "LCR meter" in advice_for("L", 1e4, tau_e=2e-4, dt_s=1e-3)  # exp(-1.96 rsd) = 0

@@ -191,11 +191,15 @@ def _uncertainty(
     """Covariance of z (globals and nuisances), then the globals in physical units."""
     dof = max(r.size - prob.n_total, 1)
     s2 = float(r @ r) / dof
-    w, V = np.linalg.eigh(A)
+    # on the matrix scaled to unit diagonal: B and a friction torque are fitted in
+    # absolute units, and on a 0.5 W motor (B ~ 1e-8) their columns dwarf the others by
+    # 1e10, so a tolerance on the raw eigenvalues called well-determined directions null
+    d = np.sqrt(np.clip(np.diag(A), 1e-300, None)) if A.size else np.ones(0)
+    w, V = np.linalg.eigh(A / np.outer(d, d))
     wmax = float(w.max()) if w.size else 1.0
     tol = wmax * 1e-13
     inv_w = np.where(w > tol, 1.0 / np.maximum(w, tol), np.inf)
-    cov_z = (V * np.where(np.isfinite(inv_w), inv_w, 0.0)) @ V.T * s2
+    cov_z = (V * np.where(np.isfinite(inv_w), inv_w, 0.0)) @ V.T / np.outer(d, d) * s2
     null_dirs = V[:, w <= tol]
     vals = prob.values_at(z)
     ng = prob.n_global

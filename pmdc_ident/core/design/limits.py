@@ -1,0 +1,172 @@
+"""The limits a designed plan keeps under the prior model, checked sample by sample.
+
+Voltage (never above the driver's limit), current and speed (a share of the session's
+abort thresholds, so a motor a little off its prior does not trip them), winding
+heating as ``int i^2 dt`` over the plan, motor time, and optionally the travel of a
+joint: the position stays inside the range minus a margin at every instant, and so
+does a stop commanded at any instant (the session's safe state: 0 V brakes, an open
+armature coasts); a motor that runs faster and farther than the prior
+(:meth:`Prior.pessimistic`) stays inside the range itself.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pmdc_ident.core.enums import SafeMode
+from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.model import Model
+
+__all__ = ["LIMIT_NAMES", "PlanLimits", "Violation", "stop_distance"]
+
+FloatArray = NDArray[np.float64]
+LIMIT_NAMES = ("voltage", "current", "speed", "heat", "travel", "time")
+
+
+@dataclass(frozen=True)
+class Violation:
+    limit: str  # one of LIMIT_NAMES
+    detail: str
+
+
+@dataclass(frozen=True)
+class PlanLimits:
+    """Units in the names. ``use_fraction``: the share of the current and speed limits
+    the plan may reach under the prior; ``travel_rad`` ``(min, max)`` in the encoder's
+    frame, the plan starting at rest at ``start_rad``; ``budget_s`` the most motor time."""
+
+    voltage_max_v: float
+    current_max_a: float
+    speed_max_rad_s: float
+    heat_a2s: float = math.inf
+    travel_rad: tuple[float, float] | None = None
+    start_rad: float = 0.0
+    travel_margin_rad: float | None = None  # None: 10 % of the range on each side
+    use_fraction: float = 0.8
+    budget_s: float = 60.0
+    safe_mode: SafeMode = SafeMode.ZERO
+
+    def __post_init__(self) -> None:
+        for name in ("voltage_max_v", "current_max_a", "speed_max_rad_s", "heat_a2s", "budget_s"):
+            v = float(getattr(self, name))
+            if not v > 0:
+                msg = f"limit {name} must be > 0, got {v}"
+                raise ParameterError(msg)
+        if not 0 < self.use_fraction <= 1:
+            msg = f"use_fraction must lie in (0, 1], got {self.use_fraction}"
+            raise ParameterError(msg)
+        if self.travel_rad is not None:
+            lo, hi = (float(x) for x in self.travel_rad)
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+                msg = f"travel range must be MIN < MAX (rad), got {lo:g} {hi:g}"
+                raise ParameterError(msg)
+            if not lo < self.start_rad < hi:
+                msg = (
+                    f"the start position {self.start_rad:g} rad is not inside the travel range "
+                    f"[{lo:g}, {hi:g}] rad"
+                )
+                raise ParameterError(msg)
+            object.__setattr__(self, "travel_rad", (lo, hi))
+        object.__setattr__(self, "safe_mode", SafeMode(self.safe_mode))
+
+    @property
+    def margin_rad(self) -> float:
+        if self.travel_rad is None:
+            return 0.0
+        if self.travel_margin_rad is not None:
+            return float(self.travel_margin_rad)
+        return 0.1 * (self.travel_rad[1] - self.travel_rad[0])
+
+    @property
+    def current_use_a(self) -> float:
+        return self.use_fraction * self.current_max_a
+
+    @property
+    def speed_use_rad_s(self) -> float:
+        return self.use_fraction * self.speed_max_rad_s
+
+    def describe(self) -> str:
+        parts = [
+            f"voltage {self.voltage_max_v:.4g} V",
+            f"current {self.current_max_a:.4g} A",
+            f"speed {self.speed_max_rad_s:.4g} rad/s (plan within {self.use_fraction:.0%})",
+        ]
+        if math.isfinite(self.heat_a2s):
+            parts.append(f"heat {self.heat_a2s:.4g} A^2*s")
+        if self.travel_rad is not None:
+            lo, hi = self.travel_rad
+            parts.append(f"travel [{lo:.4g}, {hi:.4g}] rad (margin {self.margin_rad:.3g} rad)")
+        parts.append(f"motor time <= {self.budget_s:.4g} s")
+        return ", ".join(parts)
+
+    def check(
+        self,
+        voltage: FloatArray,
+        current: FloatArray,
+        speed: FloatArray,
+        position: FloatArray,
+        heat_a2s: float,
+        stop: FloatArray | None = None,
+        from_rad: float | None = None,
+    ) -> Violation | None:
+        """The first limit the predicted samples break (``heat_a2s``: the plan's heat up
+        to and with them; ``stop``: where the rotor would come to rest were the safe
+        state commanded at each sample; ``from_rad``: where the segment starts - a joint
+        already inside the margin, a real one a little off its prior, may not go farther
+        out, but may come back)."""
+        v = voltage[np.isfinite(voltage)]
+        if v.size and float(np.max(np.abs(v))) > self.voltage_max_v * (1 + 1e-9):
+            return Violation("voltage", f"{float(np.max(np.abs(v))):.3g} V")
+        i_peak = float(np.max(np.abs(current))) if current.size else 0.0
+        if i_peak > self.current_use_a:
+            return Violation("current", f"{i_peak:.3g} A")
+        w_peak = float(np.max(np.abs(speed))) if speed.size else 0.0
+        if w_peak > self.speed_use_rad_s:
+            return Violation("speed", f"{w_peak:.3g} rad/s")
+        if heat_a2s > self.heat_a2s:
+            return Violation("heat", f"{heat_a2s:.3g} A^2*s")
+        if self.travel_rad is not None:
+            lo, hi = self.travel_rad
+            m = self.margin_rad
+            a, b = lo + m, hi - m
+            if from_rad is not None:
+                a, b = min(a, from_rad), max(b, from_rad)
+            if float(position.min()) < a or float(position.max()) > b:
+                return Violation("travel", f"{position.min():.3g}..{position.max():.3g} rad")
+            # a stop at any instant ends inside the range with its margin too: from
+            # every state the plan reaches, braking is itself a feasible next segment
+            if stop is not None and (float(stop.min()) < a or float(stop.max()) > b):
+                return Violation("travel", f"stopping {stop.min():.3g}..{stop.max():.3g} rad")
+        return None
+
+
+def stop_distance(
+    model: Model, speed: FloatArray, current: FloatArray, safe: SafeMode
+) -> FloatArray:
+    """How far the rotor turns, from each sample, once the safe state is commanded:
+    0 V shorts the winding (the back-EMF brakes it, time constant ``J R / (Ke Kt + R B)``,
+    plus the current still flowing over L/R), an open armature lets it coast on its
+    friction alone."""
+    p = model.params
+    e = model.effect("coulomb_friction")
+    tc = float(getattr(e, "torque_nm", 0.0)) if e is not None else 0.0
+    if safe is SafeMode.ZERO:
+        tau = p.J * p.R / (p.Ke * p.Kt + p.R * p.B)
+        # the current decays over L/R, still pushing: at most i Kt (L/R)^2 / J more
+        extra = current * p.Kt * (p.L / p.R) ** 2 / p.J
+        return speed * tau + extra
+    a = p.B / p.J
+    w = np.abs(speed)
+    if tc > 0 and a > 0:
+        d = (w - (tc / p.B) * np.log1p(p.B * w / tc)) / a
+    elif tc > 0:
+        d = p.J * w * w / (2.0 * tc)
+    elif a > 0:
+        d = w / a
+    else:
+        d = np.full_like(w, math.inf)
+    return np.sign(speed) * d

@@ -1,0 +1,60 @@
+"""``pmdc-ident plan`` (issue 25): the plan printed and written for a rig to play, a
+pre-test and a plan designed from its log, and bad input as one line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from helpers.plans import tiny_run
+
+from pmdc_ident.cli import main
+from pmdc_ident.core.design import plan_from_csv_text
+from pmdc_ident.dataio.csvio import write_csv
+
+
+def test_plan_prints_the_plan_and_writes_it_as_csv(tmp_path: Path, capsys):
+    out = tmp_path / "plan.csv"
+    assert (
+        main(["plan", "seed001_110v", "--csv", str(out), "--json", str(tmp_path / "p.json")]) == 0
+    )
+    text = capsys.readouterr().out
+    assert "predicted relative sd" in text and "binding limit" in text and f"wrote {out}" in text
+    plan = plan_from_csv_text(out.read_text())
+    assert plan.segments and plan.dt_s == pytest.approx(1e-3)
+    assert not list(tmp_path.glob(".plan.csv.*"))  # no temporary file left
+
+
+def test_a_pretest_and_a_plan_from_its_log(tmp_path: Path, capsys):
+    assert main(["plan", "seed001_110v", "--pretest", str(tmp_path / "pre.csv")]) == 0
+    pre = plan_from_csv_text((tmp_path / "pre.csv").read_text())
+    assert pre.duration_s <= 2.0
+    log = write_csv(tiny_run(3), tmp_path / "log.csv")
+    rc = main(["plan", str(log), "--csv", str(tmp_path / "plan.csv")])
+    assert rc in (0, 3)
+    assert "pre-test" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["--travel-rad", "2", "-2"], "travel range"),
+        (["--target", "R=abc"], "not a number"),
+        (["--rate-hz", "0"], "rate-hz"),
+        (["--reveal", "warp_drive"], "unknown"),
+        (["--csv", "nowhere/plan.csv"], "does not exist"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_status_2(args, match, capsys):
+    assert main(["plan", "seed001_110v", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and match in err[0], err
+
+
+def test_the_plan_is_never_written_over_its_input(tmp_path: Path, capsys):
+    motor = tmp_path / "motor.csv"
+    log = write_csv(tiny_run(3), motor)
+    before = log.read_text()
+    assert main(["plan", str(log), "--csv", str(log)]) == 2
+    assert "input" in capsys.readouterr().err
+    assert log.read_text() == before

@@ -1,0 +1,210 @@
+"""The identification node's ``plan`` parameter without DDS (issue 25): a sequential
+session (``plan: auto``) closed around the simulated plant, its jobs run by the worker's
+own function; a plan CSV; a travel range that aborts. ROS-free and fast."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from pmdc_ident.core.enums import AbortReason
+from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.model import Plant
+from pmdc_ident.core.motors import MotorSpec, load_motor
+from pmdc_ident.core.session.controller import ControllerConfig, Phase, SessionController
+from pmdc_ident.core.session.ports import IdentificationJob
+from pmdc_ident.core.session.sequential import DesignJob, PlanSetting
+from pmdc_ident.nodes.identify_call import run_design_job
+from pmdc_ident.nodes.parameter_tables import IDENTIFICATION
+from pmdc_ident.nodes.settings import controller_config
+
+DT = 1e-3
+MOTOR = load_motor("seed001_110v")
+DRIVER = {"voltage_limit_v": 110.0, "current_limit_a": 0.0, "speed_limit_rad_s": 0.0,
+          "motor": "seed001_110v", "rate_hz": 1000.0}  # fmt: skip
+WORKER_LAG = 300  # driver samples between a job and its outcome (a worker's fit time)
+
+
+class Ports:
+    def __init__(self) -> None:
+        self.sent: list[float] = []
+        self.markers: list[dict] = []
+        self.status: list[dict] = []
+        self.logs: list[tuple[str, str]] = []
+        self.jobs: list[IdentificationJob] = []
+        self.design_jobs: list[DesignJob] = []
+        self.opened = 0
+
+    def send_voltage(self, voltage_v: float) -> None:
+        self.sent.append(voltage_v)
+
+    def open_armature(self) -> bool:
+        self.opened += 1
+        return True
+
+    def publish_marker(self, text: str) -> None:
+        self.markers.append(json.loads(text))
+
+    def publish_progress(self, text: str) -> None:
+        pass
+
+    def publish_status(self, text: str) -> None:
+        self.status.append(json.loads(text))
+
+    def publish_result(self, text: str) -> None:
+        pass
+
+    def request_driver_parameters(self, names: tuple[str, ...]) -> bool:
+        return True
+
+    def prepare_identification(self, nominal: MotorSpec) -> None:
+        pass
+
+    def start_design(self, job: object) -> None:
+        assert isinstance(job, DesignJob)
+        self.design_jobs.append(job)
+
+    def start_identification(self, job: IdentificationJob) -> None:
+        self.jobs.append(job)
+
+    def log(self, level: str, text: str) -> None:
+        self.logs.append((level, text))
+
+
+def _config(**overrides: Any) -> ControllerConfig:
+    return controller_config(
+        {**IDENTIFICATION.defaults(), "motor": "seed001_110v", "settle_s": 0.0, **overrides}
+    )
+
+
+def _closed_loop(cfg: ControllerConfig, motor=MOTOR, start_rad: float = 0.0):  # type: ignore[no-untyped-def]
+    """A session around the plant; design jobs answered WORKER_LAG samples later by the
+    worker's own function (what the node's child process runs)."""
+    ports = Ports()
+    c = SessionController(cfg, ports)
+    c.start(autostart=True, now_s=0.0)
+    c.on_driver_parameters(DRIVER)
+    c.on_recorder_status(json.dumps({"receiving": {"a": 1, "b": 1, "c": 1}}), 0.0)
+    plant = Plant(motor.model, DT, substeps=4)
+    plant._state[2] = start_rad  # noqa: SLF001 - the joint rests there
+    applied, pending, trace = 0.0, [], []
+    for k in range(60_000):
+        now, ns = k * DT, k * 1_000_000
+        v = math.nan if c.commands.armature_open else applied
+        c.on_current(ns, plant.current_a)
+        c.on_voltage(ns, v, math.nan)
+        c.on_encoder(ns, plant.position_rad, plant.speed_rad_s, now, ns)
+        trace.append((now, plant.position_rad, plant.current_a))
+        if k % 20 == 0:
+            c.tick(now)
+            c.on_recorder_status(json.dumps({"receiving": {"a": ns, "b": ns, "c": ns}}), now)
+        while len(ports.design_jobs) > len(pending):
+            job = ports.design_jobs[len(pending)]
+            pending.append((k + WORKER_LAG, run_design_job(job)))
+        for due, out in pending:
+            if due == k:
+                c.on_design(out, now)
+        if ports.sent:
+            applied = ports.sent[-1]
+        plant.step(None if c.commands.armature_open else applied)
+        if c.phase in (Phase.IDENTIFYING, Phase.FINISHED):
+            break
+    return c, ports, np.array(trace)
+
+
+def test_plan_auto_runs_the_pretest_designs_refits_and_stops_at_the_target():
+    c, ports, _ = _closed_loop(_config(plan="auto"))
+    assert ports.jobs, ports.logs[-5:]
+    job = ports.jobs[0]
+    report = job.extra["experiment_design"]  # type: ignore[index]
+    labels = [m["label"] for m in ports.markers if m["event"] == "start"]
+    assert labels[:2] == ["pretest_up", "pretest_down"]
+    assert len(labels) > 2 and report["designs"] >= 1
+    actions = [r["action"] for r in report["rounds"]]
+    assert actions[0] == "extend" and actions[-1] == "stop", report["rounds"]
+    assert report["rounds"][-1]["message"].startswith("target met"), report["rounds"][-1]
+    # the session ended on the design's word, not on a timeout: within 10 % of the plan
+    # (or earlier, when a re-fit met the target before the plan's end)
+    assert report["motor_s"] <= 1.1 * report["planned_s"], report
+    events = [m["event"] for m in ports.markers]
+    assert events[0] == "session_start" and events[-1] == "session_end"
+    assert "abort" not in events
+    # the final identification gets every segment, the designed ones included
+    from pmdc_ident.nodes.identify_call import run_identification_job
+
+    assert {m.label for m in job.samples.markers if m.label} >= set(labels)
+    del run_identification_job
+
+
+def test_a_plan_csv_runs_as_written(tmp_path: Path):
+    from pmdc_ident.core.design import Prior, plan_csv_text, plan_experiment
+
+    prior = Prior.from_spec(MOTOR)
+    designed = plan_experiment(prior, MOTOR.limits, DT)
+    path = tmp_path / "plan.csv"
+    path.write_text(plan_csv_text(designed.plan))
+    c, ports, _ = _closed_loop(_config(plan=str(path)))
+    labels = [m["label"] for m in ports.markers if m["event"] == "start"]
+    assert labels == [s.label for s in designed.plan.segments]
+    assert ports.jobs and ports.jobs[0].extra is None
+
+
+def test_a_plan_csv_at_another_rate_is_refused_before_anything_moves(tmp_path: Path):
+    from pmdc_ident.core.design import Prior, plan_csv_text, plan_experiment
+
+    designed = plan_experiment(Prior.from_spec(MOTOR), MOTOR.limits, 2e-3)
+    path = tmp_path / "plan.csv"
+    path.write_text(plan_csv_text(designed.plan))
+    ports = Ports()
+    c = SessionController(_config(plan=str(path)), ports)
+    c.start(autostart=True, now_s=0.0)
+    c.on_driver_parameters(DRIVER)
+    c.on_recorder_status(json.dumps({"receiving": {"a": 1, "b": 1, "c": 1}}), 0.0)
+    c.on_current(0, 0.0)
+    c.on_voltage(0, 0.0, math.nan)
+    c.on_encoder(0, 0.0, 0.0, 0.0, 0)
+    c.tick(0.0)
+    assert ports.status[-1]["state"] == "refused"
+    assert "500 Hz" in ports.status[-1]["detail"] and not ports.sent
+
+
+def test_the_plan_parameters_are_checked_in_one_line():
+    with pytest.raises(PmdcError, match="plan"):
+        _config(plan="sometimes")
+    with pytest.raises(PmdcError, match="travel"):
+        _config(**{"plan_travel_rad": [2.0, -2.0]})
+    with pytest.raises(PmdcError, match="target"):
+        _config(**{"plan_target": "R=2x"})
+    assert (
+        PlanSetting.from_values({"plan": "auto", "plan_travel_rad": [0.0, 0.0]}).travel_rad is None
+    )
+
+
+def test_a_travel_range_aborts_when_the_measured_position_leaves_it():
+    """A joint that runs off its range (a default plan on a motor that turns freely) is
+    stopped by the travel rule, the motor made safe."""
+    c, ports, trace = _closed_loop(
+        _config(plan=str(_default_csv()), **{"plan_travel_rad": [-2.0, 2.0]})
+    )
+    assert ports.status[-1]["state"] == "aborted"
+    assert ports.status[-1]["reason"] == AbortReason.OUT_OF_TRAVEL.value
+    assert ports.sent[-1] == 0.0
+    # it tripped on the first sample outside: at most one sample of travel beyond the end
+    over = trace[np.abs(trace[:, 1]) > 2.0]
+    assert over.size and abs(over[0, 1]) < 2.0 + 0.2
+
+
+def _default_csv() -> Path:
+    import tempfile
+
+    from pmdc_ident.core.design import plan_csv_text
+    from pmdc_ident.core.excitation import plan_for_motor
+
+    path = Path(tempfile.mkdtemp()) / "default.csv"
+    path.write_text(plan_csv_text(plan_for_motor(MOTOR, DT)))
+    return path
