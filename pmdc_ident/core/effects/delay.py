@@ -53,8 +53,9 @@ class Delay(Effect):
     BENCHMARK_LADDER = Ladder("samples", (0.5, 1.0, 2.0, 4.0))
     MUJOCO_MAPPING = (
         '`<dcmotor delay="d" nsample="ceil(d/step)+2">`: MuJoCo reads the command from '
-        "its own history, d late (zero-order hold); a drive's first-order lag (lag_s) is "
-        "not carried"
+        "its own history, d late (zero-order hold); a drive's first-order lag (lag_s) only "
+        "as a transport delay of its time constant, d = delay_s + lag_s (the same delay at "
+        "low frequency, without the lag's smoothing)"
     )
 
     delay_s: float
@@ -64,10 +65,11 @@ class Delay(Effect):
         partial = ""
         if self.lag_s > 0:
             partial = (
-                f"the drive's first-order lag ({self.lag_s:.3g} s: MuJoCo's actuator delay is a "
-                "transport delay)"
+                f"the drive's first-order lag ({self.lag_s:.3g} s) as a transport delay of the "
+                "same length (MuJoCo's actuator delay is a transport delay: the same delay "
+                "at low frequency, none of the lag's smoothing)"
             )
-        return MujocoTerms(delay_s=self.delay_s, partial=partial)
+        return MujocoTerms(delay_s=self.delay_s + self.lag_s, partial=partial)
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[Delay]:
