@@ -91,6 +91,14 @@ def test_what_mujoco_cannot_carry_is_listed_with_the_part_left_out():
     m = mujoco.MjModel.from_xml_string(ex.xml)
     # a lag goes in as a transport delay of its time constant (the same low-frequency delay)
     assert m.actuator_delay[0] == pytest.approx(0.0015)
+    # an exponential Stribeck fall goes in as MuJoCo's Gaussian one: carried, and said so
+    expo = Model(P, (StribeckFriction(0.2 * T, 20.0, 1.0),))
+    ex1 = mujoco_xml(MotorSpec("t", expo, limits=LIMITS), flavour="dcmotor")
+    assert [c.split(":")[0] for c in ex1.carried] == ["stribeck_friction"]
+    assert any(line.startswith("stribeck_friction: the exponential") for line in ex1.not_carried)
+    gauss = Model(P, (StribeckFriction(0.2 * T, 20.0, 2.0),))
+    ex2 = mujoco_xml(MotorSpec("t", gauss, limits=LIMITS), flavour="dcmotor")
+    assert not any(line.startswith("stribeck_friction") for line in ex2.not_carried)
     # general actuators (MuJoCo < 4) carry the joint's terms only
     gen = mujoco_xml(MotorSpec("t", model, limits=LIMITS), flavour="general")
     assert not gen.carried and "needs MuJoCo >= 4" in " ".join(gen.not_carried)

@@ -78,5 +78,14 @@ class StribeckFriction(Effect):
     def mujoco_terms(self, ctx: MujocoContext) -> MujocoTerms:
         # MuJoCo's Stribeck fall is Gaussian; the exponential one maps to the Gaussian with
         # the same integral over speed (the same friction impulse over a slow pass)
-        vs = self.speed_rad_s * (1.0 if self.shape_exponent >= 1.5 else 2.0 / math.sqrt(math.pi))
-        return MujocoTerms(stribeck=(self.torque_nm, vs))
+        gaussian = self.shape_exponent >= 1.5
+        vs = self.speed_rad_s * (1.0 if gaussian else 2.0 / math.sqrt(math.pi))
+        partial = (
+            ""
+            if gaussian
+            else (
+                f"the exponential fall's shape (carried as the Gaussian of the same area, "
+                f"vs {vs:.3g} rad/s: MuJoCo's LuGre curve is Gaussian)"
+            )
+        )
+        return MujocoTerms(stribeck=(self.torque_nm, vs), partial=partial)
