@@ -17,6 +17,7 @@ import numpy as np
 from pmdc_ident.benchmark import mujoco_plant as mp
 from pmdc_ident.benchmark.cases import (
     Case,
+    Draw,
     Recording,
     base_vector,
     command,
@@ -150,51 +151,10 @@ def build_mj_cases(
 ) -> list[Case]:
     """The MuJoCo plant's cases: levels balanced over the ladder (largest first),
     equations cycled, motors rotated; effect-free, out-of-vocabulary and paired runs."""
+    draw = Draw(make_mj_case, MJ_EQUATIONS, lambda _name: 4, MJ_OOV_NAMES, MJ_COMPOUNDS)
     rng = np.random.default_rng(10_000 + seed)  # not the generator's draw
-    cases: list[Case] = []
-    for name in effects:
-        if name not in MJ_VOCABULARY:
-            continue
-        eqs = MJ_EQUATIONS[name]
-        offset = int(rng.integers(len(eqs)))
-        for k in range(runs_per_effect):
-            level = 3 - (k % 4)
-            eq = eqs[(k + offset) % len(eqs)]
-            cases.append(
-                make_mj_case(
-                    f"{name}_{k:02d}",
-                    "effect",
-                    (name,),
-                    rng,
-                    k=k,
-                    level=level,
-                    equation=eq,
-                    max_samples=max_samples,
-                )  # fmt: skip
-            )
-    for k in range(clean):
-        cases.append(
-            make_mj_case(f"clean_{k:02d}", "clean", (), rng, k=k, max_samples=max_samples)
-        )
-    for name in MJ_OOV_NAMES:
-        for k in range(oov_per_name):
-            cases.append(
-                make_mj_case(f"{name}_{k:02d}", "oov", (name,), rng, k=k, max_samples=max_samples)
-            )
-    for k in range(compounds):
-        pair = MJ_COMPOUNDS[k % len(MJ_COMPOUNDS)]
-        cases.append(
-            make_mj_case(
-                f"pair_{k:02d}",
-                "compound",
-                pair,
-                rng,
-                k=k,
-                level=2 + k % 2,
-                max_samples=max_samples,
-            )  # fmt: skip
-        )
-    return cases
+    names = tuple(e for e in effects if e in MJ_VOCABULARY)
+    return draw.cases(rng, names, (runs_per_effect, clean, oov_per_name, compounds), max_samples)
 
 
 def _filters(s: SensorSetup) -> mp.Filters:
