@@ -70,40 +70,17 @@ def _extend(prev: Segment, seg: Segment, m: int) -> Segment | None:
 
 
 def lead_ins(pieces: Sequence[Segment], held_out: Sequence[Segment], tau_s: float) -> list[LeadIn]:
-    """For each held-out segment, itself with a lead-in from the pieces (fit or held out)
-    it continues, when there are: ``LEAD_IN_TAU`` mechanical time constants, taken across
-    as many contiguous earlier pieces as that needs (the second half of a step cut in
-    time continues a first half of a few time constants, which continues the level
-    before it); ``pieces`` are all segments of the split."""
+    """For each held-out segment, itself with a lead-in from the piece (fit or held out)
+    it continues, when there is one; ``pieces`` are all segments of the split."""
     out = []
     for seg in held_out:
+        prev = next((p for p in pieces if p is not seg and _continues(p, seg)), None)
         ext = None
-        if math.isfinite(tau_s) and tau_s > 0.0:
-            ext = _lead_in(pieces, seg, max(2, math.ceil(LEAD_IN_TAU * tau_s / seg.dt_s)))
+        if prev is not None and math.isfinite(tau_s) and tau_s > 0.0:
+            m = min(prev.n - 1, max(2, math.ceil(LEAD_IN_TAU * tau_s / seg.dt_s)))
+            ext = _extend(prev, seg, m) if m >= 2 else None
         out.append(LeadIn(seg, 0) if ext is None else LeadIn(ext, ext.n - seg.n))
     return out
-
-
-def _lead_in(pieces: Sequence[Segment], seg: Segment, need: int) -> Segment | None:
-    """``seg`` extended at its front by up to ``need`` samples of the pieces before it."""
-    ext, cur, got = None, seg, 0
-    while got < need:
-        prev = next((p for p in pieces if p is not cur and _continues(p, cur)), None)
-        if prev is None:
-            break
-        # a whole piece where more is needed and one continues before it; else its tail
-        # (never its first sample: the lead-in's state is read off its first samples)
-        whole = got + prev.n < need and any(q is not prev and _continues(q, prev) for q in pieces)
-        m = prev.n if whole else min(prev.n - 1, need - got)
-        if m < 2:
-            break
-        longer = _extend(prev, ext if ext is not None else seg, m)
-        if longer is None:
-            break
-        ext, cur, got = longer, prev, got + m
-        if not whole:
-            break
-    return ext
 
 
 def predict_held_out(fit: FitResult, leads: Sequence[LeadIn]) -> list[Prediction]:

@@ -1,5 +1,5 @@
 """The lead-in of a held-out prediction: LEAD_IN_TAU mechanical time constants of the
-record before the held-out segment, across as many contiguous pieces as that takes."""
+piece of the record just before the held-out segment, never its first sample."""
 
 from __future__ import annotations
 
@@ -18,26 +18,6 @@ def _record(n: int = 400) -> Segment:
     t = np.arange(n) * DT
     v = np.where(t < 0.2, 2.0, 6.0) + 0.01 * np.arange(n)  # every sample's command unique
     return Segment("rec", t, v, current=np.sin(t), speed=np.cos(t))
-
-
-def test_a_short_piece_before_the_held_out_one_lends_the_piece_before_it_too():
-    """A step cut in time: its first half a few samples long, held out its second. The
-    lead-in must reach back through the short half into the level before the step (it
-    used to stop at the short half: 9 samples, where 60 are asked for)."""
-    rec = _record()
-    level, first, second = rec.slice(0, 300), rec.slice(300, 310), rec.slice(310, 400)
-    tau = 10 * DT
-    need = math.ceil(LEAD_IN_TAU * tau / DT)
-    (lead,) = lead_ins([level, first, second], [second], tau)
-    assert lead.samples == need
-    seg = lead.segment
-    start = 310 - need
-    np.testing.assert_array_equal(seg.t, rec.t[start:])
-    np.testing.assert_array_equal(seg.voltage, rec.voltage[start:])
-    np.testing.assert_array_equal(seg.current, rec.current[start:])
-    # the history before the lead-in is the record's before it, to the last command
-    assert seg.history_voltage is not None
-    np.testing.assert_array_equal(seg.history_voltage, rec.voltage[:start])
 
 
 @pytest.mark.parametrize("tau_s", [2 * DT, 1e-3 * DT, math.nan])
