@@ -43,8 +43,13 @@ $(STAMP): requirements-dev.txt constraints.txt setup.py setup.cfg
 demo: $(STAMP)
 	$(VPY) -m pmdc_ident.demo
 
+# Two test processes (pytest-xdist): the node tests mostly wait on DDS and the clock,
+# the numerics take a core each; each process holds its own DDS domains (test/conftest.py).
+# `make test TEST_WORKERS=0` runs them in one process.
+TEST_WORKERS ?= 2
+
 test: $(STAMP)
-	$(VPY) -m pytest -q test --timeout=600
+	$(VPY) -m pytest -q test --timeout=600 -n $(TEST_WORKERS) --dist worksteal --durations=15
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check $(LINT_PATHS)

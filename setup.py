@@ -32,6 +32,10 @@ setup(
     # Only the numerics. ROS (rclpy, message packages) comes from the ROS
     # distribution on a robot, or from requirements-dev.txt in the .venv.
     install_requires=["numpy", "scipy", "pyyaml"],
+    # `pmdc-ident` is a launcher of its own (scripts/pmdc-ident: python -S, so a Ctrl-C
+    # during the interpreter's start-up is held, never a traceback); the nodes below are
+    # generated wrappers
+    scripts=["scripts/pmdc-ident"],
     zip_safe=True,
     maintainer="pmdc_ident developers",
     maintainer_email="pmdc_ident@example.com",
@@ -40,7 +44,6 @@ setup(
     python_requires=">=3.10",
     entry_points={
         "console_scripts": [
-            "pmdc-ident = pmdc_ident.cli:main",
             "driver_node = pmdc_ident.nodes.driver_node:main",
             "identification_node = pmdc_ident.nodes.identification_node:main",
             "recorder_node = pmdc_ident.nodes.recorder_node:main",

@@ -26,7 +26,7 @@ import sys
 import threading
 import time
 
-from pmdc_ident.backends.base import BackendError
+from pmdc_ident.backends.base import BackendError, Telemetry
 from pmdc_ident.backends.serial_board import SerialBackend
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.protocol import TELEMETRY_WIRE_BYTES, SetVoltage, frame_message
@@ -42,11 +42,13 @@ class _TimedBackend(SerialBackend):
         self.arrivals: list[tuple[float, float]] = []
         self.cond = threading.Condition()
 
-    def _on_telemetry(self, t: WireTelemetry) -> None:
-        super()._on_telemetry(t)
-        with self.cond:
-            self.arrivals.append((time.perf_counter(), self._samples[-1].voltage_cmd_v))
-            self.cond.notify_all()
+    def _on_telemetry(self, t: WireTelemetry) -> Telemetry | None:
+        sample = super()._on_telemetry(t)
+        if sample is not None:
+            with self.cond:
+                self.arrivals.append((time.perf_counter(), sample.voltage_cmd_v))
+                self.cond.notify_all()
+        return sample
 
 
 def _wait_applied(be: _TimedBackend, start_len: int, volts: float, timeout_s: float) -> float:

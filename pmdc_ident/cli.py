@@ -4,27 +4,50 @@ Each sub-command lives in ``pmdc_ident/commands/<module>.py`` and defines
 ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``. A user
 error (:class:`~pmdc_ident.core.errors.PmdcError`, a file that cannot be read
 or written) is one line on stderr and exit status 2; Ctrl-C at any moment is one
-line and 130; a bug of ours is one line and 1 (``PMDC_IDENT_DEBUG=1`` shows its
-traceback). Never a traceback by default.
+line and 130; SIGTERM and SIGHUP (the terminal closed) end the command the same
+way (one line, 128 + the signal's number), so every output in progress is removed
+and every worker stopped; a bug of ours is one line and 1 (``PMDC_IDENT_DEBUG=1``
+shows its traceback). Never a traceback by default.
 """
 
 from __future__ import annotations
 
-import argparse
-import gc
-import importlib
-import os
+import signal
 import sys
-from collections.abc import Sequence
 
-from pmdc_ident import __version__
-from pmdc_ident._blas import limit_blas_threads
+# First: a Ctrl-C that arrives while the program is still importing this module is
+# held here (main raises it inside its try) instead of becoming a traceback. Only in
+# the program itself: a process importing the module (a test runner) keeps its own.
+_EARLY: list[int] = []
+
+
+def _hold(signum: int, _frame: object) -> None:
+    _EARLY.append(signum)
+
+
+if sys.argv and sys.argv[0].rsplit("/", 1)[-1] in ("pmdc-ident", "-c"):
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _hold)
+    for _sig in (signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(_sig) == signal.SIG_DFL:
+            signal.signal(_sig, _hold)
+
+import argparse  # noqa: E402
+import gc  # noqa: E402
+import importlib  # noqa: E402
+import os  # noqa: E402
+from collections.abc import Iterator, Sequence  # noqa: E402
+from contextlib import contextmanager  # noqa: E402
+
+from pmdc_ident import __version__  # noqa: E402
+from pmdc_ident._blas import limit_blas_threads  # noqa: E402
+from pmdc_ident.core.enums import ExitCode  # noqa: E402
 
 __all__ = ["EXIT_INTERNAL_ERROR", "EXIT_INTERRUPTED", "EXIT_USER_ERROR", "main"]
 
-EXIT_INTERNAL_ERROR = 1
-EXIT_USER_ERROR = 2
-EXIT_INTERRUPTED = 130
+EXIT_INTERNAL_ERROR = ExitCode.FAILED
+EXIT_USER_ERROR = ExitCode.USER_ERROR
+EXIT_INTERRUPTED = ExitCode.INTERRUPTED
 
 # command name -> module under pmdc_ident.commands
 COMMANDS: dict[str, str] = {
@@ -61,21 +84,91 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-def _interrupted(exc: BaseException) -> bool:
-    """``exc`` is, or was caused by, a Ctrl-C.
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP: the command ends as on Ctrl-C (outputs in progress removed,
+    workers stopped), with exit status 128 + the signal's number."""
 
-    A Ctrl-C that lands while compiled (numba) code calls back into Python
-    surfaces as a ``SystemError`` "returned a result with an exception set"
-    whose cause is the ``KeyboardInterrupt``.
-    """
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _terminate(signum: int, _frame: object) -> None:
+    raise Terminated(signum)
+
+
+def _interrupt(_signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _unraisable(hook: object) -> object:
+    """A ``sys.unraisablehook`` that re-sends a signal whose exception landed where
+    Python cannot raise it (a weakref callback, ``__del__``: it would print "Exception
+    ignored in ..." with a traceback and go on): the handler then raises it at the next
+    ordinary statement."""
+
+    def resend(unraisable: object) -> None:
+        exc = getattr(unraisable, "exc_value", None)
+        if isinstance(exc, Terminated):
+            os.kill(os.getpid(), exc.signum)
+            return
+        if isinstance(exc, KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            return
+        hook(unraisable)  # type: ignore[operator]
+
+    return resend
+
+
+@contextmanager
+def _signals(program: bool = False) -> Iterator[None]:
+    """Ctrl-C, SIGTERM and SIGHUP as exceptions while the command runs (main thread).
+
+    ``program``: this process is ``pmdc-ident`` itself and ends with the command, so a
+    signal that comes once the command is over stays held (the work is done and its
+    outputs are in place): restored to the default, it would raise in whatever runs
+    between here and the exit (a late import, the heap freeze) as a traceback."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old_hook = sys.unraisablehook
+    sys.unraisablehook = _unraisable(old_hook)  # type: ignore[assignment]
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    signal.signal(signal.SIGTERM, _terminate)
+    signal.signal(signal.SIGHUP, _terminate)
+    if old[signal.SIGINT] in (_hold, signal.default_int_handler):
+        signal.signal(signal.SIGINT, _interrupt)
+    early, _EARLY[:] = list(_EARLY), []
+    try:
+        if early:  # a signal held while this module was imported
+            raise KeyboardInterrupt if early[0] == signal.SIGINT else Terminated(early[0])
+        yield
+    finally:
+        for s, h in old.items():
+            if h is _hold and not program:
+                h = signal.default_int_handler if s == signal.SIGINT else signal.SIG_DFL
+            if h is not None:
+                signal.signal(s, h)
+        sys.unraisablehook = old_hook
+
+
+def _signal_of(exc: BaseException) -> int | None:
+    """The signal that ended the command (``exc`` or its cause), None for none: the first
+    one sent when a second landed while the first was being handled (Ctrl-C, then SIGTERM
+    during the clean-up: the command stopped because of the Ctrl-C)."""
     seen: set[int] = set()
     e: BaseException | None = exc
+    found: int | None = None
     while e is not None and id(e) not in seen:
-        if isinstance(e, KeyboardInterrupt):
-            return True
+        if isinstance(e, Terminated):
+            found = e.signum
+        elif isinstance(e, KeyboardInterrupt):
+            found = int(signal.SIGINT)
         seen.add(id(e))
         e = e.__cause__ or e.__context__
-    return False
+    return found
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -103,17 +196,20 @@ def _run(argv: Sequence[str] | None) -> int:
         command = next((w for w in words if w in COMMANDS), "")
         # Everything below, the imports of the command modules included, is
         # inside the try: a Ctrl-C at any moment is one line and exit 130.
-        limit_blas_threads()  # before numpy is imported (batch workers inherit it)
-        from pmdc_ident.core.errors import PmdcError
+        with _signals(program=argv is None):
+            limit_blas_threads()  # before numpy is imported (batch workers inherit it)
+            from pmdc_ident.core.errors import PmdcError
+            from pmdc_ident.core.safe_write import reading_scope
 
-        user_errors = (PmdcError,)
-        # the command word first (options aside): only its parser is built; anything
-        # else (a typo, --help) gets the full parser and its own message
-        first = next((w for w in words if not w.startswith("-")), "")
-        parser = build_parser(first if first in COMMANDS else None)
-        args = parser.parse_args(argv)
-        command = args.command
-        return int(args._run(args) or 0)
+            user_errors = (PmdcError,)
+            # the command word first (options aside): only its parser is built; anything
+            # else (a typo, --help) gets the full parser and its own message
+            first = next((w for w in words if not w.startswith("-")), "")
+            parser = build_parser(first if first in COMMANDS else None)
+            args = parser.parse_args(argv)
+            command = args.command
+            with reading_scope():  # what the command reads, it never writes
+                return int(args._run(args) or 0)
     except BaseException as exc:  # noqa: BLE001 - sorted below; SystemExit passes
         if isinstance(exc, SystemExit):
             raise
@@ -125,9 +221,13 @@ def _exit_status(
 ) -> int:
     """One line on stderr for ``exc`` and the exit status; never a traceback."""
     prog = f"pmdc-ident {command}".rstrip()
-    if _interrupted(exc):
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    signum = _signal_of(exc)
+    if signum is not None:
+        if signum == signal.SIGINT:
+            _say(f"{prog}: interrupted")
+            return EXIT_INTERRUPTED
+        _say(f"{prog}: stopped by {signal.Signals(signum).name}")
+        return 128 + signum
     if isinstance(exc, user_errors):
         return _fail(prog, str(exc))
     if isinstance(exc, BrokenPipeError):
@@ -148,6 +248,14 @@ def _exit_status(
         file=sys.stderr,
     )
     return EXIT_INTERNAL_ERROR
+
+
+def _say(line: str) -> None:
+    """One line on stderr; nothing when stderr is gone (the terminal closed: SIGHUP)."""
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 def _fail(prog: str, message: str) -> int:

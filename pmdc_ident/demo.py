@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
 
 __all__ = ["main", "run_session_demo"]
@@ -67,7 +68,7 @@ def _own_domain(domain: int) -> Any:
 
 
 def _session_demo(out: Path, logs: Path, motor: str, domain: int) -> int:
-    from pmdc_ident.nodes.bringup import parameter_table, run_session
+    from pmdc_ident.nodes.bringup import parameter_table, run_session, session_outcome
 
     print(f"== identification session on the simulated {motor} motor (ROS_DOMAIN_ID {domain})")
     print(f"   driver, recorder and identification nodes in separate processes; logs in {logs}")
@@ -85,14 +86,17 @@ def _session_demo(out: Path, logs: Path, motor: str, domain: int) -> int:
     )
     print(f"== session finished in {time.monotonic() - t0:.1f} s (wall)")
     if res.bag is not None:
-        print(f"   bag: {res.bag.resolve()}")
-    if res.result is None:
+        closed = "" if res.bag_complete else " (INCOMPLETE: its recorder did not close it)"
+        print(f"   bag of this session: {res.bag.resolve()}{closed}")
+    if not res.ok:
+        # never an older session's bag or parameters in place of this one's
         print(
-            f"demo: no parameters (identification exit status {res.identification_rc}); "
-            f"see {logs}",
+            f"demo: session {session_outcome(res)}: no parameters of this session "
+            f"(identification exit status {res.identification_rc}); see {logs}",
             file=sys.stderr,
         )
-        return 1
+        return res.identification_rc or 1
+    assert res.result is not None and res.bag is not None
     print("== identified parameters (95 % intervals)")
     print(parameter_table(res.result))
     for a in res.result.get("assumptions", []):
@@ -125,11 +129,21 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return run_session_demo(output_dir=args.output_dir, motor=args.motor)
     except PmdcError as exc:
-        print(f"demo: {exc}", file=sys.stderr)
-        return 1
+        _say(f"demo: {exc}")
+        return ExitCode.FAILED
     except KeyboardInterrupt:
-        print("demo: interrupted", file=sys.stderr)
-        return 130
+        _say("demo: interrupted")
+        return ExitCode.INTERRUPTED
+    except OSError as exc:  # the terminal went away (SIGHUP): nothing left to tell
+        _say(f"demo: {exc.strerror or exc}")
+        return ExitCode.FAILED
+
+
+def _say(line: str) -> None:
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 if __name__ == "__main__":

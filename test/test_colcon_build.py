@@ -18,7 +18,15 @@ from helpers.paths import REPO
 
 pytestmark = pytest.mark.slow
 
-PACKAGE_CONTENT = ("package.xml", "setup.py", "setup.cfg", "resource", "pmdc_ident", "config")
+PACKAGE_CONTENT = (
+    "package.xml",
+    "setup.py",
+    "setup.cfg",
+    "resource",
+    "pmdc_ident",
+    "config",
+    "scripts",
+)
 OPTIONAL_CONTENT = ("launch",)
 CONSOLE_SCRIPTS = (
     "pmdc-ident",

@@ -1,7 +1,7 @@
 """The package's layers, enforced: a module imports only from its own layer or below.
 
-    core <- protocol <- dataio, report, exports <- backends, benchmark <- commands (and cli)
-    <- nodes <- demo
+    core <- protocol <- dataio, report, exports <- backends, benchmark, app
+    <- commands (and cli) <- nodes <- demo
 
 Every ``import`` / ``from ... import`` statement of every module is read from its
 syntax tree, including imports inside functions (a lazy import is still a
@@ -29,6 +29,7 @@ LAYERS: dict[str, int] = {
     "exports": 2,
     "backends": 3,
     "benchmark": 3,
+    "app": 3,
     "commands": 4,
     "cli": 4,
     "nodes": 5,

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from pmdc_ident.benchmark.scoring import VISIBLE, Score
+from pmdc_ident.core.safe_write import save_figure
 
 __all__ = [
     "confusion_text",
@@ -211,7 +212,7 @@ def write_figures(sc: Score, directory: Path) -> list[Path]:
     ax.set_title("Confusion (visible effect runs, effect-free, out-of-vocabulary)")
     fig.tight_layout()
     p1 = directory / "confusion.png"
-    fig.savefig(p1, dpi=110)
+    save_figure(fig, p1, dpi=110)
     plt.close(fig)
 
     lims = sc.limits()
@@ -233,6 +234,6 @@ def write_figures(sc: Score, directory: Path) -> list[Path]:
         ax.axis("off")
     fig.tight_layout()
     p2 = directory / "detection_limits.png"
-    fig.savefig(p2, dpi=110)
+    save_figure(fig, p2, dpi=110)
     plt.close(fig)
     return [p1, p2]

@@ -12,13 +12,13 @@ import resource
 import tempfile
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from pmdc_ident.benchmark.cases import Case, Recording, record
+from pmdc_ident.core.workers import WorkerError, WorkerPool
 
 __all__ = ["GENERATOR_FAILED", "Outcome", "run_cases", "write_recording"]
 
@@ -132,12 +132,15 @@ def run_cases(
         else:
             # longest first keeps both workers busy to the end
             order = sorted(range(len(cases)), key=lambda k: -_cost(cases[k]))
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
-                futures = {pool.submit(run_one, cases[k], str(directory), 1): k for k in order}
+            # workers that die with this process on Ctrl-C, SIGTERM, SIGHUP or kill -9
+            # (core.workers: no forkserver, resource tracker or semaphores left behind)
+            tasks = [(k, f"{__name__}:run_one", (cases[k], str(directory), 1)) for k in order]
+            with WorkerPool(jobs) as pool:
                 done = 0
-                for fut in as_completed(futures):
-                    k = futures[fut]
-                    out[k] = fut.result()
+                for k, value in pool.run(tasks):
+                    if isinstance(value, WorkerError):
+                        raise value
+                    out[k] = value
                     done += 1
                     if progress:
                         progress(done, len(cases), out[k])  # type: ignore[arg-type]

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import ParameterError, PmdcError
 
 __all__ = [
@@ -38,6 +39,7 @@ __all__ = [
 ]
 
 DATA_SUFFIXES = (".csv", ".txt", ".mcap")
+MAX_JOBS = 256
 _GLOB = re.compile(r"[*?\[]")
 
 
@@ -134,7 +136,15 @@ class Outcome:
 def _run_one(
     module_name: str, options: dict[str, Any], item: BatchItem, summarize_name: str
 ) -> Outcome:
-    """Worker: the command's own run() on one input, its output into the item's files."""
+    """Worker: the command's own run() on one input, its output into the item's files.
+
+    The files appear complete or not at all (``core.safe_write``); an interrupted
+    input writes nothing (the previous run's files stay as they were), and a failed
+    one removes the previous run's JSON, so no result of an older run stands for
+    this one (its text report says why it failed).
+    """
+    from pmdc_ident.core.safe_write import reading_scope, write_text
+
     module = importlib.import_module(module_name)
     args = argparse.Namespace(**options)
     args.data = [str(item.path)]
@@ -142,24 +152,49 @@ def _run_one(
     args.quiet = True
     buf = io.StringIO()
     t0, c0 = time.perf_counter(), time.process_time()
-    try:
-        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
-            rc = int(module.run(args) or 0)
-    except PmdcError as exc:
-        line = str(exc).strip().splitlines()[0].removeprefix(f"{item.path}: ")
-        return Outcome(item, False, line, time.perf_counter() - t0)
-    except OSError as exc:
-        what = exc.strerror or type(exc).__name__
-        return Outcome(item, False, f"{what}: {exc.filename}", time.perf_counter() - t0)
-    except Exception as exc:  # noqa: BLE001 - one input's bug must not stop the batch
-        return Outcome(item, False, f"internal error: {type(exc).__name__}: {exc}", 0.0)
-    finally:
-        item.text_path.write_text(buf.getvalue())
+    failure = ""
+    with reading_scope():
+        try:
+            with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+                rc = int(module.run(args) or 0)
+            if rc != 0:
+                failure = f"exit status {rc}"
+        except PmdcError as exc:
+            failure = str(exc).strip().splitlines()[0].removeprefix(f"{item.path}: ")
+        except OSError as exc:
+            failure = f"{exc.strerror or type(exc).__name__}: {exc.filename}"
+        except Exception as exc:  # noqa: BLE001 - one input's bug must not stop the batch
+            failure = f"internal error: {type(exc).__name__}: {exc}"
     elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
-    if rc != 0:
-        return Outcome(item, False, f"exit status {rc}", elapsed, cpu_s=cpu)
+    text = buf.getvalue() + (f"FAILED: {failure}\n" if failure else "")
+    try:
+        write_text(item.text_path, text)
+        if failure:
+            item.json_path.unlink(missing_ok=True)  # an older run's result, not this one's
+    except OSError as exc:
+        failure = failure or f"{exc.strerror or type(exc).__name__}: {exc.filename}"
+    if failure:
+        return Outcome(item, False, failure, elapsed, cpu_s=cpu)
     summarize: Callable[[Path], dict[str, Any]] = getattr(module, summarize_name)
     return Outcome(item, True, "", elapsed, summarize(item.json_path), cpu)
+
+
+def _check_items(out: Path, items: Sequence[BatchItem], paths: Sequence[Path]) -> None:
+    """No file of the batch replaces an input or its sidecar (``--batch logs logs`` would
+    write ``logs/run.txt`` over a recording ``run.txt``): refused before any work."""
+    from pmdc_ident.commands.outputs import OutputError, reads_of
+    from pmdc_ident.core.safe_write import conflict
+
+    reads = reads_of(paths)
+    for item in items:
+        for target in (item.json_path, item.text_path):
+            why = conflict(target, reads)
+            if why is not None:
+                msg = (
+                    f"--batch {out}: would write {target}, {why}; refusing to write over an "
+                    "input: choose a folder for the results that holds no input"
+                )
+                raise OutputError(msg)
 
 
 class _Progress:
@@ -200,22 +235,19 @@ def _outcomes(
         for item in items:
             yield _run_one(module_name, options, item, summarize)
         return
-    import multiprocessing
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from pmdc_ident.core.workers import WorkerError, WorkerPool
 
-    # forkserver: workers start from a clean interpreter (no inherited threads or locks)
-    ctx = multiprocessing.get_context("forkserver")
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-        pending = {pool.submit(_run_one, module_name, options, item, summarize) for item in items}
-        try:
-            while pending:
-                done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                for f in done:
-                    yield f.result()
-        except BaseException:
-            for f in pending:
-                f.cancel()
-            raise
+    # fresh interpreters that die with this process (core.workers): on Ctrl-C, SIGTERM,
+    # SIGHUP or kill -9 of the batch no worker keeps running
+    by_key = dict(enumerate(items))
+    target = f"{__name__}:_run_one"
+    tasks = [(k, target, (module_name, options, it, summarize)) for k, it in by_key.items()]
+    with WorkerPool(jobs) as pool:
+        for k, value in pool.run(tasks):
+            if isinstance(value, WorkerError):
+                yield Outcome(by_key[k], False, f"internal error: {value}")
+            else:
+                yield value
 
 
 def run_batch(
@@ -235,9 +267,9 @@ def run_batch(
             msg = f"{option} is per run: not with --batch (each input's JSON goes to the folder)"
             raise ParameterError(msg)
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
-    if jobs < 1:
-        msg = f"--jobs must be >= 1, got {jobs}"
-        raise ParameterError(msg)
+    from pmdc_ident.commands._bounds import Bound
+
+    Bound("--jobs", 1, MAX_JOBS, "worker processes", integer=True).check(jobs)
     paths = expand_inputs(args.data)
     from pmdc_ident.commands.outputs import check_folder_output
 
@@ -248,6 +280,7 @@ def run_batch(
         BatchItem(p, out / f"{name}.json", out / f"{name}.txt")
         for p, name in zip(paths, _names(paths), strict=True)
     ]
+    _check_items(out, items, paths)
     options = {k: v for k, v in vars(args).items() if not k.startswith("_")}
     options.update(batch=None, jobs=None)
     progress = _Progress(len(items), sys.stderr, bool(getattr(args, "quiet", False)))
@@ -270,7 +303,7 @@ def run_batch(
     )
     for o in failed:
         print(f"FAILED {o.item.path}: {o.error}")
-    return 2 if failed else 0
+    return ExitCode.USER_ERROR if failed else ExitCode.OK
 
 
 def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:

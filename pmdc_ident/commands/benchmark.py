@@ -68,6 +68,21 @@ def _counts(args: argparse.Namespace) -> dict[str, int]:
     if min(out.values()) < 0 or args.jobs < 1:
         msg = "--runs-per-effect, --clean, --oov and --pairs must be >= 0, --jobs >= 1"
         raise ParameterError(msg)
+    from pmdc_ident.commands._bounds import Bound, check_bounds
+
+    check_bounds(
+        [
+            *(
+                (Bound(f"--{k.replace('_', '-')}", 0, 10_000, "runs", integer=True), v)
+                for k, v in out.items()
+            ),
+            (Bound("--jobs", 1, 256, "worker processes", integer=True), args.jobs),
+            (
+                Bound("--seed", 0, 2**32 - 1, "a seed of numpy's generator", integer=True),
+                args.seed,
+            ),
+        ]
+    )
     return out
 
 
@@ -83,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
     from pmdc_ident.benchmark.runner import GENERATOR_FAILED, Outcome, run_cases
     from pmdc_ident.benchmark.scoring import score
     from pmdc_ident.commands.outputs import check_file_output, check_folder_output
+    from pmdc_ident.core.safe_write import write_text
 
     n = _counts(args)
     # checked before the (long) run, not after it
@@ -139,14 +155,14 @@ def run(args: argparse.Namespace) -> int:
             table, confusion, detail = texts[plant]
             extra = f"\n\n{truth_table_text()}\n" if plant == "mujoco" else "\n"
             md = sub / "benchmark.md"
-            md.write_text(f"{table}\n\n```\n{confusion}\n```\n\n{detail}\n{extra}")
+            write_text(md, f"{table}\n\n```\n{confusion}\n```\n\n{detail}\n{extra}")
             written.append(md)
         if len(plants) > 1:
-            (d / "side_by_side.md").write_text(side_by_side(scores) + "\n")
+            write_text(d / "side_by_side.md", side_by_side(scores) + "\n")
             written.append(d / "side_by_side.md")
         print("report: " + ", ".join(str(p) for p in written))
     if args.json:
-        Path(args.json).write_text(json.dumps(_json(outcomes), indent=1) + "\n")
+        write_text(args.json, json.dumps(_json(outcomes), indent=1) + "\n")
     return 0
 
 
@@ -155,9 +171,12 @@ def _effects(args: argparse.Namespace, plants: tuple[str, ...]) -> tuple[str, ..
     from pmdc_ident.benchmark.truth import VOCABULARY
     from pmdc_ident.core.errors import ParameterError
 
-    if not args.effects:
+    if args.effects is None:
         return None
     only = tuple(e.strip() for e in args.effects.split(",") if e.strip())
+    if not only:
+        msg = f"--effects lists no effect (give one or more of: {', '.join(VOCABULARY)})"
+        raise ParameterError(msg)
     known = set(VOCABULARY)
     if "mujoco" in plants:
         from pmdc_ident.benchmark.mujoco_truth import MJ_VOCABULARY

@@ -7,21 +7,18 @@ when an error would stop ``identify``/``diagnose``, else 0.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 
 from pmdc_ident.commands._inputs import (
     add_gate_arguments,
     add_unit_arguments,
-    check_ignore,
-    load_inputs,
-    quality,
-    segment_inputs,
-    show_quality,
-    stop_on_errors,
+    data_megabytes,
+    input_options,
+    make_progress,
 )
 from pmdc_ident.commands.outputs import STDOUT, check_file_output
+
+PROGRESS_MB = 10.0
 
 HELP = "check recordings before a fit: timing, units, signs, clipping, encoder, delay, duplicates"
 
@@ -40,6 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME=VALUE",
         help="a parameter the fit will hold (SI units): left out of the expected uncertainties",
     )
+    parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     add_gate_arguments(parser)
     add_unit_arguments(parser)
 
@@ -47,30 +45,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     json_to = check_file_output("--json", args.json, args.data, suffixes=(".json",))
     text_out = sys.stderr if json_to == STDOUT else sys.stdout
+    from pmdc_ident.app import CheckOptions
+    from pmdc_ident.app.inputs import check_ignore
+    from pmdc_ident.app.service import check_inputs
     from pmdc_ident.core.fixed import parse_fix
 
-    check_ignore(args)
-    fixed = parse_fix(args.fix)
-    inputs = load_inputs(args)
-    report = quality(args, inputs, fixed)
-    show_quality(report, info=True, show=lambda line: print(line, file=text_out))
-    inputs = segment_inputs(args, inputs, show=lambda line: print(line, file=text_out))
-    if json_to is not None:
-        from pmdc_ident.core.assumptions import register_json
-        from pmdc_ident.core.data import unique_labels
+    check_ignore(args.ignore)
+    options = input_options(CheckOptions, args, parse_fix(args.fix))
+    # progress lines for large inputs only (a small file is checked in a second)
+    progress = make_progress(args, quiet=data_megabytes(args) < PROGRESS_MB)
+    docs = check_inputs(options, show=lambda line: print(line, file=text_out), progress=progress)
+    if json_to == STDOUT:
+        print(docs.json_text, end="")
+    elif json_to is not None:
+        from pmdc_ident.core.safe_write import write_text
 
-        segments = unique_labels(s for x in inputs for s in x.run.segments)
-        body = {
-            "sources": [x.path for x in inputs],
-            "quality": report.to_json(),
-            "assumptions_checked": register_json(report.findings, segments),
-        }
-        document = json.dumps(body, indent=2, allow_nan=False) + "\n"
-        if json_to == STDOUT:
-            print(document, end="")
-        else:
-            Path(json_to).write_text(document)
-            print(f"wrote {json_to}", file=text_out)
-    stop_on_errors(report)
-    print(f"ok: no errors, {len(report.warnings)} warning(s)", file=text_out)
+        write_text(json_to, docs.json_text)
+        print(f"wrote {json_to}", file=text_out)
+    print(docs.stop_on_errors(), file=text_out)
     return 0

@@ -18,9 +18,8 @@ from typing import Any
 from pmdc_ident.commands._inputs import (
     add_gate_arguments,
     add_unit_arguments,
-    check_ignore,
-    input_json,
-    prepare_inputs,
+    input_options,
+    make_progress,
 )
 from pmdc_ident.commands.batch import add_batch_arguments, format_table
 from pmdc_ident.commands.outputs import (
@@ -31,7 +30,6 @@ from pmdc_ident.commands.outputs import (
     check_inputs_distinct,
 )
 from pmdc_ident.core.effects import DEFAULT_CANDIDATES, EFFECT_NAMES
-from pmdc_ident.core.errors import ParameterError
 
 HELP = "diagnose the sim-to-real gap: where it lies, which effect causes it, how far it shrinks"
 
@@ -81,61 +79,51 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_ignore(args)
-    from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
+    from dataclasses import replace
+
+    from pmdc_ident.app import DiagnoseOptions
+    from pmdc_ident.app.service import check_diagnose_options, diagnose_inputs
     from pmdc_ident.core.fixed import parse_fix
     from pmdc_ident.core.params import PARAMETER_NAMES
 
-    effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
-    if not effects:
-        msg = "--effects lists no effect"
-        raise ParameterError(msg)
-    if args.max_effects < 1:
-        msg = f"--max-effects must be >= 1 (effects combined at most), got {args.max_effects}"
-        raise ParameterError(msg)
+    options = input_options(
+        DiagnoseOptions,
+        args,
+        {},
+        holdout=tuple(args.holdout),
+        effects=tuple(e.strip() for e in args.effects.split(",") if e.strip()),
+        max_effects=args.max_effects,
+    )
+    check_diagnose_options(options)
     if args.batch is not None:
         from pmdc_ident.commands.batch import run_batch
 
         return run_batch(args, __name__, batch_table, forbidden=("--json", "--report"))
     targets = {
         "--json": check_file_output("--json", args.json, args.data, suffixes=(".json",)),
-        "--report": check_folder_output("--report", args.report, args.data),
+        "--report": check_folder_output(
+            "--report", args.report, args.data, writes=("index.html", "diagnosis.json")
+        ),
     }
     check_distinct(targets)
     check_inputs_distinct(args.data)
     json_to, report_to = targets["--json"], targets["--report"]
     text_out = sys.stderr if json_to == STDOUT else sys.stdout
-    config = DiagnosisConfig(
-        holdout=tuple(args.holdout),
-        effects=effects,
-        fixed=parse_fix(args.fix, known=PARAMETER_NAMES),
-        max_effects=args.max_effects,
+    options = replace(options, fixed=parse_fix(args.fix, known=PARAMETER_NAMES))
+    docs = diagnose_inputs(
+        options, show=lambda line: print(line, file=text_out), progress=make_progress(args)
     )
-    inputs, report, progress = prepare_inputs(args, text_out, dict(config.fixed))
-    runs = [x.run for x in inputs]
-    result = diagnose(runs, config=config, progress=progress)
-    print("\n".join(result.summary_lines()), file=text_out)
-    print("split: " + "; ".join(result.split.description), file=text_out)
     written: list[Path] = []
-    if json_to is not None:
-        from pmdc_ident.core.assumptions import register_json
-        from pmdc_ident.core.data import unique_labels
+    if json_to == STDOUT:
+        print(docs.json_text, end="")
+    elif json_to is not None:
+        from pmdc_ident.core.safe_write import write_text
 
-        body = result.to_json()
-        body.update(input_json(inputs, report))
-        segments = unique_labels(s for r in runs for s in r.segments)
-        body["assumptions_checked"] = register_json(report.findings, segments)
-        document = json.dumps(body, indent=2) + "\n"
-        if json_to == STDOUT:
-            print(document, end="")
-        else:
-            path = Path(json_to)
-            path.write_text(document)
-            written.append(path)
+        written.append(write_text(json_to, docs.json_text))
     if report_to is not None:
         from pmdc_ident.report.diagnosis_html import write_diagnosis_report
 
-        written.append(write_diagnosis_report(result, Path(report_to)))
+        written.append(write_diagnosis_report(docs.result, Path(report_to)))
     for p in written:
         print(f"wrote {p}", file=text_out)
     return 0

@@ -51,6 +51,12 @@ def run(args: argparse.Namespace) -> int:
     else:
         loaded = load_input(src, spec)
         data, notes = loaded.run, loaded.notes
+    from pmdc_ident.app.inputs import recording_of
+
+    state = recording_of(str(src))
+    if state is not None and not state.complete:
+        more = state.lines(truncation=False)  # the reader logged the truncation itself
+        notes = (*notes, *(line.removeprefix(f"{src}: ") for line in more))
     for note in notes:
         print(f"{src}: {note}", file=sys.stderr)
     summary = f"{len(data.segments)} segment(s), {sum(s.n for s in data.segments)} samples"

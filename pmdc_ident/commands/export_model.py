@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.safe_write import write_text
 
 HELP = (
     "write an identified motor as MuJoCo MJCF (--mujoco), URDF (--urdf), ros2_control "
@@ -75,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
     if args.diagnosis and not args.mujoco:
         msg = "--diagnosis goes into the MuJoCo model: give --mujoco OUT.xml with it"
         raise PmdcError(msg)
+    _check_numbers(args)
     _check_outputs(args)
     spec = load_motor(args.motor)
     if args.mujoco:
@@ -101,11 +104,52 @@ def run(args: argparse.Namespace) -> int:
     if args.urdf:
         from pmdc_ident.exports.urdf import urdf_xml
 
-        Path(args.urdf).write_text(urdf_xml(spec, reduction=args.reduction, joint=args.joint))
+        write_text(args.urdf, urdf_xml(spec, reduction=args.reduction, joint=args.joint))
         print(f"{args.urdf}: URDF joint '{args.joint}' (reduction {args.reduction:g})")
     if args.gains or args.ros2_control:
         return _gains(args, spec)
     return 0
+
+
+def _check_numbers(args: argparse.Namespace) -> None:
+    """Every numeric option inside what a controller or a gear can be (one line each)."""
+    from pmdc_ident.commands._bounds import Bound, check_bounds
+
+    rate = args.sample_rate_hz
+    nyquist = rate / 2 if isinstance(rate, float) and math.isfinite(rate) and rate > 0 else 1e9
+    check_bounds(
+        [
+            (Bound("--sample-rate-hz", 1.0, 1e6, "a controller's loop rate, Hz"), rate),
+            (
+                Bound("--reduction", 0.0, 1e6, "motor turns per joint turn", open_low=True),
+                args.reduction,
+            ),
+            (
+                Bound("--phase-margin-deg", 10.0, 89.0, "a PI loop's phase margin"),
+                args.phase_margin_deg,
+            ),
+            (
+                Bound(
+                    "--speed-bandwidth-hz",
+                    0.0,
+                    nyquist,
+                    "below half the sample rate",
+                    open_low=True,
+                ),
+                args.speed_bandwidth_hz,
+            ),
+            (
+                Bound(
+                    "--current-bandwidth-hz",
+                    0.0,
+                    nyquist,
+                    "below half the sample rate",
+                    open_low=True,
+                ),
+                args.current_bandwidth_hz,
+            ),
+        ]
+    )
 
 
 def _check_outputs(args: argparse.Namespace) -> None:
@@ -150,7 +194,7 @@ def _gains(args: argparse.Namespace, spec: object) -> int:
         from pmdc_ident.exports.urdf import ros2_control_yaml
 
         text = ros2_control_yaml(spec, design, reduction=args.reduction, joint=args.joint)
-        Path(args.ros2_control).write_text(text)
+        write_text(args.ros2_control, text)
         print(f"{args.ros2_control}: ros2_control parameters for '{args.joint}'")
     pr = design.promised
     print(
@@ -190,7 +234,7 @@ def _gains(args: argparse.Namespace, spec: object) -> int:
             for c in checks
         ]
         header = f"# Cascade PI gains written by pmdc-ident export-model for '{spec.name}'.\n"
-        Path(args.gains).write_text(header + yaml.safe_dump(data, sort_keys=False))
+        write_text(args.gains, header + yaml.safe_dump(data, sort_keys=False))
         print(f"{args.gains}: gains and closed-loop checks")
     return 0 if all(c.ok for c in checks) else 1
 

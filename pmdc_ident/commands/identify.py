@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -18,10 +17,8 @@ from typing import Any
 from pmdc_ident.commands._inputs import (
     add_gate_arguments,
     add_unit_arguments,
-    check_ignore,
-    input_json,
-    load_side,
-    prepare_inputs,
+    input_options,
+    make_progress,
 )
 from pmdc_ident.commands.batch import add_batch_arguments, format_table
 from pmdc_ident.commands.outputs import (
@@ -31,16 +28,13 @@ from pmdc_ident.commands.outputs import (
     check_folder_output,
     check_inputs_distinct,
 )
-from pmdc_ident.core.errors import ParameterError
-
-# the first line of a motor file identify writes (as IdentificationResult.write_motor_yaml)
-MOTOR_YAML_HEADER = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
 
 HELP = "identify R, L, Ke, Kt, J, B and friction from recorded runs (CSV or bag)"
 
 # The values of core.estimators.identify.ModelChoice (a test checks they agree): the
 # numerical core is imported by run(), not to build the help (see pmdc_ident.cli).
 MODEL_CHOICES: tuple[str, ...] = ("auto", "linear", "coulomb")
+MAX_BOOTSTRAP = 500  # parametric-bootstrap refits at most
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -107,46 +101,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_batch_arguments(parser)
 
 
-def _added_inertia(items: list[str], data: list[str], runs, segments) -> dict[str, float]:
-    """``DATA=KG_M2`` items to segment labels (segments keep the order of the files)."""
-    per_file: dict[str, float] = {}
-    for item in items:
-        path, sep, value = item.rpartition("=")
-        try:
-            per_file[path] = float(value)
-        except ValueError:
-            per_file[path] = math.nan
-        if not sep or not path or not math.isfinite(per_file[path]):
-            msg = f"--added-inertia expects DATA=KG_M2 (e.g. run2.csv=0.002), got {item!r}"
-            raise ParameterError(msg)
-    out: dict[str, float] = {}
-    start = 0
-    spans = []
-    for path, r in zip(data, runs, strict=True):
-        spans.append((path, segments[start : start + len(r)]))
-        start += len(r)
-    for path, value in per_file.items():
-        if value < 0:
-            msg = f"--added-inertia {path}: must be >= 0 kg*m^2, got {value:g}"
-            raise ParameterError(msg)
-        match = [
-            segs for p, segs in spans if p == path or Path(p).resolve() == Path(path).resolve()
-        ]
-        if not match:
-            msg = f"--added-inertia {path}: not one of the DATA arguments"
-            raise ParameterError(msg)
-        for s in match[0]:
-            out[s.label] = value
-    return out
-
-
 def _outputs(args: argparse.Namespace) -> dict[str, Path | str | None]:
     """The checked --json/--yaml/--report targets (before any work is done)."""
     inputs = list(args.data)
     targets: dict[str, Path | str | None] = {
         "--json": check_file_output("--json", args.json, inputs, suffixes=(".json",)),
         "--yaml": check_file_output("--yaml", args.yaml, inputs, suffixes=(".yaml", ".yml")),
-        "--report": check_folder_output("--report", args.report, inputs),
+        "--report": check_folder_output(
+            "--report", args.report, inputs, writes=("identify.json", "identified_motor.yaml")
+        ),
     }
     check_distinct(targets)
     check_inputs_distinct(args.data)
@@ -154,26 +117,35 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path | str | None]:
 
 
 def _write(path: Path | str, text: str) -> Path:
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text(text)
-    return p
+    from pmdc_ident.core.safe_write import write_text
+
+    return write_text(path, text)
 
 
 def run(args: argparse.Namespace) -> int:
-    check_ignore(args)
+    from pmdc_ident.app import IdentifyOptions
+    from pmdc_ident.app.inputs import check_ignore
+    from pmdc_ident.app.service import check_identify_options, identify_inputs
     from pmdc_ident.core.fixed import parse_fix
 
+    check_ignore(args.ignore)
     fixed = parse_fix(args.fix)
-    if args.bootstrap is not None and args.bootstrap < 0:
-        msg = f"--bootstrap must be >= 0, got {args.bootstrap}"
-        raise ParameterError(msg)
-    if args.closure == "none" and not ({"Kt", "J"} & set(fixed) or args.added_inertia):
-        msg = (
-            "--closure none leaves the scale of (Kt, J, B) unidentifiable from voltage, "
-            "current and speed: give --fix Kt=..., --fix J=... or --added-inertia DATA=KG_M2"
-        )
-        raise ParameterError(msg)
+    from pmdc_ident.commands._bounds import Bound
+
+    Bound("--bootstrap", 0, MAX_BOOTSTRAP, "each refit costs a whole fit", integer=True).check(
+        args.bootstrap
+    )
+    options = input_options(
+        IdentifyOptions,
+        args,
+        fixed,
+        model=args.model,
+        closure=args.closure,
+        bootstrap=args.bootstrap if args.bootstrap is not None else (10 if args.report else 0),
+        holdout_check=not args.no_holdout,
+        added_inertia=tuple(args.added_inertia),
+    )
+    check_identify_options(options)
     if args.batch is not None:
         from pmdc_ident.commands.batch import run_batch
 
@@ -182,37 +154,11 @@ def run(args: argparse.Namespace) -> int:
     to_stdout = STDOUT in targets.values()
     # with a document on standard output, the human-readable report goes to stderr
     text_out = sys.stderr if to_stdout else sys.stdout
-    from pmdc_ident.core.estimators.identify import identify, merge_runs
-    from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
-
-    inputs, report, progress = prepare_inputs(args, text_out, fixed)
-    runs = [x.run for x in inputs]
-    n_boot = args.bootstrap if args.bootstrap is not None else (10 if args.report else 0)
-    segments = merge_runs(runs)
-    added = _added_inertia(args.added_inertia, args.data, runs, segments)
-    result = identify(
-        segments,
-        sources=tuple(r.source for r in runs),
-        fixed=fixed,
-        closure=CLOSURE_KT_KE if args.closure == "Kt=Ke" else None,
-        model=args.model,
-        holdout=not args.no_holdout,
-        bootstrap=n_boot,
-        progress=progress,
-        added_inertia=added,
-        findings=report.findings,
-        expected_rsd=report.expected_rsd,
+    docs = identify_inputs(
+        options, show=lambda line: print(line, file=text_out), progress=make_progress(args)
     )
-    print(result.text_report(), file=text_out)
-    body = result.to_json_dict()
-    body.update(input_json(inputs, report))
-    gear = load_side({k: p.value for k, p in result.parameters.items()}, inputs)
-    if gear:
-        body["load_side"] = gear
-        print("load side: " + gear["note"], file=text_out)
-        values = ", ".join(f"{k} = {v:.6g}" for k, v in gear.items() if k != "note")
-        print(f"  {values}", file=text_out)
-    document = json.dumps(body, indent=2, allow_nan=False) + "\n"
+    result = docs.result
+    document = docs.json_text
     written: list[Path] = []
     json_to, yaml_to, report_to = targets["--json"], targets["--yaml"], targets["--report"]
     if json_to == STDOUT:
@@ -220,16 +166,14 @@ def run(args: argparse.Namespace) -> int:
     elif json_to is not None:
         written.append(_write(json_to, document))
     if yaml_to == STDOUT:
-        from pmdc_ident.core.motors import motor_to_yaml
-
-        print(MOTOR_YAML_HEADER + motor_to_yaml(result.motor_spec("identified")), end="")
+        print(docs.yaml_text, end="")
     elif yaml_to is not None:
         written.append(result.write_motor_yaml(yaml_to))
     if report_to is not None:
         from pmdc_ident.report.plots import write_identify_report
 
         out = Path(report_to)
-        written += write_identify_report(result, segments, out)
+        written += write_identify_report(result, docs.segments, out)
         if json_to is None:
             written.append(_write(out / "identify.json", document))
         if yaml_to is None:

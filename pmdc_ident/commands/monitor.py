@@ -15,6 +15,9 @@ from typing import Any
 
 from pmdc_ident.core.errors import DataError
 
+# what --report DIR writes
+REPORT_FILES = ("drift.csv", "drift.png")
+
 HELP = "replay a bag or CSV through the drift monitor: R, temperature, Ke, friction, delay"
 
 
@@ -53,12 +56,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pmdc_ident.commands._bounds import Bound, check_bounds
     from pmdc_ident.commands.outputs import check_folder_output
     from pmdc_ident.core.drift_monitor import DriftMonitor, MonitorConfig
     from pmdc_ident.core.motors import load_motor
     from pmdc_ident.dataio.units import load_input
 
-    args.report = check_folder_output("--report", args.report, [args.data, args.params])
+    check_bounds(
+        [
+            (
+                Bound("--every", 0.0, 1e9, "seconds between printed lines", open_low=True),
+                args.every,
+            ),
+            *(
+                (
+                    Bound(f"--{name.replace('_', '-')}", 0.0, 1e6, "a drift threshold"),
+                    getattr(args, name),
+                )
+                for name in (
+                    "r_warn",
+                    "r_error",
+                    "ke_warn",
+                    "ke_error",
+                    "friction_warn",
+                    "friction_error",
+                    "delay_warn",
+                    "delay_error",
+                )
+            ),
+        ]
+    )
+    args.report = check_folder_output(
+        "--report", args.report, [args.data, args.params], writes=REPORT_FILES
+    )
 
     spec = load_motor(args.params)
     # read as identify and diagnose read it (units sidecar, the assumption register's
@@ -171,7 +201,10 @@ def _write_report(out: Path, reports: list) -> None:
             row += [q.value, q.ci95]
         rows.append(row)
     arr = np.array(rows)
-    np.savetxt(out / "drift.csv", arr, delimiter=",", header=",".join(header), comments="")
+    from pmdc_ident.core.safe_write import atomic_path, save_figure
+
+    with atomic_path(out / "drift.csv") as tmp:
+        np.savetxt(tmp, arr, delimiter=",", header=",".join(header), comments="")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -192,5 +225,5 @@ def _write_report(out: Path, reports: list) -> None:
     axes[-1].set_yticks([0, 1, 2], ["OK", "WARN", "ERROR"])
     axes[-1].set_xlabel("t s")
     fig.tight_layout()
-    fig.savefig(out / "drift.png", dpi=90)
+    save_figure(fig, out / "drift.png", dpi=90)
     plt.close(fig)

@@ -4,8 +4,10 @@ Checked before any work starts, so a bad output path costs the user nothing:
 
 * ``-`` names standard output (for options that write one document: JSON,
   YAML, CSV); everything else is a path.
-* An output never replaces an input (a ``DATA`` file, or a file inside a
-  ``DATA`` bag folder), whatever spelling or link leads to it.
+* An output never replaces an input (a ``DATA`` file, a file inside a ``DATA``
+  bag folder, a motor file the command reads), whatever spelling or link leads
+  to it, and never takes an input's sidecar name (``RUN.csv.yaml``); a folder
+  output is checked for each file the command writes into it.
 * The folder an output goes into must exist: a mistyped folder is an error,
   not a tree of new folders (``--report DIR`` itself is created, its parent
   must exist).
@@ -15,7 +17,6 @@ Checked before any work starts, so a bad output path costs the user nothing:
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -37,29 +38,51 @@ class OutputError(PmdcError):
     """An output option names a place the command must not or cannot write."""
 
 
-def _same_file(a: Path, b: Path) -> bool:
+Reads = Sequence["str | Path | tuple[str | Path, str]"]
+
+
+def reads_of(inputs: Reads) -> list[tuple[str | Path, str]]:
+    """(path, description) of what a command reads: a bare path is "the input PATH"."""
+    out: list[tuple[str | Path, str]] = []
+    for item in inputs:
+        if isinstance(item, tuple):
+            out.append(item)
+        else:
+            out.append((item, f"the input {item}"))
+    return out
+
+
+def _bag_holding(path: Path) -> Path | None:
+    """The rosbag2 folder (``metadata.yaml`` and an ``.mcap``) ``path`` lies inside, if any:
+    a recording no command writes into, whether it reads it or not."""
     try:
-        return a.exists() and b.exists() and os.path.samefile(a, b)
-    except OSError:
-        return False
+        folder = path.resolve().parent
+    except (OSError, RuntimeError):
+        return None
+    for p in (folder, *folder.parents):
+        try:
+            if (p / "metadata.yaml").is_file() and any(p.glob("*.mcap")):
+                return p
+        except OSError:
+            return None
+    return None
 
 
-def _inside(path: Path, folder: Path) -> bool:
-    try:
-        path.resolve().relative_to(folder.resolve())
-    except (ValueError, OSError):
-        return False
-    return True
+def _check_not_input(option: str, path: Path, inputs: Reads) -> None:
+    """The one test (``core.safe_write.conflict``): not an input, not inside a bag
+    folder that is one, not an input's sidecar name."""
+    from pmdc_ident.core.safe_write import conflict, sidecar_owner
 
-
-def _check_not_input(option: str, path: Path, inputs: Sequence[str | Path]) -> None:
-    for src in map(Path, inputs):
-        if _same_file(path, src) or path.resolve() == src.resolve():
-            msg = f"{option} {path}: that is the input {src}; refusing to write over an input"
-            raise OutputError(msg)
-        if src.is_dir() and _inside(path, src):
-            msg = f"{option} {path}: inside the input folder {src}; write outside the bag"
-            raise OutputError(msg)
+    why = conflict(path, reads_of(inputs))
+    owner = sidecar_owner(path)
+    if why is None and owner is not None:
+        why = f"that is the sidecar name of the recording {owner} (its units, read on every run)"
+    bag = _bag_holding(path)
+    if why is None and bag is not None:
+        why = f"that is inside the bag folder {bag} (a recording; write outside it)"
+    if why is not None:
+        msg = f"{option} {path}: {why}; refusing to write over an input (choose another name)"
+        raise OutputError(msg)
 
 
 def _check_parent(option: str, path: Path) -> None:
@@ -75,7 +98,7 @@ def _check_parent(option: str, path: Path) -> None:
 def check_file_output(
     option: str,
     value: str | None,
-    inputs: Sequence[str | Path],
+    inputs: Reads,
     *,
     suffixes: tuple[str, ...] = (),
     stdout_ok: bool = True,
@@ -101,18 +124,30 @@ def check_file_output(
         raise OutputError(msg)
     _check_parent(option, path)
     _check_not_input(option, path, inputs)
+    if path.is_symlink():
+        from pmdc_ident.core.safe_write import WriteRefusedError, refuse_link
+
+        try:
+            refuse_link(path, path.resolve(), option)
+        except WriteRefusedError as exc:
+            raise OutputError(str(exc)) from None
+        _check_not_input(option, path.resolve(), inputs)
     return path
 
 
 def check_folder_output(
     option: str,
     value: str | Path | None,
-    inputs: Sequence[str | Path],
+    inputs: Reads,
     *,
     must_be_new: bool = False,
     file_suffixes: tuple[str, ...] = (".csv", ".txt", ".json", ".yaml", ".yml", ".html"),
+    writes: Sequence[str] = (),
 ) -> Path | None:
-    """The checked target of a folder option (``--report DIR``, ``--bag OUTDIR``)."""
+    """The checked target of a folder option (``--report DIR``, ``--bag OUTDIR``).
+
+    ``writes``: the names of the files the command will write into it; none of them
+    may be an input (``monitor X/drift.csv --report X`` would replace its input)."""
     if value is None:
         return None
     if not str(value).strip():
@@ -132,10 +167,9 @@ def check_folder_output(
         msg = f"{option} {path}: names a folder to create, not a {path.suffix} file"
         raise OutputError(msg)
     _check_parent(option, path)
-    for src in map(Path, inputs):
-        if path.resolve() == src.resolve() or _same_file(path, src) or _inside(path, src):
-            msg = f"{option} {path}: that is the input {src}; refusing to write into an input"
-            raise OutputError(msg)
+    _check_not_input(option, path, inputs)
+    for name in writes:
+        _check_not_input(option, path / name, inputs)
     return path
 
 

@@ -16,9 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -129,20 +127,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    """Write ``text`` under ``path`` only once it is complete (temp file + rename)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _prior(args: argparse.Namespace, fixed: dict[str, float], dt: float):  # type: ignore[no-untyped-def]
     from dataclasses import replace
 
@@ -183,9 +167,10 @@ def _identified(args: argparse.Namespace, fixed: dict[str, float]):  # type: ign
     """The motor identified from a recorded pre-test (identify's pipeline)."""
     from pmdc_ident.core.estimators.identify import identify, merge_runs
     from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
-    from pmdc_ident.dataio import load_data
+    from pmdc_ident.dataio.units import load_input
 
-    run = load_data(args.motor)
+    # read as identify reads it: its sidecar's units and columns apply
+    run = load_input(args.motor).run
     result = identify(
         merge_runs([run]), fixed=fixed, closure=CLOSURE_KT_KE, holdout=False, frequency=False
     )
@@ -201,14 +186,34 @@ def _identified(args: argparse.Namespace, fixed: dict[str, float]):  # type: ign
 
 
 def run(args: argparse.Namespace) -> int:
+    from pmdc_ident.commands._bounds import Bound, check_bounds
     from pmdc_ident.commands.outputs import check_distinct, check_file_output
     from pmdc_ident.core.design import parse_target, plan_csv_text, plan_experiment, session_limits
     from pmdc_ident.core.enums import SafeMode
     from pmdc_ident.core.fixed import parse_fix
+    from pmdc_ident.core.safe_write import write_text  # atomic; never over what was read
 
     if not (math.isfinite(args.rate_hz) and 0 < args.rate_hz <= 1e6):
         msg = f"--rate-hz must lie in (0, 1e6], got {args.rate_hz}"
         raise ParameterError(msg)
+    # one line before any work: a negative margin let the plan run past the travel range
+    check_bounds(
+        [
+            (Bound("--start-rad", -1e9, 1e9, "the joint's angle at the start"), args.start_rad),
+            (
+                Bound("--travel-margin-rad", 0.0, 1e9, "kept from each end of the travel"),
+                args.travel_margin_rad,
+            ),
+            (Bound("--current-noise", 0.0, 1e6, "the current's sd, A"), args.current_noise),
+            (Bound("--speed-noise", 0.0, 1e9, "the speed's sd, rad/s"), args.speed_noise),
+            (
+                Bound(
+                    "--counts-per-rev", 0.0, 1e12, "encoder counts per revolution", open_low=True
+                ),
+                args.counts_per_rev,
+            ),
+        ]
+    )
     for name in ("voltage_max", "current_max", "speed_max", "heat_a2s", "budget_s"):
         v = getattr(args, name)
         if v is not None and not (math.isfinite(v) and v > 0):
@@ -251,7 +256,7 @@ def run(args: argparse.Namespace) -> int:
         text = plan_csv_text(
             plan, [f"pmdc-ident plan --pretest for {args.motor} at {args.rate_hz:g} Hz"]
         )
-        _atomic_write(Path(targets["--pretest"]), text)
+        write_text(Path(targets["--pretest"]), text, option="--pretest")
         print(
             f"pre-test: {len(plan.segments)} segments, {plan.duration_s:.3g} s "
             f"({', '.join(s.label for s in plan.segments)}); play it, log current and "
@@ -288,7 +293,7 @@ def run(args: argparse.Namespace) -> int:
             "position or speed beside t and segment, then: pmdc-ident identify LOG.csv",
         ]
         path = Path(targets["--csv"])
-        _atomic_write(path, plan_csv_text(designed.plan, comments))
+        write_text(path, plan_csv_text(designed.plan, comments), option="--csv")
         written.append(path)
     if targets["--json"] is not None:
         text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
@@ -296,7 +301,7 @@ def run(args: argparse.Namespace) -> int:
             print(text, end="")
         else:
             path = Path(targets["--json"])
-            _atomic_write(path, text)
+            write_text(path, text, option="--json")
             written.append(path)
     for p in written:
         print(f"wrote {p}")

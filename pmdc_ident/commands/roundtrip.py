@@ -17,8 +17,8 @@ from pathlib import Path
 from pmdc_ident.commands._inputs import (
     add_gate_arguments,
     add_unit_arguments,
-    check_ignore,
-    prepare_inputs,
+    input_options,
+    make_progress,
 )
 from pmdc_ident.commands.outputs import (
     STDOUT,
@@ -29,6 +29,7 @@ from pmdc_ident.commands.outputs import (
 )
 from pmdc_ident.core.effects import DEFAULT_CANDIDATES
 from pmdc_ident.core.errors import ParameterError, PmdcError
+from pmdc_ident.core.safe_write import write_text
 
 HELP = (
     "diagnose a recorded run, export it to MuJoCo with the diagnosis, replay the recorded "
@@ -73,15 +74,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_ignore(args)
-    from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
+    from dataclasses import replace
+
+    from pmdc_ident.app import DiagnoseOptions
+    from pmdc_ident.app.service import check_diagnose_options, diagnose_inputs
     from pmdc_ident.core.fixed import parse_fix
     from pmdc_ident.core.params import PARAMETER_NAMES
 
-    effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
-    if not effects:
-        msg = "--effects lists no effect"
-        raise ParameterError(msg)
+    options = input_options(
+        DiagnoseOptions,
+        args,
+        {},
+        holdout=tuple(args.holdout),
+        effects=tuple(e.strip() for e in args.effects.split(",") if e.strip()),
+    )
+    check_diagnose_options(options)
     if not 1 <= args.substeps <= 2000:
         msg = f"--substeps must lie in [1, 2000] MuJoCo steps per sample, got {args.substeps}"
         raise ParameterError(msg)
@@ -101,14 +108,12 @@ def run(args: argparse.Namespace) -> int:
         raise PmdcError(msg) from None
     json_to, mjcf_to = targets["--json"], targets["--mujoco-dir"]
     text_out = sys.stderr if json_to == STDOUT else sys.stdout
-    config = DiagnosisConfig(
-        holdout=tuple(args.holdout),
-        effects=effects,
-        fixed=parse_fix(args.fix, known=PARAMETER_NAMES),
+    progress = make_progress(args)
+    options = replace(options, fixed=parse_fix(args.fix, known=PARAMETER_NAMES))
+    docs = diagnose_inputs(
+        options, show=lambda line: print(line, file=text_out), progress=progress
     )
-    inputs, _report, progress = prepare_inputs(args, text_out, dict(config.fixed))
-    result = diagnose([x.run for x in inputs], config=config, progress=progress)
-    print("\n".join(result.summary_lines()[:2]), file=text_out)
+    result = docs.result
     progress("round trip: the held-out segments replayed in MuJoCo")
     from pmdc_ident.exports.roundtrip import round_trip
 
@@ -118,13 +123,13 @@ def run(args: argparse.Namespace) -> int:
         folder = Path(mjcf_to)
         folder.mkdir(exist_ok=True)
         for name, text in zip(MJCF_FILES, (trip.xml_plain, trip.xml_diagnosed), strict=True):
-            (folder / name).write_text(text)
+            write_text(folder / name, text)
             print(f"wrote {folder / name}", file=text_out)
     if json_to is not None:
         document = json.dumps(trip.to_json(), indent=2) + "\n"
         if json_to == STDOUT:
             print(document, end="")
         else:
-            Path(json_to).write_text(document)
+            write_text(json_to, document)
             print(f"wrote {json_to}", file=text_out)
     return 0

@@ -25,6 +25,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import ParameterError
 
 HELP = "run a simulated motor driver board on a pseudo-terminal (serial protocol v1)"
@@ -255,7 +256,7 @@ def _run_emulated(args: argparse.Namespace, spec: Any) -> int:
         stats = board.stats() or {}
         if crashed:
             print(f"emulated board ended unexpectedly (exit status {status})", file=sys.stderr)
-            return 1
+            return ExitCode.FAILED
         rt = stats.get("realtime", {})
         print(
             f"emulated board stopped ({stats.get('sim_s', 0.0):.1f} s of board time, "

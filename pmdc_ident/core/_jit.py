@@ -52,6 +52,9 @@ KERNEL_SOURCES = (
     "core/drift_estimator.py",
     "core/design/information.py",
     "dataio/mcap_scan.py",
+    "dataio/csv_scan.py",
+    "core/segmentation.py",
+    "dataio/outliers.py",
     "benchmark/plant.py",
 )
 #: modules whose constants the kernels freeze when compiled (the slots they read): part

@@ -240,6 +240,7 @@ class Segment:
             if self.voltage is not None:
                 before = self.voltage[:start]
                 hist_v = before if hist_v is None else np.concatenate([hist_v, before])
+                hist_v = _recent(hist_v, self.dt_s)
             heat = self.driven_heat_a2s(start + 1)
             if heat is not None:
                 ages, a2s = _heat_blocks(self, start + 1, float(self.t[start]))
@@ -337,7 +338,7 @@ def link_history(segments: Sequence[Segment]) -> tuple[Segment, ...]:
                     prev.voltage,
                 ]
             )
-            hist_v = np.concatenate(parts)
+            hist_v = _recent(np.concatenate(parts), seg.dt_s)
         hist_q, hist_p = None, None
         heat = prev.driven_heat_a2s()
         if heat is not None and seg.current is not None:
@@ -415,6 +416,17 @@ def _profile_blocks(seg: Segment, shift_s: float) -> tuple[FloatArray, FloatArra
 
 
 HEAT_PROFILE_BINS = 192  # geometric bins in age: a few % wide, fine for any tau
+
+# Commands kept as a segment's history: they fill a delay line (delay <= 1 s, a lag
+# <= 1 s: after 10 lag times the older commands weigh < 5e-5). Keeping every command
+# before every segment made the history quadratic in the length of a record.
+HISTORY_S = 12.0
+
+
+def _recent(history: FloatArray, dt_s: float) -> FloatArray:
+    """The last :data:`HISTORY_S` seconds of commands of ``history``."""
+    keep = int(math.ceil(HISTORY_S / dt_s)) if dt_s > 0 else history.size
+    return history[-keep:] if history.size > keep else history
 
 
 def _profile(ages_s: FloatArray, a2s: FloatArray, dt_s: float) -> FloatArray | None:

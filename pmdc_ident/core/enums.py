@@ -3,15 +3,16 @@
 One place for the enums several layers use, so that none of them has to import a
 layer above it: the serial protocol (:mod:`pmdc_ident.protocol`) and every backend
 (:mod:`pmdc_ident.backends`) carry :class:`Fault` bits, the driver and the session
-make the motor safe the :class:`SafeMode` way, and a session that stops early says
-why with an :class:`AbortReason`.
+make the motor safe the :class:`SafeMode` way, a session that stops early says
+why with an :class:`AbortReason`, and every program of the package (``pmdc-ident``,
+the nodes, the bring-up, the demo) ends with an :class:`ExitCode`.
 """
 
 from __future__ import annotations
 
 import enum
 
-__all__ = ["AbortReason", "Fault", "SafeMode"]
+__all__ = ["AbortReason", "ExitCode", "Fault", "SafeMode"]
 
 
 class SafeMode(enum.Enum):
@@ -50,3 +51,17 @@ class AbortReason(enum.Enum):
     INTERRUPTED = "interrupted"
     DRIVER_FAULT = "driver_fault"
     OUT_OF_TRAVEL = "out_of_travel"  # the measured position left the joint's travel range
+
+
+class ExitCode(enum.IntEnum):
+    """The exit statuses of every program of the package (``docs/reference.md`` §4).
+
+    An ``IntEnum``: a status is returned and passed to ``sys.exit`` as it is, and a
+    process's return code compares equal to its member.
+    """
+
+    OK = 0
+    FAILED = 1  # a bug of ours (one line), or a job that did not keep its promise
+    USER_ERROR = 2  # one line: bad option, input or parameter; refused before anything moved
+    ABORTED = 3  # a session stopped by an abort (a tripped limit, a lost peer)
+    INTERRUPTED = 130  # Ctrl-C or a signal cut the job short (128 + SIGINT)

@@ -124,6 +124,10 @@ def load_motor(name_or_path: str | Path) -> MotorSpec:
     elif not path.is_file():
         msg = f"no motor file {text!r} (built-in motors: {', '.join(BUILTIN_MOTORS)})"
         raise ParameterError(msg)
+    else:
+        from pmdc_ident.core.safe_write import protect
+
+        protect([path], "the motor file")  # never an output of the command reading it
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
@@ -137,7 +141,16 @@ def load_motor(name_or_path: str | Path) -> MotorSpec:
 
 def motor_from_mapping(data: Any, source: str = "motor") -> MotorSpec:
     if not isinstance(data, dict) or "parameters" not in data:
-        msg = f"{source}: a motor file needs a 'parameters' mapping (R, L, Ke, Kt, J, B)"
+        what = (
+            "a recording, not a motor file"
+            if str(source).lower().endswith((".csv", ".txt", ".mcap"))
+            else "not a motor file"
+        )
+        msg = (
+            f"{source}: {what}: a motor file needs a 'parameters' mapping (R, L, Ke, Kt, J, B), "
+            "as `pmdc-ident identify --yaml` writes it; or give a built-in motor "
+            f"({', '.join(BUILTIN_MOTORS)})"
+        )
         raise ParameterError(msg)
     try:
         params = MotorParams.from_mapping(data["parameters"])

@@ -28,7 +28,11 @@ from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec, motor_to_yaml
 from pmdc_ident.core.schema import SCHEMA_VERSION
 
+# the first line of every motor file identify writes (command line and node alike)
+MOTOR_YAML_HEADER = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
+
 __all__ = [
+    "MOTOR_YAML_HEADER",
     "IdentificationResult",
     "format_polynomial",
     "transfer_function_dict",
@@ -188,10 +192,9 @@ class IdentificationResult:
         )
 
     def write_json(self, path: str | Path) -> Path:
-        p = Path(path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(self.to_json_dict(), indent=2, allow_nan=False) + "\n")
-        return p
+        from pmdc_ident.core.safe_write import write_text
+
+        return write_text(path, json.dumps(self.to_json_dict(), indent=2, allow_nan=False) + "\n")
 
     def motor_spec(self, name: str = "identified") -> MotorSpec:
         """The identified motor as a motor file: a value the fit ran outside the physical
@@ -213,12 +216,16 @@ class IdentificationResult:
             f"({self.model_kind} model){note}",
         )
 
+    def motor_yaml(self, name: str = "identified") -> str:
+        """The motor file of the identified motor (:data:`MOTOR_YAML_HEADER` first), as
+        ``pmdc-ident identify --yaml`` and the identification node write it."""
+        return MOTOR_YAML_HEADER + motor_to_yaml(self.motor_spec(name))
+
     def write_motor_yaml(self, path: str | Path, name: str | None = None) -> Path:
+        from pmdc_ident.core.safe_write import write_text
+
         p = Path(path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        header = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
-        p.write_text(header + motor_to_yaml(self.motor_spec(name or p.stem)))
-        return p
+        return write_text(p, self.motor_yaml(name or p.stem))
 
 
 def _in_range(model: Model) -> tuple[Model, str]:

@@ -25,13 +25,15 @@ history; the labels can be passed to ``diagnose --holdout``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from pmdc_ident.core.data import Run, Segment, link_history
+from pmdc_ident.core._jit import njit
+from pmdc_ident.core.data import HISTORY_S, Run, Segment, link_history
 from pmdc_ident.core.quality.timing import time_constants_s
 
 __all__ = [
@@ -116,24 +118,34 @@ def _tolerance(x: FloatArray) -> float:
     return max(6.0 * noise, 0.01 * float(np.ptp(finite)), 1e-12)
 
 
-def _holds(x: FloatArray, tol: float) -> list[tuple[int, int]]:
-    """Runs of one value: each ends where the command leaves its first sample by ``tol``."""
-    out: list[tuple[int, int]] = []
-    start, n = 0, x.size
-    window = 64
+@njit
+def _hold_ends(x, tol, ends):  # pragma: no cover - jitted
+    """End index of each hold of ``x`` into ``ends``; their number."""
+    n = x.size
+    m = 0
+    start = 0
     while start < n:
         ref = x[start]
         k = start + 1
-        stop = n
-        while k < n:
-            chunk = np.abs(x[k : k + window] - ref) > tol
-            if chunk.any():
-                stop = k + int(np.argmax(chunk))
-                break
-            k += window
-        out.append((start, stop))
-        start = stop
-    return out
+        while k < n and abs(x[k] - ref) <= tol:
+            k += 1
+        ends[m] = k
+        m += 1
+        start = k
+    return m
+
+
+def _holds(x: FloatArray, tol: float) -> list[tuple[int, int]]:
+    """Runs of one value: each ends where the command leaves its first sample by ``tol``.
+
+    One compiled pass (a chirp is a hold per sample: a Python loop per hold made the
+    automatic segmentation of a 3.7 M-sample log take minutes)."""
+    if x.size == 0:
+        return []
+    ends = np.empty(x.size, dtype=np.int64)
+    m = _hold_ends(np.ascontiguousarray(x, dtype=np.float64), float(tol), ends)
+    stops = ends[:m].tolist()
+    return list(zip([0, *stops[:-1]], stops, strict=True))
 
 
 def _classify_active(x: FloatArray, tol: float) -> str:
@@ -248,7 +260,7 @@ def long_hold(parts: Sequence[Segment]) -> int:
                     lengths += [b - a for a, b in _holds(x[lo:hi], tol)]
     third = sorted(lengths)[-3] if len(lengths) >= 3 else max(lengths)
     # a step must last long enough for the speed to settle (3 mechanical time constants)
-    _, tau_m = time_constants_s(list(parts))
+    _, tau_m = time_constants_s([w for seg in parts for w in _windows(seg)])
     settle = 3.0 * tau_m / parts[0].dt_s if tau_m else 0.0
     return max(_MIN_HOLD, int(_LONG_SHARE * third), int(settle))
 
@@ -271,6 +283,19 @@ def find_segments(seg: Segment, hold: int | None = None) -> list[Piece]:
             after_open = lo > 0
             raw += _driven_pieces(x[lo:hi], w[lo:hi], int(lo), after_open, long_hold_)
     return _numbered(_merge_short(raw))
+
+
+_WINDOWS, _WINDOW = 8, 25_000  # samples: the time constants of a long log from its windows
+
+
+def _windows(seg: Segment) -> list[Segment]:
+    """``[seg]``, or for a long record evenly spaced windows of it (the time constants are
+    properties of the motor: a regression over every sample of an hour-long log cost
+    seconds for the same value)."""
+    if seg.n <= _WINDOWS * _WINDOW:
+        return [seg]
+    starts = [round(k * (seg.n - _WINDOW) / (_WINDOWS - 1)) for k in range(_WINDOWS)]
+    return [_piece(seg, a, a + _WINDOW, f"{seg.label}.w{k}") for k, a in enumerate(starts)]
 
 
 def _merge_short(raw: list[tuple[int, int, str, float]]) -> list[tuple[int, int, str, float]]:
@@ -315,15 +340,47 @@ def segment_run(run: Run) -> tuple[Run, list[str]]:
     lines: list[str] = []
     for part, pieces in found:
         _, unit = _command(part)
-        cut: list[Segment] = []
+        numbered: list[Piece] = []
         for p in pieces or [Piece(0, part.n, "excitation_0", float("nan"))]:
             kind = p.label.rsplit("_", 1)[0]
             count[kind] = count.get(kind, 0) + 1
-            q = replace(p, label=f"{kind}_{count[kind]}")
-            cut.append(part.slice(q.start, q.stop, label=q.label))
-            lines.append(q.describe(part, unit))
-        segs += link_history(cut)  # within one run; the runs stay separate
+            numbered.append(replace(p, label=f"{kind}_{count[kind]}"))
+            lines.append(numbered[-1].describe(part, unit))
+        segs += _cut(part, numbered)  # within one run; the runs stay separate
     return Run(tuple(segs), source=run.source), lines
+
+
+def _cut(seg: Segment, pieces: Sequence[Piece]) -> list[Segment]:
+    """``seg`` cut into ``pieces``, each continuing the one before it.
+
+    ``link_history`` gives each piece the history of the piece before (its commands and
+    heat), linear in the record; ``Segment.slice`` would sum the whole record before each
+    piece (quadratic on a long log)."""
+    segs = [seg.slice(pieces[0].start, pieces[0].stop, label=pieces[0].label)]
+    segs += [_piece(seg, p.start, p.stop, p.label) for p in pieces[1:]]
+    linked = list(link_history(segs))
+    if seg.voltage is not None and seg.history_voltage is None:
+        # the commands before each piece as a view of the record's own (no copy per piece)
+        keep = int(math.ceil(HISTORY_S / seg.dt_s))
+        for k, p in enumerate(pieces[1:], start=1):
+            if linked[k].history_voltage is not None:
+                view = seg.voltage[max(0, p.start - keep) : p.start]
+                linked[k] = replace(linked[k], history_voltage=view)
+    return linked
+
+
+def _piece(seg: Segment, start: int, stop: int, label: str) -> Segment:
+    """Samples ``start:stop`` of ``seg`` without history (``link_history`` adds it)."""
+    names = ("t", "voltage", "current", "position", "speed", "terminal_voltage")
+    arrays = {n: (None if getattr(seg, n) is None else getattr(seg, n)[start:stop]) for n in names}
+    return replace(
+        seg,
+        label=label,
+        history_voltage=None,
+        history_heat_a2s=None,
+        history_heat_profile=None,
+        **arrays,
+    )
 
 
 def contiguous_pieces(

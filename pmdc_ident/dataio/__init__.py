@@ -21,10 +21,13 @@ def load_data(
     ``columns`` and ``scale`` (CSV only, see :func:`~pmdc_ident.dataio.csvio.read_csv`)
     map schema names to the file's own headers and multiply columns to SI.
     """
+    from pmdc_ident.core.safe_write import protect
+
     p = Path(path)
     if not p.exists():
         msg = f"{p}: no such file or directory"
         raise DataError(msg)
+    protect([p])  # what a command reads, it never writes (core.safe_write)
     if p.is_dir() or p.suffix.lower() == ".mcap":
         if columns or scale:
             msg = f"{p}: --column and unit scales apply to CSV files only (a bag is in SI)"
@@ -36,5 +39,21 @@ def load_data(
         from pmdc_ident.dataio.csvio import read_csv
 
         return read_csv(p, columns=columns, scale=scale)
-    msg = f"{p}: unknown data format (expected .csv, .mcap or a rosbag2 directory)"
+    if p.suffix.lower() in (".xlsx", ".xls", ".ods", ".numbers"):
+        msg = (
+            f"{p}: a spreadsheet, not a CSV file: save it as CSV (comma-separated values, "
+            "a header line naming the columns t, voltage, current, position/speed)"
+        )
+        raise DataError(msg)
+    if p.suffix.lower() in (".db3", ".bag"):
+        kind = "a ROS 1 bag" if p.suffix.lower() == ".bag" else "a sqlite3 rosbag2 file"
+        msg = (
+            f"{p}: {kind}; pmdc_ident reads rosbag2 MCAP bags: convert it (ros2 bag convert "
+            "to storage mcap, or rosbags-convert) or export it as CSV"
+        )
+        raise DataError(msg)
+    msg = (
+        f"{p}: unknown data format {p.suffix or '(no suffix)'} (expected a .csv or .txt "
+        "file, an .mcap file or a rosbag2 directory)"
+    )
     raise DataError(msg)

@@ -29,7 +29,7 @@ import math
 import struct
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -43,12 +43,14 @@ from pmdc_ident.core.session import Marker, MarkerEvent
 __all__ = [
     "BagWriter",
     "DriverArrays",
+    "RecordingState",
     "TOPIC_TYPES",
     "assemble_run",
     "header_stamp_ns",
     "parse_joint_state",
     "read_bag",
     "read_driver_arrays",
+    "recording_state",
     "write_bag",
 ]
 
@@ -140,33 +142,226 @@ class DriverArrays:
     voltage_v: FloatArray
     terminal_v: FloatArray | None
     markers: list[Marker]
+    # what reading left out (a truncated file), one line each
+    notes: list[str] = field(default_factory=list)
 
 
-def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = None) -> Run:
-    """Join the driver topics on their stamps and cut the session's segments.
+@dataclass(frozen=True)
+class RecordingState:
+    """How whole a recording is: what :func:`assemble_run` read and what it left out.
 
-    Samples missing from any topic are dropped. With ``session`` given only that
-    session's markers are used (default: every session in the data). Times are
-    seconds from the first session start (or the first sample without markers).
+    ``interrupted``: why the session did not end normally ('' when it did);
+    ``truncated``: the file was cut (its recorder never closed it) - what was lost;
+    ``left_out``: segments cut short (a start marker without an end), never read;
+    ``join``: how the topics were joined (a topic at another rate, samples missing on
+    one topic). ``complete`` is True only when none of these applies.
+    """
+
+    source: str
+    segments: tuple[str, ...]
+    left_out: tuple[str, ...] = ()
+    interrupted: str = ""
+    truncated: str = ""
+    join: tuple[str, ...] = ()
+    missing_samples: int = 0
+
+    @property
+    def complete(self) -> bool:
+        return not (self.interrupted or self.truncated or self.left_out or self.missing_samples)
+
+    def lines(self, *, truncation: bool = True) -> list[str]:
+        """One line per way the recording is not whole (none when it is). A truncated
+        file's line says it all (where the samples end, what was cut short); the
+        reader also logs it (``pmdc_ident.bag``): ``truncation=False`` leaves it out."""
+        out = []
+        if self.truncated:
+            out += [self.truncated] if truncation else []
+        elif self.interrupted:
+            out.append(f"{self.source}: the session was interrupted ({self.interrupted})")
+        if self.left_out and not self.truncated:
+            out.append(
+                f"{self.source}: segment(s) {', '.join(repr(s) for s in self.left_out)} "
+                "cut short: left out (not fitted, checked or exported)"
+            )
+        out += [f"{self.source}: {j}" for j in self.join]
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "complete": self.complete,
+            "interrupted": self.interrupted or None,
+            "truncated": self.truncated or None,
+            "segments": list(self.segments),
+            "segments_left_out": list(self.left_out),
+            "missing_samples": self.missing_samples,
+            "join": list(self.join),
+        }
+
+
+_STATES: dict[str, RecordingState] = {}
+
+
+def recording_state(source: str | Path) -> RecordingState | None:
+    """The :class:`RecordingState` of the last :func:`assemble_run` of ``source`` in this
+    process (None for a source never assembled, such as a CSV file)."""
+    return _STATES.get(_state_key(source))
+
+
+def _state_key(source: str | Path) -> str:
+    return str(Path(source)) if str(source) else ""
+
+
+def _period(ns: IntArray) -> int:
+    return int(np.median(np.diff(ns))) if ns.size > 2 else 0
+
+
+def _join(
+    arrays: DriverArrays, source: str
+) -> tuple[IntArray, dict[str, FloatArray | None], list[str], int]:
+    """The driver topics joined on their stamps: (stamps, columns, notes, samples missing).
+
+    Topics at one rate are joined on the stamps they share (a stamp missing on one
+    topic is a hole the fit steps over as a gap, and said here). A topic at a lower
+    rate is never allowed to thin the others out silently:
+
+    * a measured topic (``current`` or ``encoder``) at a lower rate sets the grid: the
+      run is joined on its stamps, the other measured topic taken at them
+      (interpolated where it has no sample there) and the applied voltage *averaged*
+      over each interval of the grid (its volt-seconds kept, so the model's
+      zero-order hold sees the voltage the motor got; taking one held value per
+      interval instead shifts every edge by up to a sample: R +4 %, J -4 %, outside
+      their intervals, on a seed-000 session with every other current sample);
+    * ``voltage_applied`` alone at a lower rate is held between its samples (the
+      command changes only when it is published).
+
+    Either way a note names the rates and what was done.
     """
     enc_ns = np.asarray(arrays.encoder_ns, dtype=np.int64)
     v_ns = np.asarray(arrays.voltage_ns, dtype=np.int64)
-    stamps, ie, iv = np.intersect1d(enc_ns, v_ns, assume_unique=False, return_indices=True)
-    have_current = arrays.current_ns.size > 0
-    ic = None
-    if have_current:
-        stamps, keep, ic = np.intersect1d(
-            stamps, np.asarray(arrays.current_ns, dtype=np.int64), return_indices=True
+    c_ns = np.asarray(arrays.current_ns, dtype=np.int64)
+    topics = {"encoder": enc_ns, "voltage_applied": v_ns}
+    if c_ns.size:
+        topics["current"] = c_ns
+    periods = {k: _period(v) for k, v in topics.items()}
+    fast = min((p for p in periods.values() if p > 0), default=0)
+    slow = {k for k, p in periods.items() if fast and p > 1.5 * fast}
+    if len(slow) == len(topics):
+        slow = set()
+    measured_slow = sorted(slow - {"voltage_applied"})
+    notes: list[str] = []
+    if measured_slow:
+        grid_topics = measured_slow
+    else:
+        grid_topics = [k for k in topics if k not in slow]
+    stamps = topics[grid_topics[0]]
+    union = stamps
+    for k in grid_topics[1:]:
+        stamps = np.intersect1d(stamps, topics[k])
+        union = np.union1d(union, topics[k])
+    stamps = np.unique(stamps)
+    # a hole is a stamp inside every grid topic's span that one of them lacks (where a
+    # truncated file ends the topics one sample apart, nothing is missing)
+    first = max(int(topics[k].min()) for k in grid_topics)
+    last = min(int(topics[k].max()) for k in grid_topics)
+    union = union[(union >= first) & (union <= last)]
+    missing = int(union.size - np.count_nonzero((stamps >= first) & (stamps <= last)))
+    if missing:
+        per = {k: int(np.setdiff1d(union, topics[k]).size) for k in grid_topics}
+        which = ", ".join(f"{k} {n}" for k, n in per.items() if n)
+        notes.append(
+            f"{missing} driver sample(s) are missing on some topic ({which}): those stamps "
+            "are holes the fit steps over (gaps)"
         )
-        ie, iv = ie[keep], iv[keep]
+    others = [k for k in topics if k not in grid_topics]
+    for k in others:  # the grid within every other topic's span
+        ns = topics[k]
+        if ns.size:
+            stamps = stamps[(stamps >= ns.min()) & (stamps <= ns.max())]
     if stamps.size < 2:
         msg = f"{source or 'data'}: fewer than 2 driver samples with matching stamps"
         raise DataError(msg)
-    pos = None if arrays.position_rad is None else np.asarray(arrays.position_rad, float)[ie]
-    spd = None if arrays.speed_rad_s is None else np.asarray(arrays.speed_rad_s, float)[ie]
-    volt = np.asarray(arrays.voltage_v, dtype=float)[iv]
-    term = None if arrays.terminal_v is None else np.asarray(arrays.terminal_v, float)[iv]
-    cur = np.asarray(arrays.current_a, dtype=float)[ic] if ic is not None else None
+    if measured_slow:
+        rate = 1e9 / periods[measured_slow[0]]
+        what = ", ".join(repr(k) for k in measured_slow)
+        fast_ones = ", ".join(repr(k) for k in topics if k not in slow)
+        notes.append(
+            f"{what} arrives every {periods[measured_slow[0]] * 1e-6:.4g} ms, "
+            f"{periods[measured_slow[0]] / fast:.3g} x the period of {fast_ones} "
+            f"({fast * 1e-6:.4g} ms): joined on its stamps ({rate:.4g} Hz), the voltage "
+            "averaged over each of its intervals (volt-seconds kept), the other topics "
+            "taken at its stamps; their samples in between are not fitted"
+        )
+    elif "voltage_applied" in slow:
+        notes.append(
+            f"'voltage_applied' arrives every {periods['voltage_applied'] * 1e-6:.4g} ms, "
+            f"{periods['voltage_applied'] / fast:.3g} x the period of the measured topics "
+            f"({fast * 1e-6:.4g} ms): each applied voltage is held until the next one"
+        )
+
+    def at(ns: IntArray, values: FloatArray | None, how: str) -> FloatArray | None:
+        """``values`` (stamped ``ns``) on the grid: exact, interpolated, held or averaged."""
+        if values is None or not ns.size:
+            return None
+        values = np.asarray(values, dtype=float)
+        if values.size != ns.size:
+            return None
+        order = np.argsort(ns, kind="stable")
+        ns, values = ns[order], values[order]
+        idx = np.searchsorted(ns, stamps)
+        exact = (idx < ns.size) & (ns[np.minimum(idx, ns.size - 1)] == stamps)
+        if how == "mean" and measured_slow:
+            return _interval_mean(ns, values, stamps)
+        if exact.all():
+            return values[idx]
+        if how in ("held", "mean"):
+            return values[np.clip(np.searchsorted(ns, stamps, side="right") - 1, 0, ns.size - 1)]
+        return np.interp(stamps.astype(float), ns.astype(float), values)
+
+    cols: dict[str, FloatArray | None] = {
+        "position": at(enc_ns, arrays.position_rad, "linear"),
+        "speed": at(enc_ns, arrays.speed_rad_s, "linear"),
+        "voltage": at(v_ns, arrays.voltage_v, "mean"),
+        "terminal": at(v_ns, arrays.terminal_v, "mean"),
+        "current": at(c_ns, arrays.current_a, "linear") if c_ns.size else None,
+    }
+    return stamps, cols, notes, missing
+
+
+def _interval_mean(ns: IntArray, values: FloatArray, grid: IntArray) -> FloatArray:
+    """The mean of the held ``values`` whose stamps fall in each interval of ``grid``
+    (the last interval as long as the one before it). An interval entirely open (NaN)
+    stays open; one that opens or closes inside takes its last value's state."""
+    edges = np.append(grid, grid[-1] + (grid[-1] - grid[-2]))
+    lo = np.searchsorted(ns, edges[:-1], side="left")
+    hi = np.searchsorted(ns, edges[1:], side="left")
+    finite = np.isfinite(values)
+    filled = np.where(finite, values, 0.0)
+    csum = np.concatenate(([0.0], np.cumsum(filled)))
+    ccount = np.concatenate(([0], np.cumsum(finite)))
+    n = hi - lo
+    nf = ccount[hi] - ccount[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = (csum[hi] - csum[lo]) / nf
+    last = values[np.clip(hi - 1, 0, values.size - 1)]
+    out = np.where(nf == n, mean, last)  # partly open: the state it ends in
+    return np.where(n > 0, out, last)
+
+
+def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = None) -> Run:
+    """Join the driver topics on their stamps (:func:`_join`) and cut the session's
+    segments.
+
+    With ``session`` given only that session's markers are used (default: every
+    session in the data). Times are seconds from the first session start (or the
+    first sample without markers). A segment cut short (its start marker without an
+    end: an interrupted session, a truncated file) is left out, never read as data;
+    when no segment is complete, nothing is: :class:`DataError`. What was read and
+    what was left out is kept as the source's :func:`recording_state`.
+    """
+    stamps, cols, join_notes, missing = _join(arrays, source)
+    pos, spd, volt, term, cur = (
+        cols[k] for k in ("position", "speed", "voltage", "terminal", "current")
+    )
     dt_ns = int(np.median(np.diff(stamps)))
 
     markers = [m for m in arrays.markers if session is None or m.session == session]
@@ -178,7 +373,18 @@ def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = N
     spans = _segment_spans(markers)
     starts = [m for m in markers if m.event is MarkerEvent.SESSION_START]
     t0_ns = _ns(starts[0].t_s) if starts else int(stamps[0])
+    left_out = _cut_short(markers)
+    interrupted = _interruption(markers, stamps, t0_ns)
+    truncated = "; ".join(arrays.notes)
     if not spans:
+        if starts or left_out:
+            why = interrupted or truncated or "no segment end marker"
+            cut = f"{', '.join(repr(s) for s in left_out)} cut short; " if left_out else ""
+            msg = (
+                f"{source or 'data'}: no complete segment in the recording ({cut}{why}): "
+                "nothing to fit, check or export"
+            )
+            raise DataError(msg)
         spans = [("run", int(stamps[0]), int(stamps[-1]) + dt_ns)]
     segments: list[Segment] = []
     half = dt_ns // 2
@@ -186,6 +392,7 @@ def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = N
         lo = int(np.searchsorted(stamps, a_ns - half, side="left"))
         hi = int(np.searchsorted(stamps, b_ns - half, side="left"))
         if hi - lo < 2:
+            left_out.append(label)
             continue
         sl = slice(lo, hi)
         tv = None
@@ -208,7 +415,40 @@ def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = N
     if not segments:
         msg = f"{source or 'data'}: no segment holds 2 or more driver samples"
         raise DataError(msg)
+    _STATES[_state_key(source)] = RecordingState(
+        source=source or "data",
+        segments=tuple(s.label for s in segments),
+        left_out=tuple(left_out),
+        interrupted=interrupted,
+        truncated=truncated,
+        join=tuple(join_notes),
+        missing_samples=missing,
+    )
     return Run(link_history(segments), source)
+
+
+def _cut_short(markers: Sequence[Marker]) -> list[str]:
+    """Segments whose start marker has no end marker (in time order)."""
+    ended = {(m.session, m.label) for m in markers if m.event is MarkerEvent.END}
+    return [
+        m.label
+        for m in sorted(markers, key=lambda m: m.t_s)
+        if m.event is MarkerEvent.START and (m.session, m.label) not in ended
+    ]
+
+
+def _interruption(markers: Sequence[Marker], stamps: IntArray, t0_ns: int) -> str:
+    """Why a session in ``markers`` did not end normally, or ''."""
+    out = []
+    for m in markers:
+        if m.event is MarkerEvent.ABORT:
+            out.append(f"session {m.session} aborted: {m.detail or 'no reason given'}")
+    ended = {m.session for m in markers if m.event is MarkerEvent.SESSION_END}
+    for m in markers:
+        if m.event is MarkerEvent.SESSION_START and m.session not in ended:
+            into = (int(stamps[-1]) - t0_ns) * 1e-9
+            out.append(f"session {m.session} has no end marker: its samples stop {into:.2f} s in")
+    return "; ".join(out)
 
 
 def _ns(t_s: float) -> int:
@@ -255,7 +495,22 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
                 return _recovered_arrays(p, inside[0])
             _log.warning(f"{p}: no metadata.yaml: read {inside[0].name}, a complete MCAP file")
             return read_driver_arrays(inside[0])
-        msg = f"{p}: a folder without metadata.yaml is not a rosbag2 bag"
+        csvs = sorted(f.name for f in p.iterdir() if f.suffix.lower() in (".csv", ".txt"))
+        if len(inside) > 1:
+            msg = (
+                f"{p}: {len(inside)} .mcap files and no metadata.yaml: not one bag; pass one "
+                f"file ({p / inside[0].name}), or --batch OUTDIR to treat each on its own"
+            )
+        elif csvs:
+            msg = (
+                f"{p}: a folder of CSV files ({', '.join(csvs[:3])}{', ...' * (len(csvs) > 3)}), "
+                "not a bag: pass the files themselves, or --batch OUTDIR to treat each on its own"
+            )
+        else:
+            msg = (
+                f"{p}: a folder without metadata.yaml or an .mcap file: not a rosbag2 bag "
+                "(give a bag folder, an .mcap file or a CSV file)"
+            )
         raise DataError(msg)
     fast = _read_driver_arrays_fast(p)
     if fast is not None:
@@ -265,8 +520,11 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
     try:
         with Reader(p) as reader:
             conns = [c for c in reader.connections if _topic_role(c.topic)]
+            _check_types(p, conns)
             messages = [(c.topic, raw) for c, _, raw in reader.messages(connections=conns)]
             topics = sorted(c.topic for c in reader.connections)
+    except DataError:
+        raise
     except Exception as exc:  # noqa: BLE001 - whatever rosbags raises on a damaged bag
         from pmdc_ident.dataio.mcap_recover import unfinished
 
@@ -278,6 +536,27 @@ def read_driver_arrays(path: str | Path) -> DriverArrays:
             raise DataError(msg) from None
         return _recovered_arrays(p, mcap[0])
     return _arrays_from(p, messages, topics)
+
+
+def _check_types(p: Path, conns: Sequence[Any]) -> None:
+    """Each driver topic holds the message type the driver publishes (a TwistStamped
+    encoder was read as a JointState and reported as 'neither position nor speed')."""
+    for c in conns:
+        role = _topic_role(c.topic)
+        want = TOPIC_TYPES.get(role or "")
+        if want is not None and c.msgtype != want:
+            what = {
+                "encoder": "position[0] rad, velocity[0] rad/s",
+                "current": "effort[0] A",
+                "voltage_applied": "effort[0] V, NaN while open",
+            }.get(role or "", "")
+            msg = (
+                f"{p}: topic {c.topic} is {c.msgtype}; pmdc_ident reads {want} there"
+                f"{f' ({what})' if what else ''}, as the driver node publishes it: republish "
+                "it in that type, or export the samples as CSV (t, voltage, current, "
+                "position/speed)"
+            )
+            raise DataError(msg)
 
 
 def _recovered_arrays(p: Path, mcap: Path) -> DriverArrays:
@@ -292,6 +571,12 @@ def _recovered_arrays(p: Path, mcap: Path) -> DriverArrays:
         )
         raise DataError(msg)
     messages = [(topic, raw) for topic, _, raw in rec.messages if _topic_role(topic)]
+    if not any(_topic_role(t) in ("encoder", "current", "voltage_applied") for t, _ in messages):
+        msg = (
+            f"{p}: truncated bag (its recorder did not close it) whose complete chunks hold "
+            f"no driver sample (cut at byte {rec.good_end} of {rec.size}): nothing to read"
+        )
+        raise DataError(msg)
     arrays = _arrays_from(p, messages)
     ends = [a[-1] for a in (arrays.encoder_ns, arrays.voltage_ns, arrays.current_ns) if a.size]
     note = ""
@@ -299,6 +584,7 @@ def _recovered_arrays(p: Path, mcap: Path) -> DriverArrays:
         dt_ns = int(np.median(np.diff(arrays.encoder_ns)))
         arrays.markers, note = cut_markers(arrays.markers, int(min(ends)), dt_ns)
     _log.warning(rec.line() + note)
+    arrays.notes.append(rec.line() + note)
     return arrays
 
 
@@ -436,10 +722,13 @@ def _read_driver_arrays_fast(p: Path) -> DriverArrays | None:
 
 def read_bag(path: str | Path, session: str | None = None) -> Run:
     """A recorded session (bag directory or ``.mcap`` file) as a :class:`Run`."""
+    from pmdc_ident.core.safe_write import protect
+
     p = Path(path)
     if not p.exists():
         msg = f"{p}: no such bag"
         raise DataError(msg)
+    protect([p])
     return assemble_run(read_driver_arrays(p), source=str(p), session=session)
 
 
@@ -537,9 +826,20 @@ def write_bag(run: Run, path: str | Path, session: str = "export", flush_s: floa
     """Write a Run as a session bag (driver topics + segment markers) that read_bag reads.
 
     Segments whose times do not follow the previous one are shifted to start one
-    sample period after it, so the bag keeps one increasing driver clock.
+    sample period after it, so the bag keeps one increasing driver clock. The bag is
+    written under a temporary name and appears under ``path`` only once closed
+    (:func:`pmdc_ident.core.safe_write.atomic_folder`): an interrupted export leaves
+    no bag that looks complete.
     """
-    p = Path(path)
+    from pmdc_ident.core.safe_write import atomic_folder
+
+    final = Path(path)
+    with atomic_folder(final) as tmp:
+        _write_bag(run, tmp, session, flush_s)
+    return final
+
+
+def _write_bag(run: Run, p: Path, session: str, flush_s: float) -> None:
     offset = 0.0
     last_t = -math.inf
     topics = {k: v for k, v in TOPIC_TYPES.items() if k != "voltage_cmd"}
@@ -589,4 +889,3 @@ def write_bag(run: Run, path: str | Path, session: str = "export", flush_s: floa
             last_t = float(t[-1])
         done = Marker(MarkerEvent.SESSION_END, "", end_ns * 1e-9, session)
         w.write_msg("segment", end_ns, String(data=done.to_json()))
-    return p

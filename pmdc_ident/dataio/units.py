@@ -120,8 +120,10 @@ def parse_unit(enum_type: type[enum.Enum], text: str, key: str) -> Any:
 
 
 def _positive(key: str, value: Any) -> float:
+    from pmdc_ident.dataio.csvio import parse_number
+
     try:
-        v = float(value)
+        v = parse_number(value.strip()) if isinstance(value, str) else float(value)
     except (TypeError, ValueError):
         v = math.nan
     if not (math.isfinite(v) and v > 0):
@@ -299,6 +301,9 @@ def read_sidecar(data_path: str | Path) -> InputSpec | None:
         return None
     import yaml
 
+    from pmdc_ident.core.safe_write import protect
+
+    protect([side], "the sidecar")
     try:
         data = yaml.safe_load(side.read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
@@ -520,7 +525,22 @@ def load_input(path: str | Path, spec: InputSpec | None = None) -> LoadedInput:
         run, notes = _finish(raw, note_list, full)
     if side is not None:
         notes = (f"units and columns from {sidecar_path(path)}", *notes)
+    _check_declared(str(path), run, full)
     return LoadedInput(str(path), run, full, notes)
+
+
+def _check_declared(where: str, run: Run, spec: InputSpec) -> None:
+    """A declared unit the other columns contradict is an error (``dataio.declared``)."""
+    from pmdc_ident.dataio.declared import check_declared
+
+    volts = [
+        np.abs(s.voltage[np.isfinite(s.voltage)]) for s in run.segments if s.voltage is not None
+    ]
+    v_max = None
+    if volts and any(v.size for v in volts):
+        factor = abs(scales(spec)[0]["voltage"]) or 1.0
+        v_max = float(max(v.max() for v in volts if v.size)) / factor
+    check_declared(where, run, spec, v_max)
 
 
 def _with_unit_hint(message: str) -> str:

@@ -43,6 +43,7 @@ def write_exports(
     import yaml
 
     from pmdc_ident.core.control_design import check_gains, current_crossover_hz, design_gains
+    from pmdc_ident.core.safe_write import write_text
     from pmdc_ident.exports.mujoco_xml import mujoco_xml
     from pmdc_ident.exports.urdf import ros2_control_yaml, urdf_xml
 
@@ -62,8 +63,8 @@ def write_exports(
 
         mjcf_spec = motor_with_diagnosis(spec, diagnosis).spec
     mujoco_xml(mjcf_spec, reduction=reduction, joint=joint).write(paths[0])
-    paths[1].write_text(urdf_xml(spec, reduction=reduction, joint=joint))
-    paths[2].write_text(ros2_control_yaml(spec, design, reduction=reduction, joint=joint))
+    write_text(paths[1], urdf_xml(spec, reduction=reduction, joint=joint))
+    write_text(paths[2], ros2_control_yaml(spec, design, reduction=reduction, joint=joint))
     data = design.as_dict()
     data["verification"] = [
         {
@@ -74,5 +75,5 @@ def write_exports(
         }
         for c in check_gains(design, spec)
     ]
-    paths[3].write_text(yaml.safe_dump(data, sort_keys=False))
+    write_text(paths[3], yaml.safe_dump(data, sort_keys=False))
     return paths

@@ -81,9 +81,9 @@ class MujocoExport:
     carried: tuple[str, ...] = ()  # "<effect>: how it is carried", one per effect
 
     def write(self, path: str | Path) -> Path:
-        p = Path(path)
-        p.write_text(self.xml)
-        return p
+        from pmdc_ident.core.safe_write import write_text
+
+        return write_text(path, self.xml)
 
 
 def installed_mujoco_flavour() -> str:

@@ -192,9 +192,9 @@ def ros2_control_yaml(
 
 
 def write_text(path: str | Path, text: str) -> Path:
-    p = Path(path)
-    p.write_text(text)
-    return p
+    from pmdc_ident.core import safe_write
+
+    return safe_write.write_text(path, text)
 
 
 def _f(x: float) -> str:

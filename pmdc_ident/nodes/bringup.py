@@ -28,7 +28,9 @@ from typing import IO, Any
 
 import yaml
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.motors import share_file
+from pmdc_ident.core.workers import pdeathsig_preexec
 from pmdc_ident.nodes.dds_domain import HELD_ENV, DomainBusyError, child_env, lock_domain
 from pmdc_ident.nodes.parameter_tables import DRIVER, IDENTIFICATION, RECORDER
 from pmdc_ident.nodes.priority import RT_PRIORITY, priority_setter, realtime_thread
@@ -78,7 +80,12 @@ def _ros_args(params_file: Path | None, params: Mapping[str, Any]) -> list[str]:
 
 @dataclass
 class BringupResult:
-    """What a session left: exit codes, the bag, the result JSON (None if none)."""
+    """What a session left: exit codes, the bag, the result JSON (None if none).
+
+    ``bag`` is this session's own bag (a folder created during it), never an older one
+    in the same output folder; ``bag_complete`` says whether its recorder closed it
+    (``metadata.yaml`` written). ``result`` is the ``parameters.json`` written beside
+    it during this session, else None."""
 
     identification_rc: int | None
     recorder_rc: int | None
@@ -89,6 +96,12 @@ class BringupResult:
     wall_s: float
     logs: dict[str, Path] = field(default_factory=dict)
     cpu_s: dict[str, float | None] = field(default_factory=dict)  # per node, user+system
+    bag_complete: bool = False
+
+    @property
+    def ok(self) -> bool:
+        """The session ran to its end and was identified."""
+        return self.identification_rc == 0 and self.result is not None
 
 
 class _Proc:
@@ -101,6 +114,7 @@ class _Proc:
         log: IO[str] | None,
         nice: int = 0,
         realtime: bool = False,
+        keep_fds: tuple[int, ...] = (),
     ) -> None:
         self.name = name
         cmd = [sys.executable, "-m", module, *ros_args]
@@ -108,10 +122,13 @@ class _Proc:
         self.popen = subprocess.Popen(
             cmd,
             env=env,
-            preexec_fn=priority_setter(nice, realtime),
+            # SIGTERM (a clean stop: the motor made safe, the bag closed) when this
+            # process dies, even by kill -9; then the node's scheduling
+            preexec_fn=pdeathsig_preexec(signal.SIGTERM, then=priority_setter(nice, realtime)),
             stdout=log if log is not None else None,
             stderr=subprocess.STDOUT if log is not None else None,
             start_new_session=True,  # our Ctrl-C is forwarded, not delivered twice
+            pass_fds=keep_fds,  # the domain lock: held until the last node is gone
         )
 
         self.cpu_s: float | None = None  # user + system CPU time of the process
@@ -189,6 +206,7 @@ def run_session(
     started_wall = time.time()
     out = Path(output_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
+    before = {p.name for p in out.iterdir()}  # this session's bag is a new folder
     logs, files = _log_files(log_dir, quiet)
     args = {
         "driver": {"motor": motor, **(driver_params or {})},
@@ -209,20 +227,24 @@ def run_session(
         _close(files.values())
         raise
     env = node_env(lock.domain_id)  # now with the lock handed to the children
+    fd = lock.fileno()
+    keep = (fd,) if fd is not None else ()
     procs: dict[str, _Proc] = {}
     rc: dict[str, int | None] = {}
     try:
         with _forward_signals(procs):
             for name in ("driver", "recorder"):
                 if name == "driver" or with_recorder:
-                    procs[name] = _start(name, args[name], env, files[name], nice, realtime)
+                    procs[name] = _start(name, args[name], env, files[name], nice, realtime, keep)
             if before_identification is not None:
                 before_identification()
             ident_log = files["identification"]
             procs["identification"] = _start(
-                "identification", args["identification"], env, ident_log, nice, realtime
+                "identification", args["identification"], env, ident_log, nice, realtime, keep
             )
-            _watch(procs, t0, timeout_s, during, lambda: _bag_closed_since(out, started_wall))
+            _watch(
+                procs, t0, timeout_s, during, lambda: _bag_closed_since(out, before, started_wall)
+            )
             rc["identification"] = procs["identification"].stop(timeout_s=10.0)
     finally:
         for name in ("identification", "recorder", "driver"):
@@ -230,7 +252,7 @@ def run_session(
                 rc[name] = procs[name].stop(timeout_s=10.0)
         lock.release()
         _close(files.values())
-    return _result(out, rc, procs, logs, t0)
+    return _result(out, before, started_wall, rc, procs, logs, t0)
 
 
 def _log_files(
@@ -258,18 +280,21 @@ def _start(
     log: Any,
     nice: int,
     realtime: Sequence[str],
+    keep_fds: tuple[int, ...] = (),
 ) -> _Proc:
     """``name``'s node as a child, with its parameters file and ``params`` on top."""
     table = _TABLES[name]
     module = f"pmdc_ident.nodes.{table.node}"
     args = _ros_args(share_file("config", table.config), params)
-    return _Proc(name, module, args, env, log, nice, realtime=name in realtime)
+    return _Proc(name, module, args, env, log, nice, realtime=name in realtime, keep_fds=keep_fds)
 
 
 @contextmanager
 def _forward_signals(procs: Mapping[str, _Proc]) -> Iterator[None]:
-    """Ctrl-C / SIGTERM go to the identification node first (it aborts the session and
-    makes the motor safe); the others are stopped after it, in the safe order."""
+    """Ctrl-C / SIGTERM / SIGHUP (the terminal closed) go to the identification node
+    first (it aborts the session and makes the motor safe); the others are stopped
+    after it, in the safe order. A node the identification node never started (a
+    signal during start-up) is stopped by the same ``finally``."""
 
     def forward(_signum: int, _frame: Any) -> None:
         ident = procs.get("identification")
@@ -279,9 +304,9 @@ def _forward_signals(procs: Mapping[str, _Proc]) -> Iterator[None]:
     if not _in_main_thread():
         yield
         return
-    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    signal.signal(signal.SIGINT, forward)
-    signal.signal(signal.SIGTERM, forward)
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    for s in old:
+        signal.signal(s, forward)
     try:
         yield
     finally:
@@ -320,17 +345,22 @@ def _watch(
 
 def _result(
     out: Path,
+    before: set[str],
+    since_s: float,
     rc: Mapping[str, int | None],
     procs: Mapping[str, _Proc],
     logs: dict[str, Path],
     t0: float,
 ) -> BringupResult:
-    bag = _newest_bag(out)
+    bag = _session_bag(out, before)
     result = None
-    if bag is not None and (bag / "parameters.json").is_file():
-        result = json.loads((bag / "parameters.json").read_text())
-    elif (out / "parameters.json").is_file():
-        result = json.loads((out / "parameters.json").read_text())
+    for doc in ([bag / "parameters.json"] if bag is not None else []) + [out / "parameters.json"]:
+        if _written_since(doc, since_s):
+            try:
+                result = json.loads(doc.read_text())
+            except (OSError, ValueError):
+                result = None
+            break
     return BringupResult(
         identification_rc=rc.get("identification"),
         recorder_rc=rc.get("recorder"),
@@ -341,6 +371,7 @@ def _result(
         wall_s=time.monotonic() - t0,
         logs=logs,
         cpu_s={name: p.cpu_s for name, p in procs.items()},
+        bag_complete=bag is not None and (bag / "metadata.yaml").is_file(),
     )
 
 
@@ -356,18 +387,33 @@ def _in_main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
-def _bag_closed_since(out: Path, since_s: float) -> bool:
-    """A bag closed by the recorder (metadata written) holds a result written after
-    ``since_s`` (wall clock): this session's recording is complete."""
-    bag = _newest_bag(out) if out.is_dir() else None
+def _written_since(path: Path, since_s: float) -> bool:
+    try:
+        return path.is_file() and path.stat().st_mtime >= since_s - 1.0
+    except OSError:
+        return False
+
+
+def _bag_closed_since(out: Path, before: set[str], since_s: float) -> bool:
+    """This session's bag is closed by the recorder (metadata written) and holds a
+    result written after ``since_s`` (wall clock): its recording is complete."""
+    bag = _session_bag(out, before) if out.is_dir() else None
     if bag is None or not (bag / "parameters.json").is_file():
         return False
-    return (bag / "metadata.yaml").stat().st_mtime >= since_s - 1.0
+    return _written_since(bag / "metadata.yaml", since_s)
 
 
-def _newest_bag(out: Path) -> Path | None:
-    bags = [p for p in out.iterdir() if p.is_dir() and (p / "metadata.yaml").is_file()]
-    return max(bags, key=lambda p: p.stat().st_mtime) if bags else None
+def _session_bag(out: Path, before: set[str]) -> Path | None:
+    """The bag folder this session's recorder created in ``out`` (one that was not
+    there before it started), closed or not; never an older session's bag."""
+    try:
+        new = [p for p in out.iterdir() if p.is_dir() and p.name not in before]
+    except OSError:
+        return None
+    new = [p for p in new if not p.name.startswith(".") and any(p.glob("*.mcap"))] or [
+        p for p in new if not p.name.startswith(".")
+    ]
+    return max(new, key=lambda p: p.stat().st_mtime) if new else None
 
 
 def parameter_table(result: Mapping[str, Any]) -> str:
@@ -413,7 +459,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         name, sep, value = rest.partition("=")
         if node not in extra or not sep or not name:
             print(f"bringup: error: bad --param {item!r} (NODE:NAME=VALUE)", file=sys.stderr)
-            return 2
+            return ExitCode.USER_ERROR
         extra[node][name] = yaml.safe_load(value)
     extra["driver"]["backend"] = args.backend
     if args.port:
@@ -430,18 +476,31 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     except DomainBusyError as exc:
         print(f"bringup: error: {exc} (--domain-id)", file=sys.stderr)
-        return 2
+        return ExitCode.USER_ERROR
     print(f"bringup: session took {res.wall_s:.1f} s")
     if res.bag is not None:
-        print(f"bringup: bag {res.bag}")
-    if res.result is not None:
+        closed = "" if res.bag_complete else " (INCOMPLETE: its recorder did not close it)"
+        print(f"bringup: bag {res.bag}{closed}")
+    if res.ok:
+        assert res.result is not None
         print(parameter_table(res.result))
         return 0
     print(
-        f"bringup: no parameters (identification exit status {res.identification_rc})",
+        f"bringup: session {session_outcome(res)}: no parameters of this session "
+        f"(identification exit status {res.identification_rc})",
         file=sys.stderr,
     )
     return res.identification_rc or 1
+
+
+def session_outcome(res: BringupResult) -> str:
+    """'aborted', 'interrupted', 'failed' or 'refused', from the identification node's
+    exit status (``core.enums.ExitCode``), for the one line that says so."""
+    return {
+        ExitCode.ABORTED: "ABORTED",
+        ExitCode.INTERRUPTED: "interrupted",
+        ExitCode.USER_ERROR: "refused",
+    }.get(res.identification_rc or -1, "failed")
 
 
 if __name__ == "__main__":

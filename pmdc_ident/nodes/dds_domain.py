@@ -16,8 +16,11 @@ A process that already holds a domain may lock it again (nested, counted): a tes
 holding a domain can call ``run_session(domain_id=...)``, which locks it too. A
 holder hands its domain to the processes it starts with :func:`child_env` (the
 variable ``PMDC_DDS_DOMAIN_HELD``): a child ``bringup`` on that domain then runs
-under its parent's lock instead of finding the domain busy. ROS-free: no rclpy
-import here.
+under its parent's lock instead of finding the domain busy. The session's nodes
+also inherit the lock's descriptor (:meth:`DomainLock.fileno`, ``pass_fds``): a
+``flock`` lasts until the last descriptor of it closes, so the domain stays held
+until the last node of the session is gone - even when the process that took the
+lock was killed first. ROS-free: no rclpy import here.
 """
 
 from __future__ import annotations
@@ -83,6 +86,15 @@ class DomainLock:
     def __init__(self, domain_id: int, *, by_parent: bool = False) -> None:
         self.domain_id = int(domain_id)
         self._released = by_parent  # held by the process that started this one
+
+    def fileno(self) -> int | None:
+        """The locked descriptor (for children to inherit: the lock then lasts until the
+        last of them exits), or None when the lock is held by a parent process."""
+        if self._released:
+            return None
+        with _guard:
+            held = _held.get(self.domain_id)
+        return held[0] if held else None
 
     def release(self) -> None:
         if self._released:

@@ -59,6 +59,7 @@ from std_srvs.srv import Trigger
 from pmdc_ident.backends.base import Telemetry
 from pmdc_ident.backends.driver import Driver
 from pmdc_ident.backends.status import Level
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.nodes.diagnostics import LevelLog, hardware_id, status_name
 from pmdc_ident.nodes.parameter_tables import DRIVER
 from pmdc_ident.nodes.parameters import declare
@@ -85,7 +86,7 @@ class DriverNode(Node):
         super().__init__(NODE_NAME, **node_kwargs)
         self._clock_s = clock_s
         self.finished = False  # a signal arrived
-        self.exit_code = 0
+        self.exit_code: int = ExitCode.OK
         self._driver: Driver | None = None
         cfg = declare(self, DRIVER, lambda name, value: self.driver.check_value(name, value))
         self._published = 0

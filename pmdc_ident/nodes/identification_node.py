@@ -51,6 +51,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.session.controller import SessionController
 from pmdc_ident.core.session.ports import IdentificationJob
@@ -91,7 +92,7 @@ class IdentificationNode(Node):
         values = declare(self, IDENTIFICATION)
         config = controller_config(values, namespace=self.get_namespace())
         self.controller = SessionController(config, ports=self)
-        self.exit_code = 0
+        self.exit_code: int = ExitCode.OK
         self._worker: IdentificationWorker | None = None
         self._param_future: Any = None
         self._param_names: tuple[str, ...] = ()
@@ -148,8 +149,17 @@ class IdentificationNode(Node):
         for pub in (self.pub_cmd, self.pub_segment, self.pub_status, self.pub_progress):
             left = max(0.0, end - time.monotonic())
             done = pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and done
-        left = max(0.0, end - time.monotonic())
-        return self.pub_result.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and done
+        # the typed result topics are made when the result comes: a reader known to the
+        # graph may not be matched to them yet, and would miss the value if we left now
+        pubs = [self.pub_result, *self._pub_arrays.values()]
+        while time.monotonic() < end and any(
+            p.get_subscription_count() < self.count_subscribers(p.topic_name) for p in pubs
+        ):
+            time.sleep(0.02)
+        for pub in pubs:
+            left = max(0.0, end - time.monotonic())
+            done = pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and done
+        return done
 
     # -- callbacks -> controller --------------------------------------------------------------
     # Raw subscriptions: the CDR bytes are decoded by parse_joint_state, no message objects.

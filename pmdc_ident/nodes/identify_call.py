@@ -3,12 +3,15 @@
 :func:`run_identification_job` is what the node runs once a session is over (in a
 worker process, so the node keeps serving its topics meanwhile).
 
-The node identifies its session with :func:`identify_session_run`, which runs the
-pipeline of ``pmdc-ident identify`` (:func:`pmdc_ident.core.estimators.identify.identify`
-on the run's segments) with that command's default options; ``fixed`` is its
-``--fix NAME=VALUE`` list. So ``pmdc-ident identify <bag> [--fix ...]`` on a laptop
-prints the same parameters as the node published, and the JSON is the same
-document ``pmdc-ident identify --json`` writes.
+The node identifies its session with :func:`identify_session_run`, which calls the
+application service of ``pmdc-ident identify`` (:func:`pmdc_ident.app.identify_inputs`:
+the data-quality gate, the segments, the fit, the bias flag, the JSON) with that
+command's default options; ``fixed`` is its ``--fix NAME=VALUE`` list. So
+``pmdc-ident identify <bag> [--fix ...]`` on a laptop prints the same parameters as the
+node published, and the JSON is the same document ``pmdc-ident identify --json`` writes
+but for the session's own entries (``driver_samples``, ``exports``,
+``experiment_design``) and what the bag file adds (``inputs``' notes, ``recording``;
+docs/reference.md).
 """
 
 from __future__ import annotations
@@ -26,10 +29,13 @@ from typing import Any
 
 import numpy as np
 
+from pmdc_ident.app.options import CLI_NAMES
 from pmdc_ident.core.data import Run
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.excitation import SequenceConfig
-from pmdc_ident.core.motors import MotorSpec, motor_to_yaml
+from pmdc_ident.core.motors import MotorSpec
+from pmdc_ident.core.safe_write import write_text
 from pmdc_ident.core.session.ports import ExportRequest, IdentificationJob, IdentificationOutcome
 from pmdc_ident.core.session.recording import SessionSamples
 from pmdc_ident.core.session.sequential import DesignJob, DesignOutcome
@@ -37,6 +43,7 @@ from pmdc_ident.dataio.bagio import DriverArrays, assemble_run
 from pmdc_ident.dataio.completeness import Completeness, completeness
 
 __all__ = [
+    "NODE_NAMES",
     "IdentificationWorker",
     "IdentifyOutput",
     "identify_session_run",
@@ -64,49 +71,51 @@ class IdentifyOutput:
         return replace(self, json_text=json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
 
+# the node's words for the service's options: ``fix`` is its ROS parameter; the others it
+# does not have, so a hint names the command that re-identifies the bag with them
+NODE_NAMES: dict[str, str] = {
+    "data": "DATA",
+    "fix": "fix (ROS parameter)",
+    **{
+        key: f"`pmdc-ident identify BAG {flag}`"
+        for key, flag in CLI_NAMES.items()
+        if key not in {"data", "fix"}
+    },
+}
+
+
 def identify_session_run(
     run: Run,
     fixed: Mapping[str, float] | None = None,
     name: str = "identified",
     extra: Mapping[str, Any] | None = None,
+    source: str | None = None,
 ) -> IdentifyOutput:
-    """Identify a session's run exactly as ``pmdc-ident identify DATA --fix ...`` does.
+    """Identify a session's run through the service ``pmdc-ident identify`` calls
+    (:func:`pmdc_ident.app.identify_inputs`, that command's default options;
+    ``fixed`` is its ``--fix`` list): the same gate (outliers, the assumption register,
+    a long record's representative subset), the same fit and the same JSON document.
 
-    ``extra`` entries are added to the JSON document (the node adds how complete its
-    driver samples were).
+    ``source``: the name of the input in the document (the session's bag path; default
+    the run's source). ``extra`` entries are added to the JSON document (the node adds
+    how complete its driver samples were).
     """
-    from pmdc_ident.core.errors import DataError
-    from pmdc_ident.core.estimators.identify import ModelChoice, identify, merge_runs
-    from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
-    from pmdc_ident.core.quality import GateInput, check_inputs
+    from pmdc_ident.app import IdentifyOptions, identify_inputs
+    from pmdc_ident.app.inputs import loaded_run
+    from pmdc_ident.core.fixed import FixedValues
 
-    # the data-quality gate and the assumption register, as `pmdc-ident identify` runs them
-    report = check_inputs([GateInput(run.source or "session", run)], fixed=dict(fixed or {}))
-    if report.errors:
-        first = report.errors[0]
-        fix = f"; fix: {first.fix}" if first.fix else ""
-        msg = f"data quality: {first.code}: {first.where}: {first.message}{fix}"
-        raise DataError(msg)
-    result = identify(
-        merge_runs([run]),
-        sources=(run.source,),
-        fixed=dict(fixed or {}),
-        closure=CLOSURE_KT_KE,
-        model=ModelChoice.AUTO.value,
-        holdout=True,
-        bootstrap=0,
-        findings=report.findings,
-        expected_rsd=report.expected_rsd,
+    path = source or run.source or "session"
+    options = IdentifyOptions(
+        data=(path,), fixed=FixedValues(fixed or {}), names=NODE_NAMES, motor_name=name
     )
-    header = "# Motor file written by `pmdc-ident identify`; load_motor(path) reads it.\n"
-    spec = result.motor_spec(name)
-    doc = {**result.to_json_dict(), "quality": report.to_json(), **(extra or {})}
+    loaded = loaded_run(options, run, path, origin="the node's driver samples (SI units)")
+    docs = identify_inputs(options, loaded=loaded, extra=extra)
     return IdentifyOutput(
-        json_text=json.dumps(doc, indent=2, allow_nan=False) + "\n",
-        yaml_text=header + motor_to_yaml(spec),
-        table=result.text_report(),
-        values={k: p.value for k, p in result.parameters.items()},
-        spec=spec,
+        json_text=docs.json_text,
+        yaml_text=docs.yaml_text,
+        table="\n".join(docs.lines),
+        values=docs.values,
+        spec=docs.result.motor_spec(name),
     )
 
 
@@ -160,17 +169,23 @@ def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
             ("warning" if found.missing else "info", f"session {job.session}: {found.line()}")
         )
         extra = {"driver_samples": found.to_dict(), **dict(job.extra or {})}
-        result = identify_session_run(run, job.fixed, name=job.session, extra=extra)
+        result = identify_session_run(
+            run, job.fixed, name=job.session, extra=extra, source=job.source
+        )
         job.output_dir.mkdir(parents=True, exist_ok=True)
         if job.exports is not None:
             made = write_session_exports(result.spec, job.output_dir, job.exports, notes)
             result = result.with_entry("exports", made)
-        (job.output_dir / "parameters.json").write_text(result.json_text)
-        (job.output_dir / "parameters.yaml").write_text(result.yaml_text)
+        write_text(job.output_dir / "parameters.json", result.json_text)
+        write_text(job.output_dir / "parameters.yaml", result.yaml_text)
     except PmdcError as exc:
-        return IdentificationOutcome(error=str(exc), exit_code=2, notes=tuple(notes))
+        return IdentificationOutcome(
+            error=str(exc), exit_code=ExitCode.USER_ERROR, notes=tuple(notes)
+        )
     except Exception as exc:  # noqa: BLE001 - report in one line, keep the node alive
-        return IdentificationOutcome(error=repr(exc), exit_code=1, notes=tuple(notes))
+        return IdentificationOutcome(
+            error=repr(exc), exit_code=ExitCode.FAILED, notes=tuple(notes)
+        )
     return IdentificationOutcome(
         json_text=result.json_text,
         table=result.table,
@@ -310,7 +325,7 @@ class IdentificationWorker:
         code = self._process.exitcode
         return IdentificationOutcome(
             error=f"the identification process ended without a result (exit code {code})",
-            exit_code=1,
+            exit_code=ExitCode.FAILED,
         )
 
     def terminate(self) -> None:
@@ -347,6 +362,10 @@ def _serve(conn: Any, nominal: MotorSpec | None) -> None:
     # Ctrl-C reaches the whole process group: the node decides (it terminates this
     # process with SIGTERM when it stops), so no KeyboardInterrupt traceback here.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # and it never outlives the node (killed with -9, its fit would run on for seconds)
+    from pmdc_ident.core.workers import die_with_parent
+
+    die_with_parent(signal.SIGKILL)
     fit_nice = _normal_priority()  # the fit is batch work: never at real-time priority
     if nominal is not None:
         cpu0 = time.process_time()

@@ -28,6 +28,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.nodes.parameter_tables import DRIVER, IDENTIFICATION, RECORDER, ParameterTable
 
@@ -165,7 +166,11 @@ def exit_meaning(node: str, returncode: int) -> str:
         except ValueError:
             return f"killed by signal {-returncode}"
     if node == IDENTIFICATION.node:
-        words = {2: "refused before anything moved", 3: "session aborted", 130: "interrupted"}
+        words = {
+            ExitCode.USER_ERROR: "refused before anything moved",
+            ExitCode.ABORTED: "session aborted",
+            ExitCode.INTERRUPTED: "interrupted",
+        }
         if returncode in words:
             return words[returncode]
     return "failed" if returncode else "done"

@@ -41,6 +41,7 @@ from pmdc_ident.core.drift_monitor import (
     MonitorConfig,
     diagnostic_status,
 )
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.schema import SCHEMA_VERSION
@@ -66,7 +67,7 @@ class MonitorNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         values = declare(self, MONITOR)
         self.finished = False  # a signal arrived
-        self.exit_code = 0
+        self.exit_code: int = ExitCode.OK
 
         def p(name: str) -> Any:
             return values[name]

@@ -4,7 +4,7 @@ One table per node (:data:`DRIVER`, :data:`IDENTIFICATION`, :data:`RECORDER`,
 :data:`MONITOR`) is the
 only source of the parameters' defaults. The nodes declare them from it
 (:func:`pmdc_ident.nodes.parameters.declare`), and the parameters files in
-``config/`` and the README's parameter tables are generated from it::
+``config/`` and the parameter tables of ``docs/reference.md`` are generated from it::
 
     python -m pmdc_ident.nodes.parameter_tables --write   # rewrite them
     python -m pmdc_ident.nodes.parameter_tables --check   # exit 1 when they drifted
@@ -376,7 +376,7 @@ def _range(p: NodeParameter) -> str:
 
 
 def markdown_table(table: ParameterTable) -> str:
-    """The README's table of the node's parameters."""
+    """The reference's table of the node's parameters (``docs/reference.md``)."""
     rows = [
         "| parameter | type | default | range | meaning |",
         "| --- | --- | --- | --- | --- |",
@@ -399,12 +399,15 @@ def _markers(table: ParameterTable) -> tuple[str, str]:
 
 
 def readme_with_tables(text: str) -> str:
-    """``text`` (the README) with every node's generated table between its markers."""
+    """``text`` (``docs/reference.md``) with every node's generated table between its markers."""
     for table in TABLES:
         begin, end = _markers(table)
         i, j = text.find(begin), text.find(end)
         if i < 0 or j < i:
-            msg = f"README.md has no markers for {table.node}: {begin.strip()} ... {end.strip()}"
+            msg = (
+                f"docs/reference.md has no markers for {table.node}: "
+                f"{begin.strip()} ... {end.strip()}"
+            )
             raise ValueError(msg)
         text = text[: i + len(begin)] + markdown_table(table) + text[j:]
     return text
@@ -413,8 +416,8 @@ def readme_with_tables(text: str) -> str:
 def generated_files(repo: Path) -> dict[Path, str]:
     """Every generated file's path and wanted content."""
     out = {repo / "config" / t.config: yaml_text(t) for t in TABLES}
-    readme = repo / "README.md"
-    out[readme] = readme_with_tables(readme.read_text(encoding="utf-8"))
+    reference = repo / "docs" / "reference.md"
+    out[reference] = readme_with_tables(reference.read_text(encoding="utf-8"))
     return out
 
 
@@ -430,7 +433,9 @@ def main(argv: list[str] | None = None) -> int:
             continue
         stale.append(path)
         if args.write:
-            path.write_text(text, encoding="utf-8")
+            from pmdc_ident.core.safe_write import write_text
+
+            write_text(path, text)  # complete under its name, or not there
     for path in stale:
         verb = "wrote" if args.write else "out of date:"
         print(f"{verb} {path.relative_to(args.repo)}")

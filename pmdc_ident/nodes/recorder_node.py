@@ -30,6 +30,7 @@ from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.session import Marker, MarkerEvent
 from pmdc_ident.dataio.bagio import TOPIC_TYPES, BagWriter, header_stamp_ns
@@ -76,7 +77,7 @@ class RecorderNode(Node):
         self.samples = 0
         self.bags: list[str] = []
         self.finished = False  # a signal arrived: drain, close, exit
-        self.exit_code = 0
+        self.exit_code: int = ExitCode.OK
         self.last_missing = 0  # driver samples missing from the last bag closed
         from rosbags.typesys import Stores, get_typestore
 

@@ -22,6 +22,7 @@ from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedE
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.nodes.priority import raise_own_priority
 
@@ -89,7 +90,7 @@ def run_node(
     except RCLError as exc:  # e.g. a malformed --ros-args rule: one line, no traceback
         text = str(exc).split(", at ")[0]
         print(f"{name}: bad ROS arguments: {text}", file=sys.stderr, flush=True)
-        return 2
+        return ExitCode.USER_ERROR
     node: Any = None
     signals: list[int] = []
 
@@ -100,7 +101,7 @@ def run_node(
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    status = 0
+    status: int = ExitCode.OK
     try:
         node = build()
         if signals:
@@ -113,19 +114,19 @@ def run_node(
         status = node.exit_code
     except PmdcError as exc:
         _say(f"{name}: {exc}")
-        status = 2
+        status = ExitCode.USER_ERROR
     except ExternalShutdownException:
         pass
     except Exception as exc:  # noqa: BLE001 - one line; the motor is made safe below
         _say(f"{name}: internal error: {exc!r}")
-        status = 1
+        status = ExitCode.FAILED
     finally:
         if node is not None:
             lines = node.close()  # the motor safe first, whatever happens to the output
             for line in lines:
                 _say(f"{name}: {line}")
             node.destroy_node()
-        elif signals and status == 0:
+        elif signals and status == ExitCode.OK:
             _say(f"{name}: stopped during start-up")
         rclpy.try_shutdown()
         # Done and safe: a late duplicate signal (ros2 launch may send SIGINT and then

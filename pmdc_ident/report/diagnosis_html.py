@@ -17,6 +17,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from pmdc_ident.core.diagnosis.results import DiagnosisResult  # noqa: E402
+from pmdc_ident.core.safe_write import save_figure, write_text  # noqa: E402
 
 __all__ = ["write_diagnosis_report"]
 
@@ -55,7 +56,7 @@ def _traces(result: DiagnosisResult, path: Path) -> bool:
     axes[-1][0].set_xlabel("t (s)")
     axes[-1][1].set_xlabel("t (s)")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, dpi=90)
     plt.close(fig)
     return True
 
@@ -82,7 +83,7 @@ def _localization(result: DiagnosisResult, path: Path) -> None:
         ax.tick_params(labelsize=7)
     axes[0][0].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, dpi=90)
     plt.close(fig)
 
 
@@ -99,7 +100,7 @@ def _candidates(result: DiagnosisResult, path: Path) -> None:
     ax.axvline(0.0, color="k", lw=0.5)
     ax.set_xlabel("held-out gap shrink (blue: beats the parameter penalty)", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, dpi=90)
     plt.close(fig)
 
 
@@ -123,7 +124,7 @@ def _regimes(result: DiagnosisResult, path: Path) -> None:
         ax.legend(fontsize=7)
     ax.set_xlabel("held-out gap within the regime", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, dpi=90)
     plt.close(fig)
 
 
@@ -143,7 +144,7 @@ def write_diagnosis_report(result: DiagnosisResult, out_dir: Path) -> Path:
     _localization(result, out / "localization.png")
     _candidates(result, out / "candidates.png")
     _regimes(result, out / "regimes.png")
-    (out / "diagnosis.json").write_text(json.dumps(result.to_json(), indent=2) + "\n")
+    write_text(out / "diagnosis.json", json.dumps(result.to_json(), indent=2) + "\n")
     v = result.verdict
     cand_rows = [
         [
@@ -212,6 +213,4 @@ table{{border-collapse:collapse;font-size:12px}}td,th{{border:1px solid #ccc;pad
 {'<h2>Held-out traces</h2><img src="traces.png">' if has_traces else ""}
 </body></html>
 """
-    path = out / "index.html"
-    path.write_text(page)
-    return path
+    return write_text(out / "index.html", page)

@@ -28,6 +28,7 @@ from pmdc_ident.core.estimators.classical import (  # noqa: E402
 )
 from pmdc_ident.core.estimators.frequency import model_frequency_response  # noqa: E402
 from pmdc_ident.core.results import IdentificationResult  # noqa: E402
+from pmdc_ident.core.safe_write import save_figure  # noqa: E402
 
 __all__ = ["write_identify_report"]
 
@@ -83,7 +84,7 @@ def _segment_plot(seg: Segment, pred, out: Path, kind: str) -> Path:
         ax2.set_ylabel(f"{unit}")
     fig.tight_layout()
     p = out / f"segment_{_safe(seg.label)}.png"
-    fig.savefig(p, dpi=90)
+    save_figure(fig, p, dpi=90)
     plt.close(fig)
     return p
 
@@ -118,7 +119,7 @@ def _frequency_plot(result: IdentificationResult, out: Path) -> Path:
         ax.set_xlabel("f (Hz)")
     fig.tight_layout()
     p = out / "frequency_response.png"
-    fig.savefig(p, dpi=90)
+    save_figure(fig, p, dpi=90)
     plt.close(fig)
     return p
 
@@ -171,7 +172,7 @@ def _classical_plot(result: IdentificationResult, segments, out: Path) -> Path |
         axes[2].legend(fontsize=8)
     fig.tight_layout()
     p = out / "classical.png"
-    fig.savefig(p, dpi=90)
+    save_figure(fig, p, dpi=90)
     plt.close(fig)
     return p
 
@@ -197,6 +198,6 @@ def _methods_plot(result: IdentificationResult, out: Path) -> Path:
     ax.legend(fontsize=8)
     fig.tight_layout()
     p = out / "methods.png"
-    fig.savefig(p, dpi=90)
+    save_figure(fig, p, dpi=90)
     plt.close(fig)
     return p

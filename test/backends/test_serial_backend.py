@@ -336,17 +336,17 @@ def test_a_pseudo_terminal_taken_by_another_program_is_never_written_to(
 ) -> None:
     """A freed /dev/pts/N goes to the next program that asks (ros2 launch gives every
     node one): the backend must not reconnect into it and write its handshake."""
-    from pmdc_ident.backends import serial_board
+    from pmdc_ident.backends.serial_link import port
 
     be = _backend(board, reconnect_interval_s=0.05)
     c = Collector(be)
     try:
         c.run(0.1)
-        first = serial_board._pty_identity(board.port)
+        first = port.pty_identity(board.port)
         assert first is not None  # the virtual board is a pseudo-terminal
-        assert serial_board._pty_identity("/dev/null") is None
+        assert port.pty_identity("/dev/null") is None
         rdev, ctime_ns = first
-        monkeypatch.setattr(serial_board, "_pty_identity", lambda _port: (rdev, ctime_ns + 1))
+        monkeypatch.setattr(port, "pty_identity", lambda _port: (rdev, ctime_ns + 1))
         board.reset()  # the backend closes the port and reopens it
         assert c.until(lambda: be.state is LinkState.FAILED, 2.0)
         assert any("another program's terminal" in e for e in c.errors)
@@ -436,7 +436,7 @@ def test_a_host_held_up_inside_a_write_keeps_its_link(
 
     be = _backend(board, board_watchdog_ms=2000)  # the board's own watchdog is not tested
     try:
-        fd = be._ser.fileno()  # type: ignore[union-attr]
+        fd = be._serial.fileno()
         real_write = os.write
 
         def held_up(f: int, data: bytes | memoryview) -> int:

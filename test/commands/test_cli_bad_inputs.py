@@ -194,7 +194,7 @@ def test_write_error_is_one_line(work, capsys):
     ids=["KeyboardInterrupt", "SystemError from a compiled kernel"],
 )
 def test_ctrl_c_anywhere_in_a_command_is_one_line_and_130(exc, work, capsys, monkeypatch):
-    import pmdc_ident.commands._inputs as cmd  # identify reads its DATA there
+    import pmdc_ident.app.inputs as cmd  # identify reads its DATA there (the service)
 
     def interrupted(*_a, **_k):
         if isinstance(exc, SystemError):
@@ -208,7 +208,7 @@ def test_ctrl_c_anywhere_in_a_command_is_one_line_and_130(exc, work, capsys, mon
 
 
 def test_a_bug_of_ours_is_one_line_exit_1_and_debug_shows_the_traceback(work, capsys, monkeypatch):
-    import pmdc_ident.commands._inputs as cmd  # identify reads its DATA there
+    import pmdc_ident.app.inputs as cmd  # identify reads its DATA there (the service)
 
     def broken(*_a, **_k):
         raise RuntimeError("boom\nsecond line")

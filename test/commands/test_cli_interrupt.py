@@ -95,3 +95,42 @@ def test_reader_closing_the_pipe_is_not_an_error(long_run):
     err = proc.stderr.read()
     assert proc.wait(timeout=120) == 0, err
     assert err == "", err
+
+
+def test_a_second_signal_during_the_clean_up_keeps_the_first_ones_status(capsys):
+    """Ctrl-C, then SIGTERM while the Ctrl-C's clean-up runs (both sent at once by a
+    session manager): the command stopped because of the Ctrl-C (130, 'interrupted'),
+    not 143 (the property test over signals saw it under load)."""
+    from pmdc_ident.cli import Terminated, _exit_status
+
+    try:
+        try:
+            raise KeyboardInterrupt
+        finally:
+            raise Terminated(int(signal.SIGTERM))
+    except BaseException as exc:  # noqa: BLE001 - the chain under test
+        status = _exit_status("export", exc, ())
+    assert status == 130
+    assert capsys.readouterr().err.strip() == "pmdc-ident export: interrupted"
+
+
+def test_a_signal_after_the_command_is_held_in_the_program_not_raised_on_the_way_out():
+    # the program (argv None) ends with its command: a Ctrl-C between the command's end
+    # and the exit stays held (raised there, it was a traceback from a late import);
+    # an in-process caller gets its own handler back
+    import signal as _signal
+
+    from pmdc_ident import cli
+
+    before = _signal.getsignal(_signal.SIGINT)
+    try:
+        _signal.signal(_signal.SIGINT, cli._hold)
+        with cli._signals(program=True):
+            pass
+        assert _signal.getsignal(_signal.SIGINT) is cli._hold
+        with cli._signals(program=False):
+            pass
+        assert _signal.getsignal(_signal.SIGINT) is _signal.default_int_handler
+    finally:
+        _signal.signal(_signal.SIGINT, before)
+        cli._EARLY.clear()

@@ -3,6 +3,7 @@ pre-test and a plan designed from its log, and bad input as one line."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -35,12 +36,48 @@ def test_a_pretest_and_a_plan_from_its_log(tmp_path: Path, capsys):
     assert "pre-test" in capsys.readouterr().out
 
 
+def test_a_pretest_log_is_read_with_its_sidecar(tmp_path: Path, capsys):
+    """A pre-test logged in rpm with a sidecar saying so gives the prior that the same log
+    in rad/s gives (the sidecar was ignored: Ke 9.5 times too small)."""
+    import math
+
+    log = write_csv(tiny_run(3), tmp_path / "rad.csv")
+    lines = log.read_text().splitlines()
+    cols = lines[0].split(",")
+    keep = [k for k, c in enumerate(cols) if c != "position"]
+    w = cols.index("speed")
+
+    def row(line: str, rpm: bool) -> str:
+        cells = line.split(",")
+        if rpm and cells[w]:
+            cells[w] = repr(float(cells[w]) * 60.0 / (2.0 * math.pi))
+        return ",".join(cells[k] for k in keep)
+
+    body = lines[1:]
+    (tmp_path / "rad.csv").write_text("\n".join(row(x, False) for x in lines) + "\n")
+    rpm = tmp_path / "rpm.csv"
+    rpm.write_text("\n".join([row(lines[0], False), *(row(x, True) for x in body)]) + "\n")
+    (tmp_path / "rpm.csv.yaml").write_text("speed_unit: rpm\n")
+    ke = []
+    for name in ("rad.csv", "rpm.csv"):
+        out = tmp_path / f"{name}.json"
+        assert main(["plan", str(tmp_path / name), "--json", str(out)]) in (0, 3)
+        prior = json.loads(out.read_text())["prior"]
+        ke.append(float(prior.split("Ke ")[1].split()[0]))
+    capsys.readouterr()
+    assert ke[1] == pytest.approx(ke[0], rel=1e-3)
+
+
 @pytest.mark.parametrize(
     ("args", "match"),
     [
         (["--travel-rad", "2", "-2"], "travel range"),
         (["--target", "R=abc"], "not a number"),
         (["--rate-hz", "0"], "rate-hz"),
+        (["--travel-rad", "-2", "2", "--travel-margin-rad", "-1"], "--travel-margin-rad"),
+        (["--start-rad", "nan"], "--start-rad"),
+        (["--counts-per-rev", "-5"], "--counts-per-rev"),
+        (["--speed-noise", "inf"], "--speed-noise"),
         (["--reveal", "warp_drive"], "unknown"),
         (["--csv", "nowhere/plan.csv"], "does not exist"),
     ],

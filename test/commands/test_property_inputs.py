@@ -1,13 +1,13 @@
 """Property test over inputs: whatever CSV or bag a user hands over, every command
 exits 0 or 2, never prints a traceback or a warning, and never exits 0 on data
-that break a rule the README documents.
+that break a rule the documentation states (docs/reference.md, docs/user-guide.md).
 
 Generated CSVs: random column subsets and orders (repeated and unknown columns
 too), NaN/inf/empty/non-numeric cells, repeated or reversed time, huge and tiny
 values, random segment labels, and truncation at any byte. Bags: a recorded
 session truncated at any byte, as a bag folder and as a bare ``.mcap``.
 
-The rules are checked by :func:`broken_rule`, written from the README, not from
+The rules are checked by :func:`broken_rule`, written from the documentation, not from
 the reader's code. The default profile keeps the file to a few seconds; set
 ``PMDC_PROPERTY_EXAMPLES=500`` (or more) for a long hunt.
 """
@@ -47,7 +47,7 @@ SETTINGS = {
     ],
 }
 
-# The README's CSV schema and limits (README "CSV runs"), restated for the oracle.
+# The CSV schema and limits (docs/reference.md "CSV runs"), restated for the oracle.
 NUMERIC = ("t", "voltage", "current", "position", "speed", "terminal_voltage")
 LIMITS = {
     "t": 4e9,

@@ -83,7 +83,7 @@ CASES = {
     "JointStates with empty arrays": "neither position nor speed",
     "every stamp equal": "fewer than 2 driver samples",
     "1e300 in a bag": "beyond any motor test",
-    "encoder topic of another type": "not a little-endian CDR JointState",
+    "encoder topic of another type": "pmdc_ident reads sensor_msgs/msg/JointState there",
 }
 
 

@@ -104,7 +104,7 @@ def test_plain_files_take_the_fast_reader_and_match_the_careful_one(tmp_path):
     cols = {"t": "time"}
     for p in (_write(tmp_path, _plain_text()), *sorted(FIXTURES.glob("*.csv"))):
         text = csvio._text(p)
-        fast = csvio._fast_table(p, text, cols if p.parent == tmp_path else {})
+        fast = csvio._fast_table(p, cols if p.parent == tmp_path else {})
         careful = csvio._careful_table(p, text, cols if p.parent == tmp_path else {})
         assert fast is not None, p  # a plain file: numpy's C parser
         assert fast[0].keys() == careful[0].keys()
@@ -129,7 +129,7 @@ def test_odd_files_take_the_careful_reader_with_the_same_result(case, tmp_path):
     plain = read_csv(_write(tmp_path, "\n".join(lines) + "\n", "plain.csv"), {"t": "time"})
     ODD[case](lines)
     odd = _write(tmp_path, "\n".join(lines) + "\n", "odd.csv")
-    assert csvio._fast_table(odd, csvio._text(odd), {"t": "time"}) is None
+    assert csvio._fast_table(odd, {"t": "time"}) is None
     back = read_csv(odd, {"t": "time"})
     assert back.labels == plain.labels
     for a, b in zip(back.segments, plain.segments, strict=True):

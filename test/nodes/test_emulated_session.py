@@ -102,6 +102,7 @@ def _session(
     domain: int,
     board: Board,
     during: Callable[[dict[str, Any], float], None] | None = None,
+    identification: dict[str, Any] | None = None,
 ) -> BringupResult:
     with realtime_thread():  # the test's watch reacts at the nodes' priority
         return run_session(
@@ -115,7 +116,7 @@ def _session(
                 "rate_hz": 1000.0,
                 "watchdog_s": 1.5,
             },
-            identification_params=SHORT,
+            identification_params={**SHORT, **(identification or {})},
             log_dir=tmp_path / "logs",
             timeout_s=180.0,
             during=during,
@@ -184,7 +185,11 @@ def _fault_at_recording(
 def test_a_board_fault_mid_session_is_one_line_and_the_motor_safe(
     tmp_path: Path, ros_domain: int, board: Board, fault: str
 ) -> None:
-    res = _session(tmp_path, ros_domain, board, _fault_at_recording(tmp_path, board, fault))
+    # After a freeze the driver can confirm the safe state only once the board is back:
+    # the abort comes 1 s before the thaw, and the re-handshake takes up to ~2 s more on
+    # a busy machine, past the 3 s default confirm_timeout_s counted from the abort.
+    extra = {"confirm_timeout_s": 10.0} if fault == "freeze" else None
+    res = _session(tmp_path, ros_domain, board, _fault_at_recording(tmp_path, board, fault), extra)
     logs = _logs(res, board)
     driver = res.logs["driver"].read_text()
     ident = res.logs["identification"].read_text()

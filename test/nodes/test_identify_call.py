@@ -63,3 +63,59 @@ def test_a_job_handed_to_a_worker_still_warming_up_does_not_block_the_node(tmp_p
         worker.terminate()
     assert outcome is not None and outcome.error  # no markers: refused, in one outcome
     assert "warmed up" in outcome.notes[0][1]
+
+
+# -- the node's worker runs the service of `pmdc-ident identify` -------------------------
+def _session_like_run(seed: int = 3):
+    spec = load_motor("seed001_110v")
+    plan = plan_for_motor(spec, 1e-3, SequenceConfig(staircase_levels=2, coast_open_s=0.3))
+    return synthesize_run(spec.model, plan, spec.sensors, seed=seed, source="session")
+
+
+def _timeless(doc):
+    """``doc`` without wall times (``elapsed_s``)."""
+    if isinstance(doc, dict):
+        return {k: _timeless(v) for k, v in doc.items() if k != "elapsed_s"}
+    if isinstance(doc, list):
+        return [_timeless(v) for v in doc]
+    return doc
+
+
+def test_the_worker_writes_the_document_of_pmdc_ident_identify_json(tmp_path):
+    import json
+
+    from pmdc_ident.cli import main
+    from pmdc_ident.dataio.csvio import write_csv
+    from pmdc_ident.dataio.units import load_input
+
+    path = str(write_csv(_session_like_run(), tmp_path / "session.csv"))
+    assert main(["identify", path, "--json", str(tmp_path / "cli.json"), "--quiet"]) == 0
+    by_cli = json.loads((tmp_path / "cli.json").read_text())
+    # the worker gets the samples (here: as the command read them), not the file
+    node = identify_session_run(load_input(path).run, source=path)
+    online = json.loads(node.json_text)
+    assert list(online) == list(by_cli)  # the same keys, in the same order
+    # the input's units: the node's samples are SI already (docs/reference.md)
+    assert online["inputs"][path]["units"] == {"origin": "the node's driver samples (SI units)"}
+    assert by_cli["inputs"][path]["units"] == {"origin": "command line"}
+    online.pop("inputs"), by_cli.pop("inputs")
+    assert _timeless(online) == _timeless(by_cli)
+    assert node.yaml_text.startswith("# Motor file written by `pmdc-ident identify`")
+
+
+def test_the_worker_refuses_an_outlier_as_the_command_does_in_its_own_words():
+    from dataclasses import replace
+
+    from pmdc_ident.core.data import Run
+    from pmdc_ident.core.errors import DataError
+
+    run = _session_like_run(seed=4)
+    seg = run.segments[1]
+    current = seg.current.copy()
+    current[seg.n // 2] = 50.0 * float(abs(current).max())  # a one-sample glitch
+    run = Run((run.segments[0], replace(seg, current=current), *run.segments[2:]), run.source)
+    with pytest.raises(DataError, match="outlier") as err:
+        identify_session_run(run, source="/bags/session_x")
+    # the node has no `drop_outliers` or `ignore` parameter: the hint names the command
+    assert "`pmdc-ident identify BAG --drop-outliers`" in str(err.value)
+    assert "`pmdc-ident identify BAG --ignore` CODE goes on anyway" in str(err.value)

@@ -1,5 +1,5 @@
 """One source for every node parameter: the tables generate config/*.yaml and the
-README's tables, and this test fails when they drift."""
+tables of docs/reference.md, and this test fails when they drift."""
 
 from __future__ import annotations
 
@@ -42,6 +42,7 @@ def test_the_check_reports_a_drifted_file(tmp_path, capsys):
     (tmp_path / "config").mkdir()
     for path, text in generated_files(REPO).items():
         target = tmp_path / path.relative_to(REPO)
+        target.parent.mkdir(parents=True, exist_ok=True)
         target.write_text(text)
     assert main(["--check", "--repo", str(tmp_path)]) == 0
     drifted = tmp_path / "config" / "driver.yaml"
@@ -80,5 +81,5 @@ def test_ranges_and_choices_refuse_with_a_reason():
 def test_safe_mode_defaults_differ_only_with_the_stated_reason():
     assert DRIVER["safe_mode"].default == "open"
     assert IDENTIFICATION["safe_mode"].default == "zero"
-    readme = (REPO / "README.md").read_text()
-    assert "`safe_mode` defaults to `zero` here and to `open` in the driver on purpose" in readme
+    doc = (REPO / "docs" / "reference.md").read_text()
+    assert "`safe_mode` defaults to `zero` here and to `open` in the driver on purpose" in doc

@@ -210,7 +210,8 @@ def test_one_fault_enum_whose_bits_are_the_firmwares():
     bits must be the firmware's PMDC_FAULT_* values (the wire format)."""
     import re
 
-    from pmdc_ident.backends import base, serial_board, sim
+    from pmdc_ident.backends import base, sim
+    from pmdc_ident.backends.serial_link import decoder, delivery
     from pmdc_ident.core.enums import Fault
     from pmdc_ident.protocol import board
 
@@ -220,6 +221,6 @@ def test_one_fault_enum_whose_bits_are_the_firmwares():
         for name, value in re.findall(r"PMDC_FAULT_(\w+)\s*=\s*(\d+)", header.read_text())
     }
     assert firmware == {f.name: f.value for f in Fault if f.value}
-    for module in (base, serial_board, sim, board):
+    for module in (base, decoder, delivery, sim, board):
         assert module.Fault is Fault, module.__name__
     assert board.STICKY_FAULTS == Fault.OVER_CURRENT | Fault.OVER_SPEED | Fault.WATCHDOG

@@ -114,8 +114,8 @@ def estimate_frequency_response(
         rows.append((a, b, suu))
         dens_max = max(dens_max, suu / (b - a))
     for a, b, suu in rows:
-        if suu / (b - a) < 1e-2 * dens_max:
-            continue  # the sweep put (almost) no energy here
+        if suu <= 0.0 or suu / (b - a) < 1e-2 * dens_max:
+            continue  # the sweep put (almost) no energy here (none at all: a flat record)
         centers.append(float(np.exp(np.mean(np.log(f[a:b])))))
         for k, Yk in Y.items():
             syu = complex(np.sum(Yk[a:b] * np.conj(U[a:b])))

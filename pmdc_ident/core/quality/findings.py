@@ -29,6 +29,7 @@ CODES: tuple[str, ...] = (
     "no-drive",
     "no-excitation",
     "one-direction",
+    "outlier",
     "position-unit",
     "position-wrap",
     "power-balance",

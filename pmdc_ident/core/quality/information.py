@@ -341,7 +341,8 @@ def rate_for_inductance_hz(rsd_now: float, tau_e_s: float, dt_s: float, target: 
         return 1.0 / dt_s
     if dt_s > 8.0 * tau_e_s:
         # ... until the transient itself spans samples (two per L/R), where it takes over
-        return min((rsd_now / target) ** 2 / dt_s, 2.0 / tau_e_s)
+        q = rsd_now / target  # q * q: inf past the float range, where ** 2 raises
+        return min(q * q / dt_s, 2.0 / tau_e_s)
 
     def g(h: float) -> float:
         x = h / tau_e_s

@@ -42,6 +42,9 @@ def speed_position_ratio(segments: Sequence[Segment]) -> float | None:
         keep = np.ones(d_pos.size, dtype=bool)
         if wrap is not None:
             keep = np.abs(d_pos) < 0.5 * wrap[0]
+        # a gap (a paused logger, a clock jump) is no sample interval: 1000 s of it
+        # outweighed the whole record and read as a time unit (fix: --time-unit us)
+        keep &= np.abs(np.diff(s.t) - s.dt_s) <= 0.25 * s.dt_s
         inc = 0.5 * (s.speed[1:] + s.speed[:-1]) * np.diff(s.t)
         num += float(np.sum(inc[keep] * inc[keep]))
         den += float(np.sum(inc[keep] * d_pos[keep]))
@@ -130,11 +133,45 @@ def stall_plausible(stall_a: float | None) -> bool:
     return stall_a is not None and 0.0 < stall_a <= STALL_MAX_A
 
 
+_STALL_FIT_SAMPLES = 250_000  # R from the voltage equation needs no more (a long record)
+_STALL_WINDOW = 5_000
+
+
+def _spread_windows(segments: Sequence[Segment]) -> list[Segment]:
+    """``segments``, or for a long record windows spread evenly over each of them, at most
+    :data:`_STALL_FIT_SAMPLES` samples in all (the regression over every sample of a
+    3.7 M-row log held 1 GB for one resistance)."""
+    total = sum(s.n for s in segments)
+    if total <= _STALL_FIT_SAMPLES:
+        return list(segments)
+    out: list[Segment] = []
+    for s in segments:
+        share = max(1, round(_STALL_FIT_SAMPLES * s.n / total / _STALL_WINDOW))
+        if s.n <= share * _STALL_WINDOW:
+            out.append(s)
+            continue
+        starts = np.linspace(0, s.n - _STALL_WINDOW, share).round().astype(int)
+        out += [_window(s, int(a), int(a) + _STALL_WINDOW) for a in starts]
+    return out
+
+
+def _window(s: Segment, a: int, b: int) -> Segment:
+    """Samples ``a:b`` of ``s`` as views, no history (``Segment.slice`` sums the record
+    before ``a`` into one; the voltage equation reads samples alone)."""
+    from dataclasses import replace
+
+    names = ("t", "voltage", "current", "position", "speed", "terminal_voltage")
+    views = {n: (None if getattr(s, n) is None else getattr(s, n)[a:b]) for n in names}
+    return replace(
+        s, history_voltage=None, history_heat_a2s=None, history_heat_profile=None, **views
+    )
+
+
 def _stall_current(segments: Sequence[Segment], v_max: float) -> float | None:
     """``v_max / R`` with R from the record's own voltage equation, when it is measured."""
     from pmdc_ident.core.quality.regress import electrical_fit
 
-    el = electrical_fit(segments)
+    el = electrical_fit(_spread_windows(segments))
     if el is None or not el["R"] > 0 or el.t("R") < 6.0:
         return None
     return v_max / el["R"]
@@ -181,8 +218,10 @@ def check_magnitudes(
         i = np.abs(np.concatenate(cur))
         p95 = float(np.percentile(i, 95))
         integers = bool(np.all(i == np.round(i))) and float(np.ptp(i)) >= 20.0
-        stall = _stall_current(segments, v_max)
-        big = v_max <= 60.0 and p95 > current_ceiling_a(v_max) and not stall_plausible(stall)
+        doubted = v_max <= 60.0 and p95 > current_ceiling_a(v_max)
+        # the record's own resistance only where the amperes are in doubt (a regression)
+        stall = _stall_current(segments, v_max) if doubted else None
+        big = doubted and not stall_plausible(stall)
         if big or (v_max <= 60.0 and integers and p95 >= 20.0):
             hint = " in whole numbers" if integers else ""
             why = (
@@ -207,14 +246,17 @@ def check_magnitudes(
     has_position = any(s.position is not None for s in dyn)
     w_max = float(w.max())
     if "speed" not in declared and not has_position and w_max > 3000.0:
+        # an error like the current and voltage magnitudes (a speed 9.5x or 57x too high
+        # gave Ke -90 % / -98 %); rpm and deg/s both fit and nothing here tells them apart
         out.append(
             Finding(
                 "speed-unit",
-                Severity.WARNING,
+                Severity.ERROR,
                 where,
-                f"speed reaches {w_max:.5g} rad/s ({w_max * 30 / math.pi:.3g} rpm): rpm? (no "
-                "position column to check it against; --speed-unit rad/s keeps it)",
-                "--speed-unit rpm",
+                f"speed reaches {w_max:.5g} rad/s ({w_max * 30 / math.pi:.3g} rpm): beyond "
+                "any motor in rad/s; without a position column the data cannot tell rpm "
+                "from deg/s (pass --speed-unit rad/s if it really is rad/s)",
+                "--speed-unit rpm or --speed-unit deg/s (whichever the logger wrote)",
                 value=w_max,
                 unit="rad/s",
             )

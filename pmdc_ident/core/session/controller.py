@@ -28,7 +28,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from pmdc_ident.core.enums import AbortReason, SafeMode
+from pmdc_ident.core.enums import AbortReason, ExitCode, SafeMode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.schema import SCHEMA_VERSION
 from pmdc_ident.core.session.link import CommandPolicy, Latency, SafeConfirmation
@@ -58,7 +58,6 @@ from pmdc_ident.core.session.startup import (
 )
 
 __all__ = [
-    "EXIT_ABORTED",
     "ControllerConfig",
     "ControllerPorts",
     "IdentificationJob",
@@ -67,9 +66,6 @@ __all__ = [
     "default_session_name",
 ]
 
-EXIT_ABORTED = 3
-EXIT_REFUSED = 2
-EXIT_INTERRUPTED = 130
 PROGRESS_EVERY_S = 0.2
 DRIVER_GONE_S = 2.0  # flushing: no driver sample for this long, the rest will not come
 DRIVER_QUIET_S = 0.5  # stopped while idle: no driver sample for this long, it stopped too
@@ -117,7 +113,7 @@ class SessionController:
         self.phase = Phase.IDLE
         self.session: Session | None = None
         self.finished = False
-        self.exit_code = 0
+        self.exit_code: int = ExitCode.OK
         self.result_json: str | None = None
         self.recording = Recording()
         self.latency = Latency()
@@ -285,7 +281,7 @@ class SessionController:
         if outcome.error:
             self.ports.log("error", f"session {name}: identification failed: {outcome.error}")
             self._publish_status("failed", detail=outcome.error)
-            self.exit_code = outcome.exit_code or 1
+            self.exit_code = outcome.exit_code or ExitCode.FAILED
         else:
             self.result_json = outcome.json_text
             self.ports.publish_result(outcome.json_text)
@@ -406,7 +402,7 @@ class SessionController:
 
     def _fail(self, text: str) -> None:
         self.ports.log("error", text)
-        self.exit_code = EXIT_REFUSED
+        self.exit_code = ExitCode.USER_ERROR
         self._publish_status("refused", detail=text)
         if self.config.exit_when_done:
             self.phase = Phase.FINISHED
@@ -486,7 +482,7 @@ class SessionController:
             self.confirmation.start(self.peers.stamps_ns.get("encoder", 0), now_s)
         self.finished = True
         if cut_short:
-            self.exit_code = EXIT_INTERRUPTED
+            self.exit_code = ExitCode.INTERRUPTED
 
     def _on_aborted(self, now_s: float) -> None:
         s = self.session
@@ -505,7 +501,7 @@ class SessionController:
         )
         self.ports.publish_progress(s.progress().to_json())
         self._publish_status("aborted", reason=reason, detail=s.abort_detail, remedy=remedy)
-        self.exit_code = EXIT_ABORTED
+        self.exit_code = ExitCode.ABORTED
         self.phase = Phase.FINISHED
         self.confirmation.start(round(s.markers[-1].t_s * 1e9), now_s)
 

@@ -48,7 +48,7 @@ class IdentificationOutcome:
     n_samples: int = 0
     output_dir: str = ""
     error: str = ""
-    exit_code: int = 0  # 2: the data were refused (one line), 1: a bug of ours
+    exit_code: int = 0  # an ExitCode: USER_ERROR the data were refused (one line), FAILED a bug
     notes: tuple[tuple[str, str], ...] = ()  # (level, text) lines for the node's log
 
 

@@ -123,3 +123,14 @@ def test_timestamp_jitter_is_tolerated_with_one_warning(seed001_run):
         assert res.parameters[name].value == pytest.approx(
             getattr(spec.model.params, name), rel=0.01
         )
+
+
+def test_a_sweep_with_no_input_energy_is_one_data_error_not_a_division_by_zero():
+    # a constant voltage: every band's input power is exactly 0 (an emulated board's
+    # session with its sweep lost to a reset gave "complex division by zero", exit 1)
+    t = np.arange(2000) * 1e-3
+    seg = Segment(
+        "sweep", t, np.full(t.size, 6.0), np.full(t.size, 0.5), speed=np.full(t.size, 20.0)
+    )
+    with pytest.raises(DataError, match="too little input energy"):
+        estimate_frequency_response(seg)

@@ -125,3 +125,11 @@ def test_l_rate_advice_resolves_the_smallest_l_the_interval_allows():
     weak = advice_for("L", 0.2, tau_e=2e-4, dt_s=1e-3)
     assert weak.startswith("sample at >= ") and "LCR meter" in weak
     assert "LCR meter" in advice_for("L", 1e4, tau_e=2e-4, dt_s=1e-3)  # exp(-1.96 rsd) = 0
+
+
+def test_l_rate_advice_for_an_l_bounded_by_nothing_is_the_meter_not_an_overflow():
+    # relative sd 200 on L/R = 0.2 ms at 1 kHz: the interval's low end is exp(-392) L,
+    # its ratio squared beyond the float range; it raised OverflowError inside the
+    # fit (diagnose: "the baseline linear model could not be fitted ... (34, ...)")
+    assert "LCR meter" in advice_for("L", 200.0, tau_e=2e-4, dt_s=1e-3)
+    assert rate_for_inductance_hz(1e200, 1e-9, 1e-3, 0.10) == pytest.approx(2.0 / 1e-9)
