@@ -59,6 +59,7 @@ COMMANDS: dict[str, str] = {
     "monitor": "monitor",
     "virtual-board": "virtual_board",
     "benchmark": "benchmark",
+    "roundtrip": "roundtrip",
     "plan": "plan",
 }
 

@@ -12,6 +12,7 @@ as the session labels them; the truth stays in the :class:`Case`.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cache
 
@@ -19,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pmdc_ident.benchmark import plant as pl
-from pmdc_ident.benchmark.motors import MOTORS, BenchMotor
+from pmdc_ident.benchmark.motors import ALL_MOTORS, MOTORS, BenchMotor
 from pmdc_ident.benchmark.sensors import SensorSetup, measure
 from pmdc_ident.benchmark.truth import (
     EQUATIONS,
@@ -35,7 +36,7 @@ from pmdc_ident.benchmark.visibility import Visibility, visibility
 from pmdc_ident.core.excitation import SequenceConfig, default_plan
 from pmdc_ident.core.motors import Limits
 
-__all__ = ["Case", "Recording", "build_cases", "make_case", "record"]
+__all__ = ["Case", "Draw", "Recording", "build_cases", "make_case", "record"]
 
 FloatArray = NDArray[np.float64]
 COMPOUNDS: tuple[tuple[str, str], ...] = (
@@ -62,6 +63,7 @@ class Case:
     seed: int
     visibility: float = math.nan  # residual visibility (filled by the runner)
     visibility_raw: float = math.nan
+    plant: str = "generator"  # who simulates it: the generator's RK4 plant or "mujoco"
 
     @property
     def truth(self) -> tuple[str, ...]:
@@ -69,7 +71,7 @@ class Case:
 
     @property
     def bench_motor(self) -> BenchMotor:
-        return MOTORS[self.motor]
+        return ALL_MOTORS[self.motor]
 
 
 @dataclass(frozen=True)
@@ -231,48 +233,56 @@ def build_cases(
     """The benchmark's cases: levels balanced over the ladder, equations cycled.
 
     ``max_samples`` keeps only motor/rate pairs whose session is that short (CI)."""
-    rng = np.random.default_rng(seed)
-    cases: list[Case] = []
-    for name in effects:
-        eqs = EQUATIONS[name]
-        offset = int(rng.integers(len(eqs)))
-        n_levels = len(LADDERS[name][1])
-        for k in range(runs_per_effect):
-            level = n_levels - 1 - (k % n_levels)  # largest first: --quick sees big effects
-            eq = eqs[(k + offset) % len(eqs)]
-            cases.append(
-                make_case(
-                    f"{name}_{k:02d}",
-                    "effect",
-                    (name,),
-                    rng,
-                    k=k,
-                    level=level,
-                    equation=eq,
-                    max_samples=max_samples,
+    counts = (runs_per_effect, clean, oov_per_name, compounds)
+    draw = Draw(make_case, EQUATIONS, lambda name: len(LADDERS[name][1]), OOV_NAMES, COMPOUNDS)
+    return draw.cases(np.random.default_rng(seed), effects, counts, max_samples)
+
+
+@dataclass(frozen=True)
+class Draw:
+    """How a plant's cases are drawn (the generator's, :mod:`.mujoco_cases`' alike): per
+    effect, runs at levels balanced over its ladder (largest first: --quick sees big
+    effects) with its equations cycled from a drawn start; then effect-free,
+    out-of-vocabulary and paired runs, each made by the plant's ``make``."""
+
+    make: Callable[..., Case]
+    equations: Mapping[str, tuple[str, ...]]
+    n_levels: Callable[[str], int]
+    oov_names: tuple[str, ...]
+    pairs: tuple[tuple[str, str], ...]
+
+    def cases(
+        self,
+        rng: np.random.Generator,
+        effects: tuple[str, ...],
+        counts: tuple[int, int, int, int],
+        max_samples: int,
+    ) -> list[Case]:
+        """``counts``: runs per effect, effect-free runs, runs per out-of-vocabulary
+        name, paired runs."""
+        runs_per_effect, clean, oov_per_name, compounds = counts
+        make, cases = self.make, []
+        for name in effects:
+            eqs = self.equations[name]
+            offset = int(rng.integers(len(eqs)))
+            n_levels = self.n_levels(name)
+            for k in range(runs_per_effect):
+                level = n_levels - 1 - (k % n_levels)
+                eq = eqs[(k + offset) % len(eqs)]
+                cases.append(make(f"{name}_{k:02d}", "effect", (name,), rng, k=k, level=level,
+                                  equation=eq, max_samples=max_samples))  # fmt: skip
+        for k in range(clean):
+            cases.append(make(f"clean_{k:02d}", "clean", (), rng, k=k, max_samples=max_samples))
+        for name in self.oov_names:
+            for k in range(oov_per_name):
+                cases.append(
+                    make(f"{name}_{k:02d}", "oov", (name,), rng, k=k, max_samples=max_samples)
                 )
-            )
-    for k in range(clean):
-        cases.append(make_case(f"clean_{k:02d}", "clean", (), rng, k=k, max_samples=max_samples))
-    for name in OOV_NAMES:
-        for k in range(oov_per_name):
-            cases.append(
-                make_case(f"{name}_{k:02d}", "oov", (name,), rng, k=k, max_samples=max_samples)
-            )
-    for k in range(compounds):
-        pair = COMPOUNDS[k % len(COMPOUNDS)]
-        cases.append(
-            make_case(
-                f"pair_{k:02d}",
-                "compound",
-                pair,
-                rng,
-                k=k,
-                level=2 + k % 2,
-                max_samples=max_samples,
-            )
-        )
-    return cases
+        for k in range(compounds):
+            pair = self.pairs[k % len(self.pairs)]
+            cases.append(make(f"pair_{k:02d}", "compound", pair, rng, k=k, level=2 + k % 2,
+                              max_samples=max_samples))  # fmt: skip
+        return cases
 
 
 def sensor_vector(case: Case, effects: tuple[TrueEffect, ...]) -> FloatArray:

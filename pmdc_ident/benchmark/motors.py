@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 from pmdc_ident.core.params import MotorParams
 
-__all__ = ["MOTORS", "BenchMotor", "DriverSensors"]
+__all__ = ["ALL_MOTORS", "MOTORS", "MUJOCO_MOTORS", "BenchMotor", "DriverSensors"]
 
 
 @dataclass(frozen=True)
@@ -110,6 +110,7 @@ SOURCES: dict[str, str] = {
     "servo_24v": "iron-core 24 V servo motor, 7 slots / 2 poles, with a flywheel load",
     "scooter_24v": "24 V 250 W e-scooter motor with 9.78:1 reduction and a wheel load",
     "industrial_180v": "1.5 hp 180 V PMDC industrial motor (SCR/PWM drive), coupled load",
+    "traction_48v": "48 V 1.5 kW PMDC traction motor (golf cart / forklift class), vehicle load",
 }
 
 MOTORS: dict[str, BenchMotor] = {
@@ -228,3 +229,33 @@ MOTORS: dict[str, BenchMotor] = {
         cogging_motor_periods=(28,),
     ),
 }
+
+# Motors only the MuJoCo plant runs (``benchmark --plant mujoco``): the project's own
+# generator keeps its five, so its draws (and the figures measured on them) stay.
+MUJOCO_MOTORS: dict[str, BenchMotor] = {
+    # 48 V, 0.06 ohm (stall 800 A), 3,300 rpm at 4 A no load, 150 uH; rotor 6e-3 kg m^2 +
+    # the vehicle reflected to the shaft 0.015; 35 A continuous (1.5 kW at 3,000 rpm);
+    # 24 cogging periods per turn; a 12-bit current sense over +-1000 A and a 64-line
+    # encoder (256 counts), logged at 500 Hz to 2 kHz.
+    "traction_48v": BenchMotor(
+        name="traction_48v",
+        params=_motor(
+            v_rated=48.0,
+            i_stall=800.0,
+            w0_motor=_rpm(3300),
+            i0=4.0,
+            inductance_h=150e-6,
+            j_rotor=6.0e-3,
+            j_load_out=0.015,
+            gear=1.0,
+        ),
+        voltage_rated_v=48.0,
+        current_rated_a=35.0,
+        gear_ratio=1.0,
+        power_rated_w=1500.0,
+        rates_hz=(500.0, 1000.0, 2000.0),
+        sensors=DriverSensors(1000.0, 12, 0.5, 256.0, ("position", "tacho"), 0.3),
+        cogging_motor_periods=(24,),
+    ),
+}
+ALL_MOTORS: dict[str, BenchMotor] = {**MOTORS, **MUJOCO_MOTORS}

@@ -10,7 +10,14 @@ import numpy as np
 from pmdc_ident.benchmark.scoring import VISIBLE, Score
 from pmdc_ident.core.safe_write import save_figure
 
-__all__ = ["confusion_text", "summary_table", "write_figures"]
+__all__ = [
+    "confusion_text",
+    "detail_text",
+    "side_by_side",
+    "summary_table",
+    "truth_table_text",
+    "write_figures",
+]
 
 
 def _pct(x: float) -> str:
@@ -56,6 +63,13 @@ def summary_table(sc: Score) -> str:
             f"| diagnose wall time per run (median / max) | {np.median(secs):.1f} s / "
             f"{max(secs):.1f} s | {len(secs)} |"
         )
+    for key, what in (("cpu_s", "diagnose"), ("generate_cpu_s", "simulate")):
+        cpu = [float(o.extra[key]) for o in sc.outcomes if key in o.extra]
+        if cpu:
+            lines.append(
+                f"| {what} CPU per run (median / max) | {np.median(cpu):.2f} s / "
+                f"{max(cpu):.1f} s | {len(cpu)} |"
+            )
     errors = sum(1 for o in sc.outcomes if o.status == "error")
     if errors:
         lines.append(f"| runs the diagnosis failed on (error) | {errors} | |")
@@ -64,6 +78,91 @@ def summary_table(sc: Score) -> str:
         f"Visible: the effect moves the logged current or speed by >= {VISIBLE:g} noise "
         "RMS; tie-honest: right, or tied with the truth and the separating test named."
     )
+    return "\n".join(lines)
+
+
+def _limits(sc: Score) -> dict[str, str]:
+    return {lim.name: lim.text() for lim in sc.limits()}
+
+
+def side_by_side(scores: dict[str, Score]) -> str:
+    """The plants' headline figures and per-effect results in one table (one column
+    pair per plant)."""
+    names = list(scores)
+    head = "| | " + " | ".join(names) + " |"
+    rule = "|---|" + "---:|" * len(names)
+
+    def row(label: str, cells: list[str]) -> str:
+        return f"| {label} | " + " | ".join(cells) + " |"
+
+    def frac(ok: int, n: int) -> str:
+        return f"{_pct(ok / n if n else math.nan)} ({ok} of {n})"
+
+    lines = [head, rule]
+    lines.append(row("tie-honest top-1, visible effect runs", [
+        frac(sum(1 for o in sc.visible if _right(o)), len(sc.visible)) for sc in scores.values()
+    ]))  # fmt: skip
+    lines.append(row("top-1 (no ties counted)", [_pct(sc.top1()) for sc in scores.values()]))
+    lines.append(row("effect runs below the noise (not scored)", [
+        str(len(sc.hidden)) for sc in scores.values()
+    ]))  # fmt: skip
+    lines.append(row("false attributions, effect-free runs", [
+        f"{sc.false_attribution[0]} of {sc.false_attribution[1]}" for sc in scores.values()
+    ]))  # fmt: skip
+    lines.append(row("out-of-vocabulary runs -> unexplained", [
+        frac(sc.oov_verdicts["unexplained"], sum(sc.oov_verdicts.values()))
+        for sc in scores.values()
+    ]))  # fmt: skip
+    lines.append(row("median held-out shrink where the name is right", [
+        _pct(sc.median_shrink_right) for sc in scores.values()
+    ]))  # fmt: skip
+    both, one, n_comp = zip(*(sc.compounds for sc in scores.values()), strict=True)
+    lines.append(row("two effects: both named (or tied)", [
+        frac(b, n) for b, n in zip(both, n_comp, strict=True)
+    ]))  # fmt: skip
+    for key, what in (("generate_cpu_s", "simulate"), ("cpu_s", "diagnose")):
+        cells = []
+        for sc in scores.values():
+            cpu = [float(o.extra[key]) for o in sc.outcomes if key in o.extra]
+            cells.append(f"{np.median(cpu):.2f} s" if cpu else "-")
+        lines.append(row(f"{what} CPU per run (median)", cells))
+    lines += ["", "| effect | " + " | ".join(f"{n}: tie-honest (visible) | {n}: detection limit"
+                                            for n in names) + " |",
+              "|---|" + "---:|---|" * len(names)]  # fmt: skip
+    effects: list[str] = []
+    for sc in scores.values():
+        effects += [e for e in sc.per_effect() if e not in effects]
+    for e in effects:
+        cells = []
+        for sc in scores.values():
+            per = sc.per_effect().get(e)
+            if per is None:
+                cells += ["-", "-"]
+                continue
+            _, th, n, _ = per
+            cells += [f"{_pct(th / n if n else math.nan)} ({n})", _limits(sc).get(e, "-")]
+        lines.append(f"| {e} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _right(o) -> bool:  # type: ignore[no-untyped-def]
+    from pmdc_ident.benchmark.scoring import right_tie_honest
+
+    return right_tie_honest(o)
+
+
+def truth_table_text() -> str:
+    """The MuJoCo plant's truth table (docs/mujoco.md prints the same)."""
+    from pmdc_ident.benchmark.mujoco_truth import TRUTH_TABLE
+
+    lines = [
+        "| effect | equation | simulated by | model | right name | why |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in TRUTH_TABLE:
+        lines.append(
+            f"| {r.name} | {r.equation} | {r.where} | {r.mechanism} | `{r.right}` | {r.why} |"
+        )
     return "\n".join(lines)
 
 

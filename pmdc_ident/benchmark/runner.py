@@ -75,13 +75,20 @@ def run_one(case: Case, directory: str, workers: int = 1) -> Outcome:
     from pmdc_ident.core.errors import PmdcError
     from pmdc_ident.dataio import load_data
 
+    g0 = _cpu_s()
     try:
-        rec, vis = record(case)
+        if case.plant == "mujoco":
+            from pmdc_ident.benchmark.mujoco_cases import record_mj
+
+            rec, vis = record_mj(case)
+        else:
+            rec, vis = record(case)
     except (ValueError, ArithmeticError) as exc:
         # the generator's failure, not the diagnosis': reported and scored as a miss
         # (its visibility unmeasured, NaN, counts as visible; named nothing) rather
         # than ending the whole benchmark
         return Outcome(case, "error", (), message=f"{GENERATOR_FAILED}: {exc}")
+    gen_cpu = _cpu_s() - g0
     if vis is not None:
         case = replace(case, visibility=vis.residual, visibility_raw=vis.raw)
     path = write_recording(rec, Path(directory) / f"run_{case.seed:010d}.csv")
@@ -101,7 +108,7 @@ def run_one(case: Case, directory: str, workers: int = 1) -> Outcome:
         float("nan") if shrink is None else float(shrink),
         time.perf_counter() - t0,
         str(v["message"]),
-        {"cpu_s": _cpu_s() - c0, "samples": int(rec.current.size)},
+        {"cpu_s": _cpu_s() - c0, "generate_cpu_s": gen_cpu, "samples": int(rec.current.size)},
     )
 
 

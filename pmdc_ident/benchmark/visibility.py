@@ -23,7 +23,7 @@ from scipy.optimize import least_squares
 from pmdc_ident.benchmark import plant as pl
 from pmdc_ident.benchmark.sensors import SensorSetup, offset_at
 
-__all__ = ["Visibility", "visibility"]
+__all__ = ["Visibility", "linear_signals", "noise_sigmas", "visibility", "visibility_of"]
 
 FloatArray = NDArray[np.float64]
 _LIN = (pl.P_R, pl.P_L, pl.P_KE, pl.P_J, pl.P_B)
@@ -102,8 +102,28 @@ def visibility(
     max_nfev: int = 200,
 ) -> Visibility:
     dt = 1.0 / rate_hz
+    clean_sensors = SensorSetup(**{**sensors.__dict__, "offset_a": 0.0, "offset_end_a": 0.0})
+    ref = _signals(pl.simulate_plant(command_v, dt, p_effect), sensors)
+    clean = _signals(pl.simulate_plant(command_v, dt, p_clean), clean_sensors)
+    return visibility_of(command_v, rate_hz, ref, clean, p_clean, sensors, max_nfev=max_nfev)
+
+
+def visibility_of(
+    command_v: FloatArray,
+    rate_hz: float,
+    ref: tuple[FloatArray, FloatArray],
+    clean: tuple[FloatArray, FloatArray],
+    p_clean: FloatArray,
+    sensors: SensorSetup,
+    *,
+    max_nfev: int = 200,
+) -> Visibility:
+    """Visibility of the noise-free logged signals ``ref`` (current with its offset,
+    speed, behind the sensors' filters) against ``clean``, the same run without the
+    effect, made by any plant (the generator's, MuJoCo's)."""
+    dt = 1.0 / rate_hz
     sig_i, sig_w = noise_sigmas(sensors, rate_hz)
-    i_ref, w_ref = _signals(pl.simulate_plant(command_v, dt, p_effect), sensors)
+    i_ref, w_ref = ref
     clean_sensors = SensorSetup(**{**sensors.__dict__, "offset_a": 0.0, "offset_end_a": 0.0})
     if p_clean[pl.P_ORD_W] == 2.0:
         msg = "the visibility fit models a first-order speed filter only"
@@ -119,7 +139,7 @@ def visibility(
 
     x0 = np.log([max(p_clean[k], 1e-12) for k in _LIN])
     n = i_ref.size
-    ci, cw = _signals(pl.simulate_plant(command_v, dt, p_clean), clean_sensors)
+    ci, cw = clean
     r0 = np.concatenate([(ci - i_ref) / sig_i, (cw - w_ref) / sig_w])
 
     def rms_max(r: FloatArray) -> float:

@@ -21,6 +21,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--mujoco", metavar="OUT.xml", help="write MuJoCo MJCF")
     parser.add_argument(
+        "--diagnosis",
+        metavar="DIAG.json",
+        help="the JSON `pmdc-ident diagnose --json` wrote for this motor: the MJCF carries "
+        "the diagnosis' model with every named effect MuJoCo can express (docs/mujoco.md)",
+    )
+    parser.add_argument(
         "--mujoco-actuator",
         choices=("auto", "dcmotor", "general"),
         default="auto",
@@ -68,16 +74,31 @@ def run(args: argparse.Namespace) -> int:
     if not any((args.mujoco, args.urdf, args.ros2_control, args.gains)):
         msg = "nothing to write: give --mujoco, --urdf, --ros2-control and/or --gains"
         raise PmdcError(msg)
+    if args.diagnosis and not args.mujoco:
+        msg = "--diagnosis goes into the MuJoCo model: give --mujoco OUT.xml with it"
+        raise PmdcError(msg)
     _check_numbers(args)
     _check_outputs(args)
     spec = load_motor(args.motor)
     if args.mujoco:
         from pmdc_ident.exports.mujoco_xml import mujoco_xml
 
+        mj_spec = spec
+        if args.diagnosis:
+            from pmdc_ident.exports.diagnosis import load_diagnosis, motor_with_diagnosis
+
+            diagnosed = motor_with_diagnosis(
+                spec, load_diagnosis(args.diagnosis), source=str(args.diagnosis)
+            )
+            mj_spec = diagnosed.spec
+            for line in diagnosed.lines:
+                print(f"{args.diagnosis}: {line}")
         flavour = None if args.mujoco_actuator == "auto" else args.mujoco_actuator
-        ex = mujoco_xml(spec, reduction=args.reduction, joint=args.joint, flavour=flavour)
+        ex = mujoco_xml(mj_spec, reduction=args.reduction, joint=args.joint, flavour=flavour)
         ex.write(args.mujoco)
         print(f"{args.mujoco}: MJCF, {ex.flavour} actuator '{ex.actuator}' on '{ex.joint}'")
+        for item in ex.carried:
+            print(f"  carried: {item.split(': ', 1)[0]}")
         for item in ex.not_carried:
             print(f"  not carried: {item}")
     if args.urdf:
@@ -135,7 +156,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
     """Every output path checked (and made a Path) before any work (see commands.outputs)."""
     from pmdc_ident.commands.outputs import check_distinct, check_file_output
 
-    inputs = [x for x in (args.motor, args.verify_on) if x and Path(x).exists()]
+    inputs = [x for x in (args.motor, args.verify_on, args.diagnosis) if x and Path(x).exists()]
     suffixes = {
         "mujoco": (".xml",),
         "urdf": (".urdf", ".xml"),

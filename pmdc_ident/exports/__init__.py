@@ -6,7 +6,9 @@ node does with ``export_models:=true``); each format has its own module.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from pmdc_ident.core.motors import MotorSpec
 
@@ -26,10 +28,15 @@ def write_exports(
     sample_rate_hz: float = 1000.0,
     speed_bandwidth_hz: float | None = None,
     phase_margin_deg: float = 60.0,
+    diagnosis: Mapping[str, Any] | None = None,
 ) -> list[Path]:
     """MJCF, URDF, ros2_control parameters and checked gains of ``spec`` in ``folder``.
 
     ``speed_bandwidth_hz`` None takes a tenth of the current loop's crossover.
+    ``diagnosis`` (the document ``pmdc-ident diagnose --json`` writes, or
+    ``DiagnosisResult.to_json()``): the MJCF carries the diagnosis' model and every
+    named effect MuJoCo can express (:func:`~pmdc_ident.exports.diagnosis.motor_with_diagnosis`);
+    the other files keep ``spec``'s (URDF and the gains have no effect terms).
     Returns the paths written. Raises a :class:`~pmdc_ident.core.errors.PmdcError`
     subclass when the gains cannot be designed for these settings.
     """
@@ -50,7 +57,12 @@ def write_exports(
         speed_bandwidth_hz=bandwidth,
         phase_margin_deg=phase_margin_deg,
     )
-    mujoco_xml(spec, reduction=reduction, joint=joint).write(paths[0])
+    mjcf_spec = spec
+    if diagnosis is not None:
+        from pmdc_ident.exports.diagnosis import motor_with_diagnosis
+
+        mjcf_spec = motor_with_diagnosis(spec, diagnosis).spec
+    mujoco_xml(mjcf_spec, reduction=reduction, joint=joint).write(paths[0])
     write_text(paths[1], urdf_xml(spec, reduction=reduction, joint=joint))
     write_text(paths[2], ros2_control_yaml(spec, design, reduction=reduction, joint=joint))
     data = design.as_dict()

@@ -18,11 +18,21 @@ flavours, both commanded in volts (``ctrl`` = armature voltage):
 
 Rotor inertia, viscous friction and Coulomb friction go on the joint, reflected
 through the gear ``N`` (``armature = J N^2``, ``damping = B N^2``, ``frictionloss
-= Tc N``; a quadratic drag ``Cq`` becomes the joint's second damping coefficient
-``Cq N^3``, MuJoCo >= 4). The actuator's ``gear`` is ``N``. Each effect says what it
-adds to the joint (:meth:`~pmdc_ident.core.effects.base.Effect.mujoco_joint`) or why
-MuJoCo's model cannot carry it (``MUJOCO_NOT_CARRIED``); those are listed in
-:attr:`MujocoExport.not_carried` and in the file.
+= Tc N``); the actuator's ``gear`` is ``N``, so ``<dcmotor>``'s own terms act in the
+motor shaft's angle, speed and torque. Each effect of the model says what it becomes
+(:meth:`~pmdc_ident.core.effects.base.Effect.mujoco_terms`, its mapping in words in
+``MUJOCO_MAPPING``, docs/mujoco.md) or why MuJoCo cannot carry it
+(``MUJOCO_NOT_CARRIED``): a quadratic drag the joint's second damping coefficient, a
+Stribeck friction ``<dcmotor lugre>`` (with the Coulomb friction as its Coulomb
+level), cogging ``<dcmotor cogging>``, winding heating ``<dcmotor thermal>``, a
+transport delay the actuator's ``delay``, a constant load a passive ``<dcmotor>``.
+The motor file's current limit becomes ``<dcmotor saturation>`` (the torque a
+current-limited drive delivers at most). What is not carried is listed in
+:attr:`MujocoExport.not_carried` and in the file. The ``general`` flavour (MuJoCo < 4)
+carries the joint's terms only.
+
+:func:`~pmdc_ident.exports.diagnosis.motor_with_diagnosis` turns a diagnosis into the
+model exported here (``export-model --diagnosis``).
 """
 
 from __future__ import annotations
@@ -32,13 +42,23 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
+from pmdc_ident.core.effects import MujocoContext
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.params import MotorParams
 
-__all__ = ["MUJOCO_FLAVOURS", "MujocoExport", "installed_mujoco_flavour", "mujoco_xml"]
+__all__ = [
+    "MUJOCO_FLAVOURS",
+    "MujocoExport",
+    "installed_mujoco_flavour",
+    "mapping_table",
+    "mujoco_xml",
+]
 
 MUJOCO_FLAVOURS: tuple[str, ...] = ("dcmotor", "general")
+
+LUGRE_Z_RAD = 1e-4  # the LuGre bristles' deflection at the static friction level
+LUGRE_FLOOR = 0.02  # LuGre's Coulomb level at least this share of the Stribeck torque
 
 _ALWAYS_NOTED = (
     "open armature (coast-down): MuJoCo's motor has no open circuit; ctrl = 0 V shorts "
@@ -58,6 +78,7 @@ class MujocoExport:
     timestep_s: float
     not_carried: tuple[str, ...]
     notes: tuple[str, ...]
+    carried: tuple[str, ...] = ()  # "<effect>: how it is carried", one per effect
 
     def write(self, path: str | Path) -> Path:
         from pmdc_ident.core.safe_write import write_text
@@ -66,13 +87,18 @@ class MujocoExport:
 
 
 def installed_mujoco_flavour() -> str:
-    """``dcmotor`` unless an installed ``mujoco`` package predates the DC motor actuator."""
+    """``dcmotor`` unless an installed ``mujoco`` package predates the DC motor actuator.
+
+    The version is read from the package's metadata, not by importing it: writing an
+    export (the identification node does, beside a bag) never loads MuJoCo."""
+    from importlib import metadata
+
     try:
-        import mujoco  # noqa: PLC0415 - optional, only to choose the flavour
-    except ImportError:
+        version = metadata.version("mujoco")
+    except metadata.PackageNotFoundError:
         return "dcmotor"
-    major = int(str(getattr(mujoco, "__version__", "4")).split(".")[0] or 0)
-    return "dcmotor" if major >= 4 else "general"
+    head = version.split(".")[0]
+    return "dcmotor" if not head.isdigit() or int(head) >= 4 else "general"
 
 
 def mujoco_xml(
@@ -88,30 +114,29 @@ def mujoco_xml(
     flavour = flavour or installed_mujoco_flavour()
     _check_arguments(flavour, reduction, timestep_s)
     p, n = spec.model.params, float(reduction)
-    joint_terms = _joint_terms(spec, n)
-    frictionloss = joint_terms.get("frictionloss", 0.0)  # Tc N
-    damping2 = joint_terms.get("damping2", 0.0)  # Cq N^3
-    not_carried = _not_carried(spec, flavour, n)
+    terms = _Terms.collect(spec, n, flavour)
+    plan = terms.friction_plan(p.J, timestep_s)
 
     root = ET.Element("mujoco", model=spec.name or "pmdc_motor")
     ET.SubElement(root, "option", timestep=_f(timestep_s), gravity="0 0 0")
     world = ET.SubElement(root, "worldbody")
     body = ET.SubElement(world, "body", name=f"{joint}_output")
-    damping = (
-        _f(p.B * n * n)
-        if not (damping2 > 0 and flavour == "dcmotor")
-        else (f"{_f(p.B * n * n)} {_f(damping2)}")
-    )
-    ET.SubElement(
-        body,
-        "joint",
-        name=joint,
-        type="hinge",
-        axis="0 0 1",
-        armature=_f(p.J * n * n),
-        damping=damping,
-        frictionloss=_f(frictionloss),
-    )
+    damping = _f(p.B * n * n)
+    if terms.damping2 > 0 and flavour == "dcmotor":
+        damping = f"{damping} {_f(terms.damping2)}"
+    joint_attrs = {
+        "name": joint,
+        "type": "hinge",
+        "axis": "0 0 1",
+        "armature": _f(p.J * n * n),
+        "damping": damping,
+        "frictionloss": _f(plan.frictionloss_nm * n),
+    }
+    if plan.frictionloss_nm > 0:
+        # MuJoCo's default friction constraint (20 ms) smears a Coulomb torque over tens
+        # of ms: as stiff as the step allows (two steps, MuJoCo's floor)
+        joint_attrs["solreffriction"] = f"{_f(2 * timestep_s)} 1"
+    ET.SubElement(body, "joint", **joint_attrs)
     # The rotor's inertia is the joint armature; the body itself is nearly massless.
     ET.SubElement(body, "inertial", pos="0 0 0", mass="1e-6", diaginertia="1e-12 1e-12 1e-12")
     vmax = spec.limits.voltage_max_v
@@ -123,9 +148,29 @@ def mujoco_xml(
         "ctrllimited": "true",
         "ctrlrange": f"{_f(-vmax)} {_f(vmax)}",
     }
-    notes.append(_actuator(ET.SubElement(root, "actuator"), flavour, common, p))
+    act = ET.SubElement(root, "actuator")
+    notes.append(_actuator(act, flavour, common, p))
+    if flavour == "dcmotor":
+        notes += _dcmotor_terms(act[0], spec, terms, plan, timestep_s)
+        if terms.constant_nm:
+            ET.SubElement(
+                act,
+                "dcmotor",
+                name=f"{joint}_load",
+                joint=joint,
+                gear=_f(n),
+                input="none",
+                resistance="1",
+                motorconst="0 0",
+                cogging=f"{_f(terms.constant_nm)} 0 {_f(-math.pi / 2)}",
+            )
+            notes.append(
+                f"actuator '{joint}_load' is the load torque ({terms.constant_nm:.4g} N*m at the "
+                "motor, against +w): a passive dcmotor whose zero-pole cogging is constant; "
+                "remove it where your scene models the load"
+            )
     text = ET.tostring(root, encoding="unicode")
-    header = _comment(spec, n, flavour, notes, not_carried)
+    header = _comment(spec, n, flavour, notes, terms.carried, terms.not_carried)
     xml = _pretty(header + text)
     return MujocoExport(
         xml=xml,
@@ -133,9 +178,24 @@ def mujoco_xml(
         joint=joint,
         actuator=f"{joint}_motor",
         timestep_s=timestep_s,
-        not_carried=not_carried,
+        not_carried=terms.not_carried,
         notes=tuple(notes),
+        carried=terms.carried,
     )
+
+
+def mapping_table() -> str:
+    """Every effect of the registry and what the MuJoCo export makes of it (markdown;
+    docs/mujoco.md prints it, a test keeps the two equal)."""
+    from pmdc_ident.core.effects import EFFECT_TYPES
+
+    lines = ["| effect | in MuJoCo | how |", "|---|---|---|"]
+    for name, cls in EFFECT_TYPES.items():
+        if cls.MUJOCO_MAPPING:
+            lines.append(f"| `{name}` | carried | {cls.MUJOCO_MAPPING} |")
+        else:
+            lines.append(f"| `{name}` | not carried | {cls.MUJOCO_NOT_CARRIED} |")
+    return "\n".join(lines)
 
 
 def _check_arguments(flavour: str, reduction: float, timestep_s: float) -> None:
@@ -150,28 +210,136 @@ def _check_arguments(flavour: str, reduction: float, timestep_s: float) -> None:
         raise ParameterError(msg)
 
 
-def _joint_terms(spec: MotorSpec, n: float) -> dict[str, float]:
-    """What the model's effects add to the joint (``frictionloss``, ``damping2``)."""
-    terms: dict[str, float] = {}
-    for e in spec.model.effects:
-        for key, value in e.mujoco_joint(n).items():
-            terms[key] = terms.get(key, 0.0) + value
-    return terms
+@dataclass(frozen=True)
+class _Friction:
+    """How the dry friction is written: the joint's ``frictionloss`` (Coulomb alone) or
+    ``<dcmotor lugre>`` (with a Stribeck term), at the motor shaft."""
+
+    frictionloss_nm: float = 0.0
+    lugre: tuple[float, float, float, float, float] | None = None
+    floor_note: str = ""
 
 
-def _not_carried(spec: MotorSpec, flavour: str, n: float) -> tuple[str, ...]:
-    """What of the motor's model the MJCF cannot carry, one line each."""
-    out = tuple(
-        f"{e.NAME}: {e.MUJOCO_NOT_CARRIED}" for e in spec.model.effects if e.MUJOCO_NOT_CARRIED
-    )
-    out += _ALWAYS_NOTED
-    if flavour == "general":
-        out += tuple(
-            f"{e.NAME}: polynomial joint damping needs MuJoCo >= 4"
-            for e in spec.model.effects
-            if e.mujoco_joint(n).get("damping2", 0.0) > 0
+@dataclass
+class _Terms:
+    """Every effect's MuJoCo terms, summed, with what is and is not carried."""
+
+    coulomb_nm: float = 0.0
+    damping2: float = 0.0
+    stribeck: tuple[float, float] = (0.0, 0.0)
+    cogging: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    thermal: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    delay_s: float = 0.0
+    constant_nm: float = 0.0
+    carried: tuple[str, ...] = ()
+    not_carried: tuple[str, ...] = ()
+
+    @classmethod
+    def collect(cls, spec: MotorSpec, n: float, flavour: str) -> _Terms:
+        p = spec.model.params
+        ctx = MujocoContext(
+            reduction=n, resistance_ohm=p.R * p.Ke / p.Kt, current_scale=p.Kt / p.Ke
         )
-    return out
+        out = cls()
+        carried: list[str] = []
+        missing: list[str] = []
+        for e in spec.model.effects:
+            if e.MUJOCO_NOT_CARRIED:
+                missing.append(f"{e.NAME}: {e.MUJOCO_NOT_CARRIED}")
+                continue
+            t = e.mujoco_terms(ctx)
+            joint_only = t.coulomb_nm and not t.stribeck[0]
+            if flavour == "general" and not joint_only:
+                missing.append(f"{e.NAME}: needs MuJoCo >= 4 (<dcmotor> and polynomial damping)")
+                continue
+            out.coulomb_nm += t.coulomb_nm
+            out.damping2 += t.joint_damping2
+            if t.stribeck[0]:
+                out.stribeck = t.stribeck
+            if any(t.cogging):
+                out.cogging = t.cogging
+            if any(t.thermal):
+                out.thermal = t.thermal
+            out.delay_s += t.delay_s
+            out.constant_nm += t.constant_torque_nm
+            carried.append(f"{e.NAME}: {e.MUJOCO_MAPPING}")
+            if t.partial:
+                missing.append(f"{e.NAME}: {t.partial}")
+        missing += list(_ALWAYS_NOTED)
+        if not math.isclose(p.Kt, p.Ke, rel_tol=1e-9):
+            missing.append(
+                f"Kt != Ke (Kt/Ke = {p.Kt / p.Ke:.6g}): MuJoCo's dcmotor has one motor constant "
+                "(motorconst 'Kt Ke' is taken as their geometric mean); the file uses K = Ke "
+                "and scales R and L by Ke/Kt, so speed and torque are exact and the current "
+                "state reads i Kt/Ke"
+            )
+        out.carried, out.not_carried = tuple(carried), tuple(missing)
+        return out
+
+    def friction_plan(self, inertia_motor: float, timestep_s: float) -> _Friction:
+        ts, vs = self.stribeck
+        if ts <= 0:
+            return _Friction(frictionloss_nm=self.coulomb_nm)
+        fc = max(self.coulomb_nm, LUGRE_FLOOR * ts)
+        note = ""
+        if fc > self.coulomb_nm:
+            note = (
+                f"LuGre's Coulomb level is {fc:.4g} N*m, {LUGRE_FLOOR:.0%} of the Stribeck torque "
+                "(MuJoCo's bristle equation needs g(v) > 0 at every speed)"
+            )
+        fs = fc + ts
+        # bristles deflecting LUGRE_Z_RAD at the static level, their resonance resolved by
+        # the step (explicit: omega h <= 0.3); no bristle damping: MuJoCo's damping force
+        # sigma1 dz/dt takes dz/dt at the step's start while it integrates z exactly, so
+        # with it the friction depends on the step (a 6 V step and a sine through zero on
+        # a 2 ohm motor: 4.7 rad/s RMS off the candidate at 50 steps per sample, 1.2 at
+        # 200; without it 0.48 at any step)
+        sig0 = min(fs / LUGRE_Z_RAD, inertia_motor * (0.3 / timestep_s) ** 2)
+        sig1 = 0.0
+        return _Friction(lugre=(sig0, sig1, fc, fs, vs), floor_note=note)
+
+
+def _dcmotor_terms(
+    el: ET.Element, spec: MotorSpec, terms: _Terms, plan: _Friction, timestep_s: float
+) -> list[str]:
+    """The ``<dcmotor>`` attributes of the effects and the limits; the notes they need."""
+    notes = []
+    p = spec.model.params
+    if any(terms.cogging):
+        el.set("cogging", " ".join(_f(x) for x in terms.cogging))
+    if any(terms.thermal):
+        rth, c, alpha = terms.thermal
+        el.set("thermal", f"{_f(rth)} {_f(c)} 0 {_f(alpha)} 25 25")
+        notes.append(
+            "thermal: the winding's rise T above 25 C ambient (= reference) in the "
+            "actuator's temperature activation; R(T) = R (1 + alpha T)"
+        )
+    if plan.lugre is not None:
+        el.set("lugre", " ".join(_f(x) for x in plan.lugre))
+        notes.append(
+            f"lugre: bristle stiffness chosen for a {timestep_s:g} s step (at a larger step lower "
+            "it: its resonance sqrt(sigma0 / J) x step <= 0.3), no bristle damping (MuJoCo "
+            "takes its force from dz/dt at the step's start: the friction would depend on the "
+            "step)"
+        )
+        if plan.floor_note:
+            notes.append(plan.floor_note)
+    if terms.delay_s > 0:
+        nsample = int(math.ceil(terms.delay_s / timestep_s)) + 2
+        el.set("delay", _f(terms.delay_s))
+        el.set("nsample", str(nsample))
+        notes.append(
+            f"delay: the command is read {terms.delay_s:.4g} s late from MuJoCo's ctrl history "
+            f"(nsample {nsample} at this step: keep delay <= nsample x timestep)"
+        )
+    torque_max = p.Kt * spec.limits.current_max_a
+    el.set("saturation", f"{_f(torque_max)} 0 0")
+    notes.append(
+        f"saturation: the motor file's current limit {spec.limits.current_max_a:g} A as a "
+        f"torque limit Kt I_max = {torque_max:.4g} N*m at the motor (what a current-limited "
+        "drive delivers at most; MuJoCo's current itself is not limited)"
+    )
+    return notes
 
 
 def _actuator(act: ET.Element, flavour: str, common: dict[str, str], p: MotorParams) -> str:
@@ -209,7 +377,12 @@ def _f(x: float) -> str:
 
 
 def _comment(
-    spec: MotorSpec, n: float, flavour: str, notes: list[str], not_carried: tuple[str, ...]
+    spec: MotorSpec,
+    n: float,
+    flavour: str,
+    notes: list[str],
+    carried: tuple[str, ...],
+    not_carried: tuple[str, ...],
 ) -> str:
     p = spec.model.params
     lines = [
@@ -217,9 +390,10 @@ def _comment(
         f"R={p.R:.6g} ohm L={p.L:.6g} H Ke={p.Ke:.6g} V*s/rad Kt={p.Kt:.6g} N*m/A "
         f"J={p.J:.6g} kg*m^2 B={p.B:.6g} N*m*s/rad; gear reduction {n:g}.",
         *notes,
-        "Not carried by this MuJoCo model:",
-        *(f"  - {item}" for item in not_carried),
     ]
+    if carried:
+        lines += ["Effects carried:", *(f"  - {item}" for item in carried)]
+    lines += ["Not carried by this MuJoCo model:", *(f"  - {item}" for item in not_carried)]
     body = "\n".join(f"  {line}".replace("--", "- -") for line in lines)
     return f"<!--\n{body}\n-->\n"
 

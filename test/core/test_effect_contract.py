@@ -8,7 +8,6 @@ checks fail instead, for any effect added to the registry.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 import pytest
@@ -22,6 +21,7 @@ from pmdc_ident.core.effects import (
     CandidateContext,
     DataScales,
     Effect,
+    MujocoContext,
     SimPath,
     layout,
 )
@@ -184,16 +184,21 @@ def test_benchmark_truth_has_what_the_ladder_asks(name: str) -> None:
 def test_the_mujoco_export_carries_it_or_says_why_not(name: str) -> None:
     cls = EFFECT_TYPES[name]
     e = typical(cls)
-    terms = e.mujoco_joint(2.0)
-    assert bool(terms) != bool(cls.MUJOCO_NOT_CARRIED)
-    assert set(terms) <= {"frictionloss", "damping2"}
-    assert all(math.isfinite(v) and v >= 0 for v in terms.values())
+    terms = e.mujoco_terms(MujocoContext(reduction=2.0, resistance_ohm=2.0, current_scale=1.0))
+    # carried (terms and the mapping in words) or not (and why): never both, never neither
+    assert terms.carries_anything() == bool(cls.MUJOCO_MAPPING) != bool(cls.MUJOCO_NOT_CARRIED)
     spec = MotorSpec("probe", Model(MOTOR, (e,)))
     out = mujoco_xml(spec, flavour="dcmotor")
     if cls.MUJOCO_NOT_CARRIED:
         assert f"{name}: {cls.MUJOCO_NOT_CARRIED}" in out.not_carried
+        assert not any(line.startswith(f"{name}:") for line in out.carried)
     else:
-        assert not any(line.startswith(f"{name}:") for line in out.not_carried)
+        assert f"{name}: {cls.MUJOCO_MAPPING}" in out.carried
+        assert all(
+            line == f"{name}: {terms.partial}"
+            for line in out.not_carried
+            if line.startswith(f"{name}:")
+        )
 
 
 def test_default_candidates_are_registered_in_order() -> None:

@@ -481,9 +481,14 @@ def _cogging(search: Search, base: Fitted, sc: DataScales, periodic: bool) -> Fi
     """Cogging fitted in the measured shaft angle (:mod:`.cogging`); where one period
     stands out of the residuals' angle spectrum, also by output error in time from that
     fit (a rotor caught in a detent moves less than an encoder count: there the angle
-    read from the encoder cannot give the torque, a simulated angle can). The one
-    closer to the fit segments stands."""
-    in_angle, angle_gap = angle_cogging(search, base, sc.periods_per_rev)
+    read from the encoder cannot give the torque, a simulated angle can). The two fit
+    the same fields (amplitude and phase, the period held): the one with the smaller
+    held-out gap stands, as between an effect's two forms (:func:`_single_candidates`).
+    The fit in time always matches the fit segments at least as well, its simulated
+    angle free to slip a period; on held-out data that slip is what it predicts (a
+    geared scooter motor's 17-tooth mesh at 1 kHz: 0.78 noise variances left in the
+    angle, 3.3 in time, the baseline's 2.9)."""
+    in_angle, _angle_gap = angle_cogging(search, base, sc.periods_per_rev)
     if in_angle.failed or not periodic:
         return in_angle
     in_time = search.single(
@@ -492,7 +497,7 @@ def _cogging(search: Search, base: Fitted, sc: DataScales, periodic: bool) -> Fi
         sc,
         start=(base.fit.model.with_effects(*in_angle.fit.model.effects)),
     )
-    if in_time.failed or _fit_gap(in_time, search.split.fit, search.noise) >= angle_gap:
+    if in_time.failed or in_time.gap >= in_angle.gap:
         return in_angle
     return in_time
 

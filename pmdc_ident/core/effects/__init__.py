@@ -38,6 +38,8 @@ from pmdc_ident.core.effects.base import (
     DataScales,
     Effect,
     Ladder,
+    MujocoContext,
+    MujocoTerms,
     ParamSpec,
     SimPath,
 )
@@ -73,6 +75,8 @@ __all__ = [
     "InductanceSaturation",
     "Ladder",
     "LoadTorque",
+    "MujocoContext",
+    "MujocoTerms",
     "ParamSpec",
     "QuadraticDrag",
     "ResistanceDrift",

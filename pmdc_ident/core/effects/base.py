@@ -30,8 +30,9 @@ hook                        read by
                             the two apart (a pair is declared by one of the two)
 ``BENCHMARK_LADDER``        the benchmark's graded sizes in a user's unit (None: not in
                             the benchmark's vocabulary)
-``mujoco_joint``,           the MuJoCo export: joint terms it becomes, or why MuJoCo's
-``MUJOCO_NOT_CARRIED``      model cannot carry it
+``mujoco_terms``,           the MuJoCo export: what it becomes in MJCF (joint terms,
+``MUJOCO_MAPPING``,         ``<dcmotor>`` attributes, a passive actuator), the mapping
+``MUJOCO_NOT_CARRIED``      in words (docs/mujoco.md), or why MuJoCo cannot carry it
 ==========================  ===========================================================
 
 ``test/core/test_effect_contract.py`` checks that every registered effect provides
@@ -54,6 +55,8 @@ __all__ = [
     "DataScales",
     "Effect",
     "Ladder",
+    "MujocoContext",
+    "MujocoTerms",
     "ParamSpec",
     "SimPath",
 ]
@@ -105,6 +108,40 @@ class Ladder:
     sizes: tuple[float, ...]
 
 
+@dataclass(frozen=True)
+class MujocoContext:
+    """What an effect's MuJoCo terms are sized against (``exports.mujoco_xml``). The
+    motor file's effects act at the motor shaft; the MJCF's joint is behind a gear of
+    ``reduction`` motor turns per joint turn, and ``<dcmotor>`` works in the motor
+    shaft's angle, speed and torque (its ``gear`` is the reduction)."""
+
+    reduction: float
+    resistance_ohm: float  # the export's winding resistance (in MuJoCo's current units)
+    current_scale: float  # MuJoCo's current per real ampere (Kt/Ke: its one K is Ke)
+
+
+@dataclass(frozen=True)
+class MujocoTerms:
+    """What an effect becomes in MJCF; zeros leave a term out. Torques, angles and
+    speeds at the motor shaft unless the name says joint."""
+
+    coulomb_nm: float = 0.0  # a dry friction (joint frictionloss, or LuGre's Coulomb level)
+    joint_damping2: float = 0.0  # the joint's quadratic damping coefficient (at the joint)
+    stribeck: tuple[float, float] = (0.0, 0.0)  # extra breakaway torque, Stribeck speed
+    cogging: tuple[float, float, float] = (0.0, 0.0, 0.0)  # amplitude, poles, phase
+    thermal: tuple[float, float, float] = (0.0, 0.0, 0.0)  # R_th K/W, C J/K, tempcoef 1/K
+    delay_s: float = 0.0  # the actuator's command delay
+    constant_torque_nm: float = 0.0  # against +w (a passive dcmotor's zero-pole cogging)
+    partial: str = ""  # what of the effect the terms leave out ("": nothing)
+
+    def carries_anything(self) -> bool:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name != "partial" and (any(v) if isinstance(v, tuple) else bool(v)):
+                return True
+        return False
+
+
 class SimPath(Enum):
     """How the output-error fit simulates a model with the effect (the slowest wins)."""
 
@@ -142,7 +179,8 @@ class Effect:
 
     # -- benchmark, exports ---------------------------------------------------------------
     BENCHMARK_LADDER: ClassVar[Ladder | None] = None
-    MUJOCO_NOT_CARRIED: ClassVar[str] = ""  # why MuJoCo cannot carry it ("": mujoco_joint)
+    MUJOCO_MAPPING: ClassVar[str] = ""  # how it is carried, in words ("": not carried)
+    MUJOCO_NOT_CARRIED: ClassVar[str] = ""  # why MuJoCo cannot carry it ("": mujoco_terms)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -209,8 +247,7 @@ class Effect:
         )
 
     # -- export hooks -------------------------------------------------------------------------
-    def mujoco_joint(self, reduction: float) -> dict[str, float]:
-        """What the effect adds to a MuJoCo hinge joint behind a gear of ``reduction``:
-        ``frictionloss`` (N*m) or ``damping2`` (the second, quadratic, damping
-        coefficient); empty when MuJoCo cannot carry it (:attr:`MUJOCO_NOT_CARRIED`)."""
-        return {}
+    def mujoco_terms(self, ctx: MujocoContext) -> MujocoTerms:
+        """What the effect becomes in MuJoCo's model (:class:`MujocoTerms`; empty when
+        MuJoCo cannot carry it, :attr:`MUJOCO_NOT_CARRIED` says why)."""
+        return MujocoTerms()

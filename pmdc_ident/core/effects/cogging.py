@@ -2,11 +2,20 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
-from pmdc_ident.core.effects.base import CandidateContext, DataScales, Effect, Ladder, ParamSpec
+from pmdc_ident.core.effects.base import (
+    CandidateContext,
+    DataScales,
+    Effect,
+    Ladder,
+    MujocoContext,
+    MujocoTerms,
+    ParamSpec,
+)
 
 __all__ = ["Cogging"]
 
@@ -32,7 +41,11 @@ class Cogging(Effect):
         "stribeck_friction": "a slow run over several turns: cogging repeats with the shaft angle",
     }
     BENCHMARK_LADDER = Ladder("% rated torque", (3.0, 6.0, 12.0, 25.0))
-    MUJOCO_NOT_CARRIED = "cogging torque (dcmotor's cogging needs integer poles; not exported)"
+    MUJOCO_MAPPING = (
+        '`<dcmotor cogging="T N phi+pi">`: MuJoCo adds A sin(poles theta + phase) in the '
+        "motor shaft's angle, the candidate's torque T sin(N theta + phi) opposes +w; N per "
+        "motor turn (a real number: MuJoCo takes it as given)"
+    )
 
     torque_nm: float
     periods_per_rev: float
@@ -45,6 +58,11 @@ class Cogging(Effect):
             for n in sc.periods_per_rev
             for ph in (-2.5, -1.0, 0.5, 2.0)
         ]
+
+    def mujoco_terms(self, ctx: MujocoContext) -> MujocoTerms:
+        return MujocoTerms(
+            cogging=(self.torque_nm, self.periods_per_rev, self.phase_rad + math.pi)
+        )
 
     @classmethod
     def untestable(cls, ctx: CandidateContext) -> str:

@@ -6,7 +6,15 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
-from pmdc_ident.core.effects.base import DataScales, Effect, Ladder, ParamSpec, SimPath
+from pmdc_ident.core.effects.base import (
+    DataScales,
+    Effect,
+    Ladder,
+    MujocoContext,
+    MujocoTerms,
+    ParamSpec,
+    SimPath,
+)
 
 __all__ = ["CoulombFriction"]
 
@@ -40,6 +48,11 @@ class CoulombFriction(Effect):
         "current_offset": "read the current with the armature open: an offset reads non-zero",
     }
     BENCHMARK_LADDER = Ladder("% rated torque", (3.0, 6.0, 12.0, 25.0))
+    MUJOCO_MAPPING = (
+        "joint `frictionloss` = Tc N (MuJoCo's dry-friction constraint, made stiff: "
+        "`solreffriction` two steps); beside a Stribeck term, the Coulomb level Fc of "
+        "`<dcmotor lugre>`"
+    )
 
     torque_nm: float
 
@@ -47,5 +60,5 @@ class CoulombFriction(Effect):
     def starts(cls, sc: DataScales) -> list[CoulombFriction]:
         return [cls.clipped(sc.torque_nm * f) for f in (0.03, 0.1, 0.3)]
 
-    def mujoco_joint(self, reduction: float) -> dict[str, float]:
-        return {"frictionloss": self.torque_nm * reduction}
+    def mujoco_terms(self, ctx: MujocoContext) -> MujocoTerms:
+        return MujocoTerms(coulomb_nm=self.torque_nm)

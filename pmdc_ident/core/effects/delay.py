@@ -6,7 +6,14 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
-from pmdc_ident.core.effects.base import DataScales, Effect, Ladder, ParamSpec
+from pmdc_ident.core.effects.base import (
+    DataScales,
+    Effect,
+    Ladder,
+    MujocoContext,
+    MujocoTerms,
+    ParamSpec,
+)
 
 __all__ = ["Delay"]
 
@@ -44,12 +51,25 @@ class Delay(Effect):
         ),
     }
     BENCHMARK_LADDER = Ladder("samples", (0.5, 1.0, 2.0, 4.0))
-    MUJOCO_NOT_CARRIED = (
-        "command delay (use MuJoCo's actuator delay/nsample history if you need it)"
+    MUJOCO_MAPPING = (
+        '`<dcmotor delay="d" nsample="ceil(d/step)+2">`: MuJoCo reads the command from '
+        "its own history, d late (zero-order hold); a drive's first-order lag (lag_s) only "
+        "as a transport delay of its time constant, d = delay_s + lag_s (the same delay at "
+        "low frequency, without the lag's smoothing)"
     )
 
     delay_s: float
     lag_s: float = 0.0
+
+    def mujoco_terms(self, ctx: MujocoContext) -> MujocoTerms:
+        partial = ""
+        if self.lag_s > 0:
+            partial = (
+                f"the drive's first-order lag ({self.lag_s:.3g} s) as a transport delay of the "
+                "same length (MuJoCo's actuator delay is a transport delay: the same delay "
+                "at low frequency, none of the lag's smoothing)"
+            )
+        return MujocoTerms(delay_s=self.delay_s + self.lag_s, partial=partial)
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[Delay]:

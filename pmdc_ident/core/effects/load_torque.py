@@ -6,7 +6,15 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
-from pmdc_ident.core.effects.base import DataScales, Effect, Ladder, ParamSpec, SimPath
+from pmdc_ident.core.effects.base import (
+    DataScales,
+    Effect,
+    Ladder,
+    MujocoContext,
+    MujocoTerms,
+    ParamSpec,
+    SimPath,
+)
 
 __all__ = ["LoadTorque"]
 
@@ -28,10 +36,17 @@ class LoadTorque(Effect):
         "current_offset": "read the current with the armature open: an offset reads non-zero",
     }
     BENCHMARK_LADDER = Ladder("% rated torque", (3.0, 6.0, 12.0, 25.0))
-    MUJOCO_NOT_CARRIED = "constant load torque (apply it as qfrc_applied in your simulation)"
+    MUJOCO_MAPPING = (
+        'a passive `<dcmotor input="none" motorconst="0 0">` on the joint whose '
+        'zero-pole cogging is the constant torque, `cogging="TL 0 -1.5708"` (remove it '
+        "where your scene models the load itself)"
+    )
 
     torque_nm: float
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[LoadTorque]:
         return [cls.clipped(sc.torque_nm * f) for f in (-0.2, -0.05, 0.05, 0.2)]
+
+    def mujoco_terms(self, ctx: MujocoContext) -> MujocoTerms:
+        return MujocoTerms(constant_torque_nm=self.torque_nm)

@@ -6,7 +6,15 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
-from pmdc_ident.core.effects.base import DataScales, Effect, Ladder, ParamSpec, SimPath
+from pmdc_ident.core.effects.base import (
+    DataScales,
+    Effect,
+    Ladder,
+    MujocoContext,
+    MujocoTerms,
+    ParamSpec,
+    SimPath,
+)
 
 __all__ = ["QuadraticDrag"]
 
@@ -32,6 +40,10 @@ class QuadraticDrag(Effect):
         ),
     }
     BENCHMARK_LADDER = Ladder("% rated torque at w0", (5.0, 10.0, 20.0, 40.0))
+    MUJOCO_MAPPING = (
+        'joint `damping="B N^2 Cq N^3"`: the quadratic term b of MuJoCo\'s polynomial '
+        "damping -(a w + b w abs(w))"
+    )
 
     coeff_nm_s2: float
 
@@ -39,6 +51,6 @@ class QuadraticDrag(Effect):
     def starts(cls, sc: DataScales) -> list[QuadraticDrag]:
         return [cls.clipped(sc.torque_nm * f / sc.speed_rad_s**2) for f in (0.1, 0.3, 1.0)]
 
-    def mujoco_joint(self, reduction: float) -> dict[str, float]:
+    def mujoco_terms(self, ctx: MujocoContext) -> MujocoTerms:
         # the joint's second damping coefficient (MuJoCo >= 4), reflected through the gear
-        return {"damping2": self.coeff_nm_s2 * reduction**3}
+        return MujocoTerms(joint_damping2=self.coeff_nm_s2 * ctx.reduction**3)

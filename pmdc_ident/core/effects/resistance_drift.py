@@ -7,11 +7,20 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
-from pmdc_ident.core.effects.base import DataScales, Effect, Ladder, ParamSpec, SimPath
+from pmdc_ident.core.effects.base import (
+    DataScales,
+    Effect,
+    Ladder,
+    MujocoContext,
+    MujocoTerms,
+    ParamSpec,
+    SimPath,
+)
 
 __all__ = ["NO_COOLING_S", "ResistanceDrift"]
 
 NO_COOLING_S = 1e6  # a winding time constant this long is the plain heat integral
+ALPHA_COPPER = 0.00393  # 1/K: the temperature coefficient the MuJoCo export writes
 
 
 @dataclass(frozen=True)
@@ -67,9 +76,11 @@ class ResistanceDrift(Effect):
         ),
     }
     BENCHMARK_LADDER = Ladder("% of R", (4.0, 8.0, 16.0, 32.0))
-    MUJOCO_NOT_CARRIED = (
-        "winding heating R(1 + k q), dq/dt = i^2 - q/tau, flux Ke (1 - r k q) "
-        "(MuJoCo's thermal model differs)"
+    MUJOCO_MAPPING = (
+        '`<dcmotor thermal="R_th C 0 alpha 25 25">` with copper\'s alpha = 0.00393/K: '
+        "C = alpha R / k, R_th = tau / C (no cooling: tau 1e6 s), so alpha T = k q to first "
+        "order (MuJoCo heats by R(T) i^2 where the candidate heats by R i^2, and keeps L/R, "
+        "so its L rises with R); the magnets' flux loss r is not carried"
     )
 
     coeff_per_a2s: float
@@ -84,6 +95,22 @@ class ResistanceDrift(Effect):
 
     def varies_within_sample(self) -> bool:
         return self.coeff_per_a2s > 0.0
+
+    def mujoco_terms(self, ctx: MujocoContext) -> MujocoTerms:
+        # alpha dT/dt = alpha R' i'^2 / C must be k i^2, with MuJoCo's current i' = s i
+        c = (
+            ALPHA_COPPER
+            * ctx.resistance_ohm
+            * ctx.current_scale**2
+            / max(self.coeff_per_a2s, 1e-30)
+        )
+        partial = ""
+        if self.flux_loss_ratio > 0:
+            partial = (
+                f"the magnets' flux loss (flux_loss_ratio {self.flux_loss_ratio:.3g}: MuJoCo's "
+                "motor constant does not follow the heat)"
+            )
+        return MujocoTerms(thermal=(self.time_constant_s / c, c, ALPHA_COPPER), partial=partial)
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[ResistanceDrift]:

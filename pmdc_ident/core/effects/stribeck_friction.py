@@ -2,11 +2,20 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
-from pmdc_ident.core.effects.base import DataScales, Effect, Ladder, ParamSpec, SimPath
+from pmdc_ident.core.effects.base import (
+    DataScales,
+    Effect,
+    Ladder,
+    MujocoContext,
+    MujocoTerms,
+    ParamSpec,
+    SimPath,
+)
 
 __all__ = ["StribeckFriction"]
 
@@ -42,7 +51,14 @@ class StribeckFriction(Effect):
         ),
     }
     BENCHMARK_LADDER = Ladder("% rated torque", (6.0, 12.0, 25.0, 50.0))
-    MUJOCO_NOT_CARRIED = "extra breakaway torque at low speed (MuJoCo's frictionloss is constant)"
+    MUJOCO_MAPPING = (
+        '`<dcmotor lugre="sigma0 0 Fc Fc+Ts vs">`: LuGre\'s Gaussian Stribeck curve '
+        "g(v) = Fc + Ts exp(-(v/vs)^2), vs = ws for the Gaussian fall (shape 2), 2 ws/sqrt(pi) "
+        "for the exponential one (shape 1: the Gaussian of the same area); Fc the Coulomb "
+        "friction's torque, at least 2 % of Ts (MuJoCo's bristle equation needs g > 0); "
+        "bristles deflecting 1e-4 rad, undamped (MuJoCo's bristle damping makes the friction "
+        "depend on the step), their resonance resolved by the model's step"
+    )
 
     torque_nm: float
     speed_rad_s: float
@@ -58,3 +74,18 @@ class StribeckFriction(Effect):
             for shape in (1.0, 2.0)
             for g in (0.005, 0.02, 0.08, 0.3)
         ]
+
+    def mujoco_terms(self, ctx: MujocoContext) -> MujocoTerms:
+        # MuJoCo's Stribeck fall is Gaussian; the exponential one maps to the Gaussian with
+        # the same integral over speed (the same friction impulse over a slow pass)
+        gaussian = self.shape_exponent >= 1.5
+        vs = self.speed_rad_s * (1.0 if gaussian else 2.0 / math.sqrt(math.pi))
+        partial = (
+            ""
+            if gaussian
+            else (
+                f"the exponential fall's shape (carried as the Gaussian of the same area, "
+                f"vs {vs:.3g} rad/s: MuJoCo's LuGre curve is Gaussian)"
+            )
+        )
+        return MujocoTerms(stribeck=(self.torque_nm, vs), partial=partial)
