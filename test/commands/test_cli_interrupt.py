@@ -134,3 +134,22 @@ def test_a_signal_after_the_command_is_held_in_the_program_not_raised_on_the_way
     finally:
         _signal.signal(_signal.SIGINT, before)
         cli._EARLY.clear()
+
+
+def test_the_launcher_starts_the_interpreter_with_ctrl_c_ignored(tmp_path):
+    # Python installs its Ctrl-C handler only where SIGINT is not ignored: started with
+    # it ignored, a Ctrl-C during the interpreter's own start is no traceback (1 to 3 in
+    # 120 early Ctrl-C printed one, or "Fatal Python error: init_sys_streams"); the
+    # launcher's first statement then holds it. A stand-in python3 beside a copy of the
+    # launcher reports the signal mask it was started with.
+    import shutil
+
+    launcher = tmp_path / "pmdc-ident"
+    shutil.copy(Path(__file__).parents[2] / "scripts" / "pmdc-ident", launcher)
+    fake = tmp_path / "python3"
+    fake.write_text("#!/bin/sh\nexec grep -E '^Sig(Ign|Cgt):' /proc/self/status\n")
+    fake.chmod(0o755)
+    out = subprocess.run(["sh", str(launcher)], capture_output=True, text=True, timeout=30)
+    masks = dict(line.split(":\t") for line in out.stdout.splitlines())
+    assert int(masks["SigIgn"], 16) & (1 << (signal.SIGINT - 1))  # ignored at exec
+    assert not int(masks["SigIgn"], 16) & (1 << (signal.SIGTERM - 1))  # TERM keeps its own
