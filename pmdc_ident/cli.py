@@ -105,15 +105,23 @@ def _unraisable(hook: object) -> object:
     """A ``sys.unraisablehook`` that re-sends a signal whose exception landed where
     Python cannot raise it (a weakref callback, ``__del__``: it would print "Exception
     ignored in ..." with a traceback and go on): the handler then raises it at the next
-    ordinary statement."""
+    ordinary statement. Re-sent from a thread a moment later: sent from here, the handler
+    ran at once, inside this hook, and its exception was printed as one more "ignored"
+    traceback (the families rerun: Ctrl-C 0.3 s into ``export --bag``)."""
+    import threading
+
+    def later(signum: int) -> None:
+        t = threading.Timer(0.01, os.kill, (os.getpid(), signum))
+        t.daemon = True
+        t.start()
 
     def resend(unraisable: object) -> None:
         exc = getattr(unraisable, "exc_value", None)
         if isinstance(exc, Terminated):
-            os.kill(os.getpid(), exc.signum)
+            later(exc.signum)
             return
         if isinstance(exc, KeyboardInterrupt):
-            os.kill(os.getpid(), signal.SIGINT)
+            later(signal.SIGINT)
             return
         hook(unraisable)  # type: ignore[operator]
 

@@ -153,3 +153,36 @@ def test_the_launcher_starts_the_interpreter_with_ctrl_c_ignored(tmp_path):
     masks = dict(line.split(":\t") for line in out.stdout.splitlines())
     assert int(masks["SigIgn"], 16) & (1 << (signal.SIGINT - 1))  # ignored at exec
     assert not int(masks["SigIgn"], 16) & (1 << (signal.SIGTERM - 1))  # TERM keeps its own
+
+
+def test_a_ctrl_c_that_lands_in_a_finaliser_is_raised_at_an_ordinary_statement(capfd):
+    # a Ctrl-C whose KeyboardInterrupt lands in __del__ cannot be raised there: the hook
+    # re-sends it, and the handler must not run inside the hook (it printed "Exception
+    # ignored in: <function _unraisable.<locals>.resend>" and a traceback)
+    import signal as _signal
+    import time
+
+    from pmdc_ident import cli
+
+    class Finalised:
+        def __del__(self) -> None:
+            raise KeyboardInterrupt
+
+    before_hook, before = sys.unraisablehook, _signal.getsignal(_signal.SIGINT)
+    raised = False
+    try:
+        _signal.signal(_signal.SIGINT, cli._interrupt)
+        sys.unraisablehook = cli._unraisable(before_hook)
+        try:
+            x = Finalised()
+            del x  # the KeyboardInterrupt lands in the finaliser
+            end = time.monotonic() + 5.0
+            while time.monotonic() < end:
+                time.sleep(0.001)
+        except KeyboardInterrupt:
+            raised = True
+    finally:
+        sys.unraisablehook = before_hook
+        _signal.signal(_signal.SIGINT, before)
+    assert raised
+    assert "Exception ignored" not in capfd.readouterr().err
