@@ -15,6 +15,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cache
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -212,13 +213,29 @@ def make_case(
         effects = _compound(effect_names, lev, ctx, rng)
     else:
         effects = tuple(draw_effect(n, lev, ctx, rng, equation) for n in effect_names)
+    return finish_case(name, kind, motor, rate, one_dir, effects, rng)
+
+
+def finish_case(
+    name: str,
+    kind: str,
+    motor: BenchMotor,
+    rate: float,
+    one_dir: bool,
+    effects: tuple[Any, ...],
+    rng: np.random.Generator,
+    plant: str = "generator",
+) -> Case:
+    """The case with its sensors drawn (a current offset effect sets theirs) and its
+    noise seed: the last draws of every plant's case, in this order."""
     sensors = draw_sensors(motor, rate, rng)
     for e in effects:
         if e.name == "current_offset":
             o0, o1, tau = e.offset
             sensors = SensorSetup(**{**sensors.__dict__, "offset_a": o0, "offset_end_a": o1,
                                      "offset_tau_s": tau})  # fmt: skip
-    return Case(name, kind, motor.name, rate, one_dir, effects, sensors, int(rng.integers(2**31)))
+    seed = int(rng.integers(2**31))
+    return Case(name, kind, motor.name, rate, one_dir, effects, sensors, seed, plant=plant)
 
 
 def build_cases(

@@ -22,7 +22,7 @@ from pmdc_ident.benchmark.cases import (
     base_vector,
     command,
     context,
-    draw_sensors,
+    finish_case,
     session_samples,
 )
 from pmdc_ident.benchmark.motors import ALL_MOTORS, BenchMotor
@@ -121,23 +121,7 @@ def make_mj_case(
         effects = _compound(effect_names, lev, ctx, rng)
     else:
         effects = tuple(draw_mj_effect(n, lev, ctx, rng, equation) for n in effect_names)
-    sensors = draw_sensors(motor, rate, rng)
-    for e in effects:
-        if e.name == "current_offset":
-            o0, o1, tau = e.offset
-            sensors = SensorSetup(**{**sensors.__dict__, "offset_a": o0, "offset_end_a": o1,
-                                     "offset_tau_s": tau})  # fmt: skip
-    return Case(
-        name,
-        kind,
-        motor.name,
-        rate,
-        one_dir,
-        effects,  # type: ignore[arg-type]
-        sensors,
-        int(rng.integers(2**31)),
-        plant=PLANT,
-    )
+    return finish_case(name, kind, motor, rate, one_dir, effects, rng, plant=PLANT)  # type: ignore[arg-type]
 
 
 def build_mj_cases(
