@@ -54,6 +54,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="margin kept from each end of the travel range (default 10 %% of the range)",
     )
     parser.add_argument(
+        "--command-delay",
+        type=float,
+        default=None,
+        metavar="S",
+        help="with --travel-rad: the joint stays inside also when a command (a stop, a "
+        "switch) reaches the motor this late, the last one held meanwhile (default 0.15 s)",
+    )
+    parser.add_argument(
         "--target",
         default=None,
         metavar="NAME=SD,...",
@@ -192,6 +200,7 @@ def run(args: argparse.Namespace) -> int:
     from pmdc_ident.core.enums import SafeMode
     from pmdc_ident.core.fixed import parse_fix
     from pmdc_ident.core.safe_write import write_text  # atomic; never over what was read
+    from pmdc_ident.core.safety import COMMAND_DELAY_S
 
     if not (math.isfinite(args.rate_hz) and 0 < args.rate_hz <= 1e6):
         msg = f"--rate-hz must lie in (0, 1e6], got {args.rate_hz}"
@@ -203,6 +212,10 @@ def run(args: argparse.Namespace) -> int:
             (
                 Bound("--travel-margin-rad", 0.0, 1e9, "kept from each end of the travel"),
                 args.travel_margin_rad,
+            ),
+            (
+                Bound("--command-delay", 0.0, 5.0, "how late a command may reach the motor, s"),
+                args.command_delay,
             ),
             (Bound("--current-noise", 0.0, 1e6, "the current's sd, A"), args.current_noise),
             (Bound("--speed-noise", 0.0, 1e9, "the speed's sd, rad/s"), args.speed_noise),
@@ -248,6 +261,7 @@ def run(args: argparse.Namespace) -> int:
         use_fraction=args.use_fraction,
         safe_mode=SafeMode(args.safe_mode),
         travel_margin_rad=args.travel_margin_rad,
+        command_delay_s=COMMAND_DELAY_S if args.command_delay is None else args.command_delay,
     )
     if args.pretest:
         from pmdc_ident.core.design.pretest import pretest_plan

@@ -34,6 +34,13 @@ from pmdc_ident.core.motors import Limits
 
 __all__ = ["SafetyConfig", "SafetyMonitor"]
 
+# How late a command may reach the driver with a travel-limited joint still inside its
+# range: plans for such a joint hold for a command (a stop, a switch) this late, the
+# last one held meanwhile (pmdc_ident.core.design.limits). A session's commands follow
+# the driver's samples through the host: a busy host holds them up for tenths of a
+# second (a pre-test planned for none left a +/-2 rad range on a busy CI machine).
+COMMAND_DELAY_S = 0.15
+
 _FAULT_OF = {
     AbortReason.OVER_CURRENT: Fault.OVER_CURRENT,
     AbortReason.OVER_SPEED: Fault.OVER_SPEED,

@@ -264,6 +264,9 @@ IDENTIFICATION = ParameterTable(
           "R, L, Ke, J, B 1 %, Tc 5 %)"),
         P("plan_travel_rad", [0.0, 0.0], "[MIN, MAX] travel of the joint in the encoder's frame, "
           "rad: plans stay inside, the session aborts outside ([0, 0]: no limit)"),
+        P("plan_command_delay_s", 0.15, "travel: plans keep the joint inside when a command "
+          "(a stop, a switch) reaches the driver this late, s (a host held up longer may "
+          "carry it farther: the session then aborts)", 0.0, 5.0),
         P("plan_budget_s", 0.0, "auto: most motor time, s (0 = the default sequence's length)",
           0.0, 1e5),
         P("plan_heat_a2s", 0.0, "auto: winding heat budget int i^2 dt, A^2*s (0 = the default "

@@ -3,6 +3,7 @@ pre-test and a plan designed from its log, and bad input as one line."""
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -95,3 +96,13 @@ def test_the_plan_is_never_written_over_its_input(tmp_path: Path, capsys):
     assert main(["plan", str(log), "--csv", str(log)]) == 2
     assert "input" in capsys.readouterr().err
     assert log.read_text() == before
+
+
+def test_the_command_delays_stated_default_is_the_one_used():
+    from pmdc_ident.commands import plan
+    from pmdc_ident.core.safety import COMMAND_DELAY_S
+
+    parser = argparse.ArgumentParser()
+    plan.add_arguments(parser)
+    text = parser.format_help()
+    assert f"(default {COMMAND_DELAY_S:g} s)" in " ".join(text.split())

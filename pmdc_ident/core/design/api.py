@@ -22,6 +22,7 @@ from pmdc_ident.core.design.prior import Prior
 from pmdc_ident.core.enums import SafeMode
 from pmdc_ident.core.model import simulate
 from pmdc_ident.core.motors import Limits
+from pmdc_ident.core.safety import COMMAND_DELAY_S
 
 __all__ = ["ABORT_FRACTION", "plan_experiment", "session_limits"]
 
@@ -40,6 +41,7 @@ def session_limits(
     use_fraction: float = 0.8,
     safe_mode: SafeMode = SafeMode.ZERO,
     travel_margin_rad: float | None = None,
+    command_delay_s: float = COMMAND_DELAY_S,
 ) -> PlanLimits:
     """The plan's limits from the driver's: aborts at 90 %, heat and time those of
     today's default sequence on the prior unless given."""
@@ -67,6 +69,7 @@ def session_limits(
         use_fraction=use_fraction,
         budget_s=budget_s,
         safe_mode=safe_mode,
+        command_delay_s=command_delay_s,
     )
 
 

@@ -5,8 +5,16 @@ abort thresholds, so a motor a little off its prior does not trip them), winding
 heating as ``int i^2 dt`` over the plan, motor time, and optionally the travel of a
 joint: the position stays inside the range minus a margin at every instant, and so
 does a stop commanded at any instant (the session's safe state: 0 V brakes, an open
-armature coasts); a motor that runs faster and farther than the prior
+armature coasts) and arriving up to ``command_delay_s`` late, the command in force
+held meanwhile; a motor that runs faster and farther than the prior
 (:meth:`Prior.pessimistic`) stays inside the range itself.
+
+Why the delay: a session's commands follow the driver's samples through the host, and
+a host held up for a tenth of a second (a busy machine, a scheduler's throttling) leaves
+the driver holding the last command that long. Planned for no delay, a joint's
+pre-test square wave left a +/-2 rad range after one switch came 0.15 s late (a busy
+CI machine); planned for a delay, the same delay keeps it inside (the default:
+:data:`pmdc_ident.core.safety.COMMAND_DELAY_S`).
 """
 
 from __future__ import annotations
@@ -20,8 +28,16 @@ from numpy.typing import NDArray
 from pmdc_ident.core.enums import SafeMode
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.model import Model
+from pmdc_ident.core.safety import COMMAND_DELAY_S
 
-__all__ = ["LIMIT_NAMES", "PlanLimits", "Violation", "stop_distance"]
+__all__ = [
+    "COMMAND_DELAY_S",
+    "LIMIT_NAMES",
+    "PlanLimits",
+    "Violation",
+    "late_stop",
+    "stop_distance",
+]
 
 FloatArray = NDArray[np.float64]
 LIMIT_NAMES = ("voltage", "current", "speed", "heat", "travel", "time")
@@ -49,6 +65,7 @@ class PlanLimits:
     use_fraction: float = 0.8
     budget_s: float = 60.0
     safe_mode: SafeMode = SafeMode.ZERO
+    command_delay_s: float = COMMAND_DELAY_S  # travel: a stop this late still ends inside
 
     def __post_init__(self) -> None:
         for name in ("voltage_max_v", "current_max_a", "speed_max_rad_s", "heat_a2s", "budget_s"):
@@ -71,6 +88,9 @@ class PlanLimits:
                 )
                 raise ParameterError(msg)
             object.__setattr__(self, "travel_rad", (lo, hi))
+        if not (math.isfinite(self.command_delay_s) and self.command_delay_s >= 0):
+            msg = f"command delay must be >= 0 s, got {self.command_delay_s}"
+            raise ParameterError(msg)
         object.__setattr__(self, "safe_mode", SafeMode(self.safe_mode))
 
     @property
@@ -99,7 +119,10 @@ class PlanLimits:
             parts.append(f"heat {self.heat_a2s:.4g} A^2*s")
         if self.travel_rad is not None:
             lo, hi = self.travel_rad
-            parts.append(f"travel [{lo:.4g}, {hi:.4g}] rad (margin {self.margin_rad:.3g} rad)")
+            parts.append(
+                f"travel [{lo:.4g}, {hi:.4g}] rad (margin {self.margin_rad:.3g} rad, "
+                f"commands up to {self.command_delay_s:.3g} s late)"
+            )
         parts.append(f"motor time <= {self.budget_s:.4g} s")
         return ", ".join(parts)
 
@@ -170,3 +193,40 @@ def stop_distance(
     else:
         d = np.full_like(w, math.inf)
     return np.sign(speed) * d
+
+
+def late_stop(
+    model: Model,
+    voltage: FloatArray,
+    speed: FloatArray,
+    current: FloatArray,
+    safe: SafeMode,
+    delay_s: float,
+) -> FloatArray:
+    """How far the rotor turns, from each sample, when the command in force there
+    (``voltage``, NaN: armature open) is held ``delay_s`` longer and the safe state
+    then commanded (:func:`stop_distance` from the state it has reached by then).
+
+    Held, the speed relaxes towards the command's steady state with the mechanical
+    rate ``(B + Ke Kt / R) / J`` (L neglected: the current follows within L/R); the
+    friction slows it (a Coulomb torque beyond the drive's holds it); an open armature
+    coasts, bounded by its speed held."""
+    if delay_s <= 0:
+        return stop_distance(model, speed, current, safe)
+    p = model.params
+    e = model.effect("coulomb_friction")
+    tc = float(getattr(e, "torque_nm", 0.0)) if e is not None else 0.0
+    damp = p.B + p.Ke * p.Kt / p.R
+    rate = damp / p.J
+    driven = np.isfinite(voltage)
+    u = p.Kt * np.where(driven, voltage, 0.0) / p.R
+    w_ss = np.sign(u) * np.maximum(np.abs(u) - tc, 0.0) / damp
+    decay = math.exp(-rate * delay_s)
+    w_late = np.where(driven, w_ss + (speed - w_ss) * decay, speed)
+    moved = np.where(
+        driven, w_ss * delay_s + (speed - w_ss) * (1.0 - decay) / rate, speed * delay_s
+    )
+    i_late = np.where(driven, (np.where(driven, voltage, 0.0) - p.Ke * w_late) / p.R, 0.0)
+    # the current at the sample, where it is the larger push (a step's first samples)
+    i_late = np.where(np.abs(current) > np.abs(i_late), current, i_late)
+    return moved + stop_distance(model, w_late, i_late, safe)

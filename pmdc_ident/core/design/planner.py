@@ -34,7 +34,7 @@ from pmdc_ident.core.design.information import (
     relative_sd,
     segment_information,
 )
-from pmdc_ident.core.design.limits import PlanLimits, Violation, stop_distance
+from pmdc_ident.core.design.limits import PlanLimits, Violation, late_stop
 from pmdc_ident.core.design.prior import Prior
 from pmdc_ident.core.design.target import DEFAULT_TARGET, describe_target, public_name
 from pmdc_ident.core.errors import ParameterError
@@ -278,7 +278,10 @@ class _Designer:
         stop = None
         if lim.travel_rad is not None:
             i_all = np.append(cur, end[0] if np.isfinite(v[-1]) else 0.0)
-            stop = pos + stop_distance(self.prior.model, spd, i_all, lim.safe_mode)
+            v_all = np.append(v, v[-1])
+            stop = pos + late_stop(
+                self.prior.model, v_all, spd, i_all, lim.safe_mode, lim.command_delay_s
+            )
         viol = lim.check(v, cur, spd, pos, heat, stop, from_rad=float(st.x[2]))
         if cand.probe and viol is None:
             viol = Violation(cand.probe, "probe")
@@ -310,7 +313,10 @@ class _Designer:
             return None
         ppos = np.append(ps.position, ps.final_state[2])
         pi = np.append(pcur, ps.final_state[0] if np.isfinite(v[-1]) else 0.0)
-        pstop = ppos + stop_distance(self.pessimistic, pspd, pi, lim.safe_mode)
+        v_all = np.append(v, v[-1])
+        pstop = ppos + late_stop(
+            self.pessimistic, v_all, pspd, pi, lim.safe_mode, lim.command_delay_s
+        )
         lo, hi = lim.travel_rad
         if min(ppos.min(), pstop.min()) < lo or max(ppos.max(), pstop.max()) > hi:
             return Violation("travel", "a faster motor than the prior would leave the range")

@@ -6,7 +6,8 @@ and its speed per volt) and the limits, never longer than ``MAX_PRETEST_S``: a s
 held four tau_m, coasting one with the armature open and braked to rest at 0 V (a
 current no larger than the step's), then the same down. With a travel range it is a
 square wave instead, its amplitude and half period shrunk until the nominal motor
-(and one faster than it) stays inside the range, braked to rest at the end. What is identified
+(and one faster than it) stays inside the range, braked to rest at the end, also when a
+stop or any one switch reaches the driver up to ``limits.command_delay_s`` late. What is identified
 from it (``identify``'s pipeline on the pre-test's segments) is the prior, with the
 noise levels the fit measured on the rig.
 """
@@ -20,7 +21,7 @@ import numpy as np
 
 from pmdc_ident.core.design.family import Candidate, Scales
 from pmdc_ident.core.design.information import Noise
-from pmdc_ident.core.design.limits import PlanLimits, stop_distance
+from pmdc_ident.core.design.limits import PlanLimits, late_stop
 from pmdc_ident.core.design.prior import Prior
 from pmdc_ident.core.errors import ParameterError, PmdcError
 from pmdc_ident.core.excitation import PlannedSegment, TestPlan
@@ -36,19 +37,44 @@ PRETEST_PREFIX = "pretest"
 _FRACTIONS = (0.4, 0.25, 0.12, 0.06)
 
 
+def _late_switches(v: np.ndarray, delay: int) -> list[np.ndarray]:
+    """The plan with one of its level changes ``delay`` samples late (the level before
+    it held meanwhile): a host held up at a switch. Every change, one at a time."""
+    if delay <= 0:
+        return []
+    level = np.nan_to_num(v, nan=np.inf)
+    out = []
+    for k in np.flatnonzero(level[1:] != level[:-1]) + 1:
+        late = v.copy()
+        late[k : k + delay] = v[k - 1]
+        out.append(late)
+    return out
+
+
 def _fits(nominal: Prior, limits: PlanLimits, v: np.ndarray, dt: float) -> bool:
     # the session holds 0 V after it (while the design is made): that too
     tail = int(5.0 * nominal.model.params.mechanical_time_constant_s / dt) + 2
     v = np.concatenate([v, np.zeros(tail)])
+    delay = int(round(limits.command_delay_s / dt))
     for model in (nominal.model, nominal.pessimistic()):
         sim = simulate(model, v, dt, x0=np.array([0.0, 0.0, limits.start_rad]))
         cur = np.where(np.isnan(v), 0.0, sim.current)
         stop = None
         if limits.travel_rad is not None:
-            stop = sim.position + stop_distance(model, sim.speed, cur, limits.safe_mode)
+            stop = sim.position + late_stop(
+                model, v, sim.speed, cur, limits.safe_mode, limits.command_delay_s
+            )
         heat = float(np.sum(cur**2) * dt)
         if limits.check(v, cur, sim.speed, sim.position, heat, stop) is not None:
             return False
+        if limits.travel_rad is None:
+            continue
+        # a switch that reaches the driver late shifts the rest of the square wave
+        lo, hi = limits.travel_rad
+        for late in _late_switches(v, delay):
+            pos = simulate(model, late, dt, x0=np.array([0.0, 0.0, limits.start_rad])).position
+            if float(pos.min()) < lo or float(pos.max()) > hi:
+                return False
     return True
 
 

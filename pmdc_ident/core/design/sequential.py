@@ -40,6 +40,7 @@ from pmdc_ident.core.enums import SafeMode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.excitation import PlannedSegment, TestPlan
 from pmdc_ident.core.motors import Limits
+from pmdc_ident.core.safety import COMMAND_DELAY_S
 
 __all__ = ["Decision", "SequentialDesign", "SequentialSettings"]
 
@@ -61,6 +62,7 @@ class SequentialSettings:
     use_fraction: float = 0.8
     safe_mode: SafeMode = SafeMode.ZERO
     max_designs: int = 40
+    command_delay_s: float = COMMAND_DELAY_S  # travel: how late a command may arrive
 
 
 @dataclass(frozen=True)
@@ -119,6 +121,7 @@ class SequentialDesign:
             budget_s=s.budget_s,
             use_fraction=s.use_fraction,
             safe_mode=s.safe_mode,
+            command_delay_s=s.command_delay_s,
         )
 
     def start(self, start_rad: float = 0.0) -> TestPlan:

@@ -348,6 +348,11 @@ class SessionController:
         return self.peers.start_check(now_s, self.latency.last_ns, self.config.start)
 
     def _prepare(self, now_s: float) -> None:
+        if self.config.plan.auto:
+            # plan: auto designs in the worker from the pre-test's end on: started now,
+            # its interpreter's start-up is over before the motor moves (started with the
+            # pre-test, it competed with the node's first commands on a busy host)
+            self.ports.prepare_identification(None)
         if now_s > self._prep_deadline_s:
             why = self.peers.refusal(now_s, self.latency.last_ns, self.config.start)
             self._fail(f"session not started, motor untouched: {why}")

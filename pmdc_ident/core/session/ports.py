@@ -74,7 +74,9 @@ class ControllerPorts(Protocol):
 
     def prepare_identification(self, nominal: MotorSpec | None) -> None:
         """A session started: get the identification ready (imports, compiled kernels)
-        while it runs, so that :meth:`start_identification` costs only the fit."""
+        while it runs, so that :meth:`start_identification` costs only the fit. Also
+        called on every start-up tick of a ``plan: auto`` session (its designs need the
+        worker from the pre-test's end on): a worker already there is kept."""
 
     def start_design(self, job: object) -> None:
         """Run a ``plan: auto`` re-fit and design job (:class:`~.sequential.DesignJob`) off

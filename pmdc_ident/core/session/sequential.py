@@ -28,7 +28,7 @@ from typing import Any
 from pmdc_ident.core.errors import ParameterError, PmdcError
 from pmdc_ident.core.excitation import PlannedSegment, TestPlan
 from pmdc_ident.core.motors import MotorSpec
-from pmdc_ident.core.safety import SafetyConfig
+from pmdc_ident.core.safety import COMMAND_DELAY_S, SafetyConfig
 from pmdc_ident.core.session.machine import Session
 from pmdc_ident.core.session.plan_check import check_plan
 from pmdc_ident.core.session.recording import SessionSamples
@@ -48,6 +48,7 @@ class PlanSetting:
     heat_a2s: float = 0.0  # 0: the default sequence's heat
     reveal: tuple[str, ...] = ()
     criterion: str = "A"
+    command_delay_s: float = COMMAND_DELAY_S  # travel: plans hold for commands this late
 
     @property
     def auto(self) -> bool:
@@ -73,6 +74,7 @@ class PlanSetting:
             budget_s=float(v.get("plan_budget_s", 0.0)),
             heat_a2s=float(v.get("plan_heat_a2s", 0.0)),
             reveal=reveal,
+            command_delay_s=float(v.get("plan_command_delay_s", COMMAND_DELAY_S)),
         )
         setting.check()
         return setting
@@ -220,6 +222,7 @@ def _auto(
             criterion=setting.criterion,
             reveal=setting.reveal,
             safe_mode=settings.safe_mode,
+            command_delay_s=setting.command_delay_s,
         ),
     )
     try:
