@@ -170,8 +170,9 @@ class DriverClient(Node):
     def spin_once(self, timeout_s: float) -> None:
         self.executor_.spin_once(timeout_sec=timeout_s)
 
-    def catch_up(self, timeout_s: float = 5.0, slack_s: float = 0.003) -> None:
-        """Spin until every topic has delivered the samples stamped up to ROS time now."""
+    def catch_up(self, timeout_s: float = 20.0, slack_s: float = 0.003) -> None:
+        """Spin until every topic has delivered the samples stamped up to ROS time now
+        (a wait, not a check: 5 s were too few for the monitor's fixture at load 25)."""
         target = self.get_clock().now().nanoseconds - int(slack_s * 1e9)
         end = time.monotonic() + timeout_s
         recs = (self.current, self.encoder, self.voltage)
