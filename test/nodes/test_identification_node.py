@@ -19,6 +19,7 @@ import time
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -199,11 +200,68 @@ def _applied(probe: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
 # The short sequence: every sample recorded, the bag reads back, offline = online
 # ---------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def short_session(tmp_path_factory, module_ros_domain) -> tuple[BringupResult, dict[str, Any]]:
-    # with the exports on: the identified motor is also written for MuJoCo, URDF, ...
-    return _session(
-        tmp_path_factory.mktemp("short"), module_ros_domain, ident={"export_models": True}
-    )
+def short_run(tmp_path_factory, module_ros_domain) -> SimpleNamespace:
+    """The short session, shared by the tests below that only read its outcome.
+
+    As a larger stack would run it: the node waits (``autostart`` off, and it stays up
+    after the session, ``exit_when_done`` off) until a caller asks by service; once it
+    has identified, a late joiner subscribes to the latched result, and so does the
+    integration guide's consumer (``examples/result_listener.py``); then the node gets
+    Ctrl-C. With the exports on: the identified motor is also written for MuJoCo, URDF, ...
+    """
+    tmp_path = tmp_path_factory.mktemp("short")
+    env = node_env(module_ros_domain)
+    state: dict[str, Any] = {}
+
+    def helper(*argv: str) -> subprocess.Popen[str]:
+        return subprocess.Popen(
+            [sys.executable, *argv],
+            env=env,
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+
+    def drive(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
+        log = (tmp_path / "logs" / "identification.log").read_text()
+        if "identification ready" in log and "call" not in state:
+            state["call"] = helper("-c", _CALL, "call")
+        if "identified from" in log and "late" not in state:
+            state["late"] = helper("-c", _CALL, "late")  # starts after the result was published
+            # and the integration guide's consumer, a node of another package
+            state["example"] = helper(
+                str(REPO / "examples" / "result_listener.py"), "--timeout", "60"
+            )
+        waiting = [state[k] for k in ("late", "example") if k in state]
+        done = len(waiting) == 2 and all(w.poll() is not None for w in waiting)
+        # a session that ended without a result (aborted, failed) has no late joiner to
+        # wait for: the node is stopped as well, and the tests below say what went wrong
+        ended = "identified from" not in log and re.search(r"ABORTED|identification failed", log)
+        if (done or ended) and "stopped" not in state:
+            procs["identification"].send_signal(signal.SIGINT)
+            state["stopped"] = True
+
+    try:
+        res, probe = _session(
+            tmp_path,
+            module_ros_domain,
+            ident={"export_models": True, "autostart": False, "exit_when_done": False},
+            during=drive,
+        )
+        outputs = {k: p.communicate(timeout=30) + (p.returncode,) for k, p in state.items()
+                   if isinstance(p, subprocess.Popen)}  # fmt: skip
+    finally:
+        for p in state.values():
+            if isinstance(p, subprocess.Popen) and p.poll() is None:
+                p.kill()
+                p.communicate()
+    return SimpleNamespace(res=res, probe=probe, outputs=outputs)
+
+
+@pytest.fixture(scope="module")
+def short_session(short_run) -> tuple[BringupResult, dict[str, Any]]:
+    return short_run.res, short_run.probe
 
 
 def test_short_session_completes_and_the_bag_holds_every_driver_sample(short_session):
@@ -693,63 +751,26 @@ rclpy.try_shutdown()
 """
 
 
-def test_a_larger_stack_asks_for_a_run_by_service_and_a_late_joiner_gets_the_result(
-    tmp_path, ros_domain
-):
+def test_a_larger_stack_asks_for_a_run_by_service_and_a_late_joiner_gets_the_result(short_run):
+    """The shared short session was started by a call of the ``run_session`` service; a
+    late joiner and the integration guide's consumer, started after the result was
+    published, both get it (see ``short_run``)."""
     pytest.importorskip("pmdc_ident.commands.identify")
-    env = node_env(ros_domain)
-    state: dict[str, Any] = {}
-
-    def helper(what: str) -> subprocess.Popen[str]:
-        return subprocess.Popen(
-            [sys.executable, "-c", _CALL, what],
-            env=env,
-            cwd=REPO,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-
-    def drive(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
-        log = (tmp_path / "logs" / "identification.log").read_text()
-        if "identification ready" in log and "call" not in state:
-            state["call"] = helper("call")
-        if "identified from" in log and "late" not in state:
-            state["late"] = helper("late")  # starts after the result was published
-            # and the integration guide's consumer, a node of another package
-            state["example"] = subprocess.Popen(
-                [sys.executable, str(REPO / "examples" / "result_listener.py"), "--timeout", "60"],
-                env=env,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.PIPE,
-                text=True,
-            )
-        waiting = [state[k] for k in ("late", "example") if k in state]
-        done = len(waiting) == 2 and all(w.poll() is not None for w in waiting)
-        if done and "stopped" not in state:
-            procs["identification"].send_signal(signal.SIGINT)
-            state["stopped"] = True
-
-    res, probe = _session(
-        tmp_path,
-        ros_domain,
-        ident={"autostart": False, "exit_when_done": False},
-        during=drive,
-        timeout_s=90,
-    )
-    call = json.loads(state["call"].communicate(timeout=30)[0].strip().splitlines()[-1])
+    res, out = short_run.res, short_run.outputs
+    assert {"call", "late", "example"} <= set(out), (sorted(out), _logs(res))
+    call = json.loads(out["call"][0].strip().splitlines()[-1])
     assert call == {"success": True, "message": "session requested"}
-    late = json.loads(state["late"].communicate(timeout=30)[0].strip().splitlines()[-1])
+    late = json.loads(out["late"][0].strip().splitlines()[-1])
     assert late["result"] is not None, _logs(res)
     assert json.loads(late["result"]) == res.result
     assert res.result["parameters"]["R"]["value"] == pytest.approx(3.0484, rel=0.02)
-    out, err = state["example"].communicate(timeout=30)
-    assert state["example"].returncode == 0, err
+    text, err, rc = out["example"]
+    assert rc == 0, err
     r = res.result["parameters"]["R"]
-    (r_line,) = [ln.split() for ln in out.splitlines() if ln.split()[:1] == ["R"]]
-    assert r_line[1:3] == [f"{r['value']:.6g}", "ohm"], out
-    assert "NOT MEASURED: assumed equal to Ke" in out
-    assert f"identified_parameters/R: [{r['value']!r}," in out, out
+    (r_line,) = [ln.split() for ln in text.splitlines() if ln.split()[:1] == ["R"]]
+    assert r_line[1:3] == [f"{r['value']:.6g}", "ohm"], text
+    assert "NOT MEASURED: assumed equal to Ke" in text
+    assert f"identified_parameters/R: [{r['value']!r}," in text, text
 
 
 def test_a_plan_above_the_driver_limit_is_refused_before_anything_moves(tmp_path, ros_domain):

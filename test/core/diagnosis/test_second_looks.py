@@ -31,9 +31,16 @@ def _cases(seed: int = 1) -> dict[str, Case]:
     return {c.name: c for c in build_cases(24, 30, 4, 12, seed)}
 
 
+@cache
+def _record(name: str, seed: int):  # type: ignore[no-untyped-def]
+    # the record and its visibility (a fit of the best linear motor): read only, and
+    # resistance_drift_03 serves two tests
+    return record(_cases(seed)[name])
+
+
 def _segments(name: str, tmp_path, seed: int = 1):  # type: ignore[no-untyped-def]
     case = _cases(seed)[name]
-    rec, vis = record(case)
+    rec, vis = _record(name, seed)
     run = load_data(write_recording(rec, tmp_path / f"{name}.csv"))
     return case, vis, list(run.segments)
 
