@@ -28,6 +28,7 @@ def summary_table(sc: Score) -> str:
     fa, n_clean = sc.false_attribution
     oov = sc.oov_verdicts
     n_oov = sum(oov.values())
+    oov_u, n_oov_vis = sc.oov_unexplained
     both, one, n_comp = sc.compounds
     vis, hid = sc.visible, sc.hidden
     lines = [
@@ -50,7 +51,9 @@ def summary_table(sc: Score) -> str:
         "| check | result | runs |",
         "|---|---:|---:|",
         f"| effect-free runs: false attribution | {fa} ({_pct(fa / n_clean if n_clean else math.nan)}) | {n_clean} |",  # noqa: E501
-        f"| out-of-vocabulary runs -> unexplained | {_pct(oov['unexplained'] / n_oov if n_oov else math.nan)} | {n_oov} |",  # noqa: E501
+        f"| out-of-vocabulary runs -> unexplained, visible runs | {_pct(oov_u / n_oov_vis if n_oov_vis else math.nan)} | {n_oov_vis} |",  # noqa: E501
+        f"| out-of-vocabulary runs below the noise (not scored) | {n_oov - n_oov_vis} | |",
+        f"| out-of-vocabulary runs -> unexplained, all runs | {_pct(oov['unexplained'] / n_oov if n_oov else math.nan)} | {n_oov} |",  # noqa: E501
         f"| out-of-vocabulary runs -> an effect named | {_pct(oov['explained'] / n_oov if n_oov else math.nan)} | {n_oov} |",  # noqa: E501
         f"| out-of-vocabulary runs -> no_gap | {_pct(oov['no_gap'] / n_oov if n_oov else math.nan)} | {n_oov} |",  # noqa: E501
         f"| median held-out shrink where the name is right | {_pct(sc.median_shrink_right)} | |",
@@ -109,7 +112,13 @@ def side_by_side(scores: dict[str, Score]) -> str:
     lines.append(row("false attributions, effect-free runs", [
         f"{sc.false_attribution[0]} of {sc.false_attribution[1]}" for sc in scores.values()
     ]))  # fmt: skip
-    lines.append(row("out-of-vocabulary runs -> unexplained", [
+    lines.append(row("out-of-vocabulary runs -> unexplained, visible runs", [
+        frac(*sc.oov_unexplained) for sc in scores.values()
+    ]))  # fmt: skip
+    lines.append(row("out-of-vocabulary runs below the noise (not scored)", [
+        str(len(sc.of_kind("oov")) - len(sc.oov_visible)) for sc in scores.values()
+    ]))  # fmt: skip
+    lines.append(row("out-of-vocabulary runs -> unexplained, all runs", [
         frac(sc.oov_verdicts["unexplained"], sum(sc.oov_verdicts.values()))
         for sc in scores.values()
     ]))  # fmt: skip

@@ -10,7 +10,10 @@ Definitions (one run = one diagnosed file):
   generator from a twin run without the effect). Below that, ``no_gap`` is the
   honest answer; such runs are counted apart and still enter the detection limits.
 * **false attribution**: an effect-free run with any effect named.
-* **unexplained rate**: out-of-vocabulary runs whose verdict is ``unexplained``.
+* **unexplained rate**: out-of-vocabulary runs whose verdict is ``unexplained``,
+  over the visible ones (the same rule as effect runs: an out-of-vocabulary effect
+  the noise hides leaves the linear model nothing to miss, and ``no_gap`` is then the
+  honest answer); the rate over all of them is reported beside it.
 * **detection limit** of an effect: the smallest ladder size from which on every
   size is named tie-honestly in at least 90 % of its runs (all runs of that size).
 """
@@ -104,7 +107,20 @@ class Score:
 
     @property
     def oov_verdicts(self) -> Counter[str]:
+        """Verdicts of every out-of-vocabulary run, visible or not."""
         return Counter(o.status for o in self.of_kind("oov"))
+
+    @property
+    def oov_visible(self) -> list[Outcome]:
+        """Out-of-vocabulary runs whose effect the noise does not hide (unmeasured:
+        visible, as for effect runs)."""
+        return [o for o in self.of_kind("oov") if not (o.case.visibility < VISIBLE)]
+
+    @property
+    def oov_unexplained(self) -> tuple[int, int]:
+        """(``unexplained``, runs) over the visible out-of-vocabulary runs."""
+        vis = self.oov_visible
+        return sum(1 for o in vis if o.status == "unexplained"), len(vis)
 
     @property
     def median_shrink_right(self) -> float:

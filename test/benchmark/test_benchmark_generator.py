@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -198,13 +199,17 @@ def test_score_counts_ties_only_with_the_truth_and_a_separating_test():
         _outcome((), (), kind="clean"),
         _outcome((), ("delay",), kind="clean"),
         _outcome(("backlash",), (), kind="oov"),
+        # an out-of-vocabulary effect the noise hides: no_gap is honest, counted apart
+        replace(_outcome(("backlash",), (), kind="oov", vis=0.5), status="no_gap"),
+        replace(_outcome(("backlash",), (), kind="oov", vis=3.0), status="no_gap"),
     ]  # fmt: skip
     assert [right_tie_honest(o) for o in outs[:4]] == [True, False, False, True]
     sc = score(outs)
     assert sc.top1() == pytest.approx(0.25) and sc.tie_honest() == pytest.approx(0.5)
     assert len(sc.visible) == 4 and len(sc.hidden) == 1
     assert sc.false_attribution == (1, 2)
-    assert sc.oov_verdicts["unexplained"] == 1
+    assert sc.oov_verdicts["unexplained"] == 1 and sc.oov_verdicts["no_gap"] == 2
+    assert sc.oov_unexplained == (1, 2)  # the hidden one is not scored
     assert sc.confusion()["load_torque"]["(tie)"] == 1
     lim = {x.name: x for x in sc.limits()}["load_torque"]
     assert lim.by_level[0] == (3.0, 2, 4) and lim.limit is None

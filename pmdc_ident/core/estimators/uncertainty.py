@@ -9,6 +9,7 @@ near 1); a ratio well above 1 means the linearised covariance is optimistic.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
@@ -112,6 +113,13 @@ def coloured_noise_factor(fit: FitResult, segments: Sequence[Segment]) -> dict[s
     return {k: float(np.median(v)) for k, v in acc.items()}
 
 
+def _power(ratio: float, factor: float) -> float:
+    try:
+        return ratio**factor
+    except OverflowError:
+        return math.inf
+
+
 def widen_interval(
     value: float, ci: tuple[float, float] | None, factor: float
 ) -> tuple[float, float] | None:
@@ -120,5 +128,8 @@ def widen_interval(
         return ci
     lo, hi = ci
     if lo > 0 and value > 0:
-        return (value * (lo / value) ** factor, value * (hi / value) ** factor)
+        # in ratio: an end past the float range is open (0 or inf), where a Python
+        # float's ** raises OverflowError (a parameter bounded by nothing: sd 200 in
+        # log puts its interval at e^+-392 around the value)
+        return (value * _power(lo / value, factor), value * _power(hi / value, factor))
     return (value - (value - lo) * factor, value + (hi - value) * factor)
