@@ -124,6 +124,7 @@ class SessionController:
         self._prep_deadline_s = 0.0
         self._last_current_a = 0.0
         self._currents: deque[tuple[int, float]] = deque(maxlen=8192)  # (stamp, A)
+        self._applied: deque[tuple[int, float]] = deque(maxlen=8192)  # (stamp, V applied)
         self._held: deque[tuple[int, float, float, float]] = (
             deque()
         )  # stamp, speed, arrived, angle
@@ -206,6 +207,7 @@ class SessionController:
         self.peers.on_stamp("voltage_applied", stamp_ns)
         if self.recording_samples:
             self.recording.voltage.append(stamp_ns, voltage_v, terminal_v)
+            self._applied.append((stamp_ns, voltage_v))
             s = self.session
             if s is not None and s.awaiting_release and voltage_v == voltage_v:
                 # plan: auto: the driver applies this session's command (not NaN: the
@@ -259,10 +261,24 @@ class SessionController:
             if cur and cur[0][0] <= stamp_ns:
                 self._last_current_a = cur[0][1]
             step = self.session.on_sample(
-                stamp_ns * 1e-9, self._last_current_a, speed_rad_s, arrived_s, position_rad
+                stamp_ns * 1e-9,
+                self._last_current_a,
+                speed_rad_s,
+                arrived_s,
+                position_rad,
+                self._applied_at(stamp_ns),
             )
             self._apply(step, arrived_s)
         held.clear()  # the session is over: nothing left to step
+
+    def _applied_at(self, stamp_ns: int) -> float | None:
+        """The driver's applied voltage at ``stamp_ns`` (the newest at or before it; not
+        waited for: one still on its way reads as the previous one, which only delays
+        a staircase's steady-state test), None before the first arrives."""
+        vol = self._applied
+        while len(vol) > 1 and vol[1][0] <= stamp_ns:
+            vol.popleft()
+        return vol[0][1] if vol and vol[0][0] <= stamp_ns else None
 
     def on_recorder_status(self, text: str, now_s: float) -> None:
         self.peers.on_recorder_status(text, now_s)
