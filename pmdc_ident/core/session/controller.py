@@ -205,9 +205,9 @@ class SessionController:
 
     def on_voltage(self, stamp_ns: int, voltage_v: float, terminal_v: float) -> None:
         self.peers.on_stamp("voltage_applied", stamp_ns)
+        self._applied.append((stamp_ns, voltage_v))
         if self.recording_samples:
             self.recording.voltage.append(stamp_ns, voltage_v, terminal_v)
-            self._applied.append((stamp_ns, voltage_v))
             s = self.session
             if s is not None and s.awaiting_release and voltage_v == voltage_v:
                 # plan: auto: the driver applies this session's command (not NaN: the
@@ -219,6 +219,7 @@ class SessionController:
             state = self.confirmation.on_voltage(stamp_ns, voltage_v)
             if state:
                 self.ports.log("info", f"motor confirmed safe by the driver: {state}")
+        self._release(None)
 
     def on_encoder(
         self, stamp_ns: int, position_rad: float, speed_rad_s: float, now_s: float, now_ns: int
@@ -244,15 +245,16 @@ class SessionController:
         self._release(now_s)
 
     def _release(self, now_s: float | None) -> None:
-        """Step the session on each held encoder sample with the current of its stamp
-        (the newest at or before it), in stamp order, once that current has arrived: a
-        node held up by the host drains its queues one topic after another, and a stall
-        judged on a stale current would be judged late. A sample waits at most
-        :data:`CURRENT_WAIT_S`, and not at all from a driver that sends no current."""
-        held, cur = self._held, self._currents
+        """Step the session on each held encoder sample with the current and the applied
+        voltage of its stamp (the newest at or before it), in stamp order, once they have
+        arrived: a node held up by the host drains its queues one topic after another,
+        and a stall judged on a stale current would be judged late, a staircase level on
+        a stale voltage settled before it was applied. A sample waits at most
+        :data:`CURRENT_WAIT_S`, and not at all for a topic the driver does not send."""
+        held, cur, vol = self._held, self._currents, self._applied
         while held and self.phase is Phase.RUNNING and self.session is not None:
             stamp_ns, speed_rad_s, arrived_s, position_rad = held[0]
-            waiting = cur and cur[-1][0] < stamp_ns
+            waiting = (cur and cur[-1][0] < stamp_ns) or (vol and vol[-1][0] < stamp_ns)
             if waiting and (now_s is None or now_s - arrived_s < CURRENT_WAIT_S):
                 return
             held.popleft()
