@@ -288,7 +288,7 @@ class Driver:
             self.make_safe()
             self.log("error", f"{self.safety.latched[trip]}: motor made safe")
 
-    def _report_unpublished(self) -> None:
+    def _report_unpublished(self, final: bool = False) -> None:
         """One warning line (at most once a second, with the totals) whenever samples
         were not published: skipped after a host stall, or lost on a board's link
         (gaps in its sample counter). Their stamps stay holes on the grid, which the
@@ -299,7 +299,7 @@ class Driver:
         if (skipped, dropped) == self._unpublished_said:
             return
         now = self.clock_s()
-        if now - self._said.get("unpublished", -math.inf) < THROTTLE_S:
+        if not final and now - self._said.get("unpublished", -math.inf) < THROTTLE_S:
             return  # said again once the second is over, with the new totals
         self._said["unpublished"] = now
         before_skipped, before_dropped = self._unpublished_said
@@ -366,6 +366,7 @@ class Driver:
     def shutdown_safe(self) -> str:
         """Make the motor safe and release the backend; returns the final state line."""
         try:
+            self._report_unpublished(final=True)  # what the last second left unsaid
             self.backend.make_safe()
             if hasattr(self.backend, "command_v"):
                 state = self.state_text()

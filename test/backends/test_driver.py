@@ -165,6 +165,11 @@ def test_samples_the_backend_did_not_publish_are_said_at_once_then_once_a_second
         clock.t = 5.0
         d.poll()
         assert len(said()) == 2  # nothing new
+        lossy.skipped_samples = 360
+        d.poll()
+        lossy.skipped_samples = 370  # within the second, then the driver stops: said then
     finally:
-        d.backend = lossy.inner
         d.shutdown_safe()
+    assert len(said()) == 4 and said()[-1].startswith(
+        "driver samples not published: 10 skipped after a host stall"
+    )
