@@ -274,9 +274,9 @@ class SessionController:
         held.clear()  # the session is over: nothing left to step
 
     def _applied_at(self, stamp_ns: int) -> float | None:
-        """The driver's applied voltage at ``stamp_ns`` (the newest at or before it; not
-        waited for: one still on its way reads as the previous one, which only delays
-        a staircase's steady-state test), None before the first arrives."""
+        """The driver's applied voltage at ``stamp_ns`` (the newest at or before it: one
+        still on its way after :data:`CURRENT_WAIT_S` reads as the previous one, which
+        only delays a staircase's steady-state test), None before the first arrives."""
         vol = self._applied
         while len(vol) > 1 and vol[1][0] <= stamp_ns:
             vol.popleft()
