@@ -87,7 +87,7 @@ class Driver:
         self.clamped = False
         self.link_error = ""
         self.last_sample_v = math.nan  # command of the last sample polled
-        self._stalls_seen = 0
+        self._unpublished_said = (0, 0)  # (skipped, dropped) samples said so far
         self._reported = Fault.NONE  # trip bits in the backend's previous sample
         self._said: dict[str, float] = {}  # throttled message kind -> when last written
         # The backend trips at the monitor's limits itself (per sample, like board
@@ -254,15 +254,7 @@ class Driver:
             self.link_error = str(exc)
             self.log("error", f"backend: {exc}")
             return None
-        stalls = getattr(self.backend, "stalls", 0)  # sim backend: host stalls so far
-        if stalls != self._stalls_seen:
-            self._stalls_seen = stalls
-            skipped = getattr(self.backend, "skipped_samples", 0)
-            self.log(
-                "warning",
-                f"host stall: samples skipped (not published), {skipped} so far; "
-                "the simulated motor kept running and stamps stay on the grid",
-            )
+        self._report_unpublished()
         for s in samples:
             self._check(s)
         if samples:
@@ -295,6 +287,43 @@ class Driver:
         if trip is not None:
             self.make_safe()
             self.log("error", f"{self.safety.latched[trip]}: motor made safe")
+
+    def _report_unpublished(self, final: bool = False) -> None:
+        """One warning line (at most once a second, with the totals) whenever samples
+        were not published: skipped after a host stall, or lost on a board's link
+        (gaps in its sample counter). Their stamps stay holes on the grid, which the
+        recorder and the identification count; the driver says so first, here."""
+        skipped = int(getattr(self.backend, "skipped_samples", 0))
+        link = getattr(self.backend, "link_stats", None)  # serial backend only
+        dropped = int(link.dropped_samples) if link is not None else 0
+        if (skipped, dropped) == self._unpublished_said:
+            return
+        now = self.clock_s()
+        if not final and now - self._said.get("unpublished", -math.inf) < THROTTLE_S:
+            return  # said again once the second is over, with the new totals
+        self._said["unpublished"] = now
+        before_skipped, before_dropped = self._unpublished_said
+        self._unpublished_said = (skipped, dropped)
+        parts = []
+        if skipped != before_skipped:
+            why = (
+                "the simulated motor kept running"
+                if link is None
+                else "the driver polled too late to publish them"
+            )
+            parts.append(
+                f"{skipped - before_skipped} skipped after a host stall ({why}; {skipped} so far)"
+            )
+        if dropped != before_dropped:
+            parts.append(
+                f"{dropped - before_dropped} lost on the link (gaps in the board's sample "
+                f"counter; {dropped} so far)"
+            )
+        self.log(
+            "warning",
+            "driver samples not published: " + "; ".join(parts) + "; their stamps stay "
+            "holes on the sample grid",
+        )
 
     # -- state ---------------------------------------------------------------------------
     def faults(self) -> Fault:
@@ -337,6 +366,7 @@ class Driver:
     def shutdown_safe(self) -> str:
         """Make the motor safe and release the backend; returns the final state line."""
         try:
+            self._report_unpublished(final=True)  # what the last second left unsaid
             self.backend.make_safe()
             if hasattr(self.backend, "command_v"):
                 state = self.state_text()

@@ -5,10 +5,10 @@ sample is a hole in that grid. :func:`topic_completeness` counts, for one topic,
 the samples a session should hold (``start <= stamp < end``, half a period of
 tolerance, as :func:`pmdc_ident.dataio.bagio.assemble_run` cuts segments), those
 present, and where the holes are (seconds from the session start). A hole on all
-three topics at the same stamps was usually never published (the driver skipped
-a host stall and said so in its diagnostics); a hole on one topic was lost on the
-way. Either way the bag's metadata, ``parameters.json`` and the node's result say
-so: nothing goes missing silently.
+three topics at the same stamps was usually never published (the driver skipped a
+host stall, or a board's link lost them, and the driver's log says so); a hole on
+one topic was lost on the way. Either way the bag's metadata, ``parameters.json``
+and the node's result say so: nothing goes missing silently.
 """
 
 from __future__ import annotations

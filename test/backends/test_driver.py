@@ -116,3 +116,60 @@ def test_the_watchdog_after_a_session_ended_at_zero_volts_is_no_fault():
         assert any("raise watchdog_s" in t for lvl, t in logs if lvl == "warning")
     finally:
         d.shutdown_safe()
+
+
+class _Lossy:
+    """The driver's backend, with samples it did not publish: skipped after a host stall
+    (any backend) and lost on a board's link (a serial backend's counter gaps)."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+        self.skipped_samples = 0
+        self.dropped = 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    @property
+    def link_stats(self) -> Any:
+        from types import SimpleNamespace
+
+        return SimpleNamespace(dropped_samples=self.dropped)
+
+
+def test_samples_the_backend_did_not_publish_are_said_at_once_then_once_a_second():
+    d, clock, logs = _driver()
+    lossy = _Lossy(d.backend)
+    d.backend = lossy
+    said = lambda: [t for lvl, t in logs if "not published" in t]  # noqa: E731
+    try:
+        d.poll()
+        assert said() == []
+        lossy.skipped_samples = 300
+        d.poll()
+        assert said() == [
+            "driver samples not published: 300 skipped after a host stall (the driver polled "
+            "too late to publish them; 300 so far); their stamps stay holes on the sample grid"
+        ]
+        assert logs[-1][0] == "warning"
+        lossy.dropped, lossy.skipped_samples = 5, 350
+        d.poll()  # within the second: held back, not lost
+        assert len(said()) == 1
+        clock.t = 1.0
+        d.poll()
+        assert said()[-1] == (
+            "driver samples not published: 50 skipped after a host stall (the driver polled "
+            "too late to publish them; 350 so far); 5 lost on the link (gaps in the board's "
+            "sample counter; 5 so far); their stamps stay holes on the sample grid"
+        )
+        clock.t = 5.0
+        d.poll()
+        assert len(said()) == 2  # nothing new
+        lossy.skipped_samples = 360
+        d.poll()
+        lossy.skipped_samples = 370  # within the second, then the driver stops: said then
+    finally:
+        d.shutdown_safe()
+    assert len(said()) == 4 and said()[-1].startswith(
+        "driver samples not published: 10 skipped after a host stall"
+    )

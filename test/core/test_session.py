@@ -46,15 +46,21 @@ def _run(
     max_samples: int = 200_000,
     noise=None,
     drop: float = 0.0,
+    open_for: int = 0,
+    tell_applied: bool = False,
 ):
-    """Close the loop; returns per-sample arrays (t, applied V, i, w)."""
+    """Close the loop; returns per-sample arrays (t, applied V, i, w). ``open_for``:
+    the armature stays open that many samples from the start (commands that reach the
+    driver late); ``tell_applied``: the session is told what the driver applies."""
     plant = Plant(model, DT, substeps=4)
     pipe: deque[float] = deque([0.0] * latency)
     applied_v = 0.0
     rows = []
     rng = np.random.default_rng(1)
     session.start()
-    for _ in range(max_samples):
+    for k in range(max_samples):
+        if k < open_for:
+            applied_v = math.nan
         t = plant.time_s
         i, w = plant.current_a, plant.speed_rad_s
         if noise:
@@ -63,11 +69,14 @@ def _run(
         if drop and rng.random() < drop and session.state is SessionState.RUNNING:
             pipe.append(pipe[-1] if pipe else applied_v)  # sample lost: no new command
         else:
-            step = session.on_sample(t, i, w)
+            told = applied_v if tell_applied else None
+            step = session.on_sample(t, i, w, applied_v=told)
             pipe.append(step.command.voltage_v if step.command else applied_v)
         applied_v = pipe.popleft()
+        if k < open_for:
+            applied_v = math.nan
         rows.append((t, applied_v, i, w))
-        plant.step(applied_v)
+        plant.step(None if math.isnan(applied_v) else applied_v)
         if not session.active:
             break
     return np.array(rows)
@@ -125,6 +134,47 @@ def test_staircase_waits_for_real_steady_state_when_the_nominal_tau_is_too_short
     k = int(round(end.t_s / DT)) - 1
     _, w_ss = spec.model.params.steady_state(plan.segments[0].voltage[0])
     assert rows[k, 3] == pytest.approx(w_ss, rel=0.01)
+
+
+def test_a_staircase_level_applied_late_is_judged_only_once_the_driver_applies_it():
+    """Commands that reach the driver late (a loaded host, a command topic matched late)
+    leave the armature open: the rotor rests, 'steady', and the level used to end at its
+    minimum hold without ever being applied (an emulated board's session under load ran
+    5,700 samples of its 8,000, both staircase levels at rest). Told what the driver
+    applies, the session holds each level until it is applied and settled."""
+    spec = load_motor("seed001_110v")
+    tau = spec.model.params.mechanical_time_constant_s
+    cfg = SequenceConfig(staircase_levels=2, steps=False, sweep=False, coast=False)
+    plan = plan_for_motor(spec, DT, cfg)
+    safety = SafetyConfig.for_limits(spec.limits, tau)
+    late = plan.segments[0].voltage.size * 3 // 2  # open past the level's nominal hold
+    told = Session(plan, safety, tau_m_s=tau)
+    rows = _run(told, spec.model, noise=(0.01, 0.05), open_for=late, tell_applied=True)
+    assert told.state is SessionState.DONE and all(told.settled.values())
+    assert told.held_samples["staircase_01"] > late
+    for label, seg in zip(("staircase_01", "staircase_02"), plan.segments, strict=True):
+        end = next(m for m in told.markers if m.event is MarkerEvent.END and m.label == label)
+        _, w_ss = spec.model.params.steady_state(seg.voltage[0])
+        assert rows[int(round(end.t_s / DT)) - 1, 3] == pytest.approx(w_ss, rel=0.01), label
+    # not told (the old way): the first level ends at its minimum hold, the rotor at rest
+    blind = Session(plan, safety, tau_m_s=tau)
+    rows = _run(blind, spec.model, noise=(0.01, 0.05), open_for=late)
+    assert blind.held_samples["staircase_01"] < late
+    end = next(m for m in blind.markers if m.event is MarkerEvent.END)
+    assert abs(rows[int(round(end.t_s / DT)) - 1, 3]) < 1.0
+
+
+def test_a_stale_staircase_level_does_not_pass_for_the_next_one():
+    """The previous level still applied (its successor's command late) is not the new
+    level's steady state; a reading near the level (a board's own, a sagging supply) is."""
+    from pmdc_ident.core.session.machine import _applies
+
+    assert _applies(None, 12.0, 0.0)  # not known: as before
+    assert not _applies(math.nan, 12.0, 0.0)  # armature open
+    assert not _applies(0.0, 12.0, 0.0)  # the session's 0 V start
+    assert not _applies(12.0, 24.0, 12.0)  # the level before
+    assert _applies(21.6, 24.0, 12.0)  # 10 % supply sag
+    assert _applies(12.0, 12.0, math.nan) and _applies(3.0, 3.0, 3.0)
 
 
 def test_staircase_that_never_settles_ends_at_the_timeout_and_says_so():

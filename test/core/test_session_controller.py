@@ -482,6 +482,9 @@ def test_a_backlog_drained_one_topic_first_is_judged_with_each_samples_own_curre
     for ns in stamps:  # the encoder's backlog first (all within CURRENT_WAIT_S)
         c.on_encoder(ns, 0.0, 0.0, 0.05, ns)
     assert c.session.abort_reason is None
+    for ns in stamps:  # the applied voltage's next (each sample waits for both)
+        c.on_voltage(ns, 6.0, math.nan)
+    assert c.session.abort_reason is None
     for ns in stamps:  # then the current's: 12 A from the first sample on
         c.on_current(ns, 12.0)
         if c.session.abort_reason is not None:
@@ -508,3 +511,27 @@ def test_default_session_names_are_unique_for_motors_started_in_the_same_second(
     assert re.fullmatch(r"session_\d{8}_\d{6}_left_wheel_[0-9a-f]{6}", names[0]), names
     assert re.fullmatch(r"session_\d{8}_\d{6}_right_wheel_[0-9a-f]{6}", names[1]), names
     assert re.fullmatch(r"session_\d{8}_\d{6}_[0-9a-f]{6}", names[3]), names
+
+
+def test_a_staircase_level_is_not_judged_settled_while_the_driver_has_not_applied_it():
+    """Commands reach the driver late (a loaded host): for a second it keeps the armature
+    open, the rotor rests, and this node drains each backlog encoder first, the applied
+    voltage after. The level must not end as 'settled' on the rotor at rest (an emulated
+    board's session under load ended both levels so, 5,700 samples of its 8,000)."""
+    ports = Ports()
+    c = SessionController(_config(settle_s=0.0), ports)
+    c.start(autostart=True, now_s=0.0)
+    _ready(c, 0.0)
+    c.tick(0.02)
+    assert c.phase is Phase.RUNNING
+    for batch in range(10):  # 1 s in batches of 100 ms: encoder and current, then voltage
+        stamps = [(batch * 100 + k + 1) * 1_000_000 for k in range(100)]
+        now = 0.02 + (batch + 1) * 0.1
+        for ns in stamps:
+            c.on_current(ns, 0.0)
+            c.on_encoder(ns, 0.0, 0.0, now, ns)
+        for ns in stamps:
+            c.on_voltage(ns, math.nan, math.nan)
+        c.tick(now)
+    assert c.session.abort_reason is None
+    assert not [m for m in ports.markers if m["event"] == "end"], ports.markers

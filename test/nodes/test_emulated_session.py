@@ -3,17 +3,28 @@
 ``pmdc-ident virtual-board --emulated`` runs the sketch on simavr against the motor part
 (its own process, as a board is its own device); ``run_session`` starts the driver
 (backend serial, 1 kHz at 1 Mbaud), recorder and identification nodes. A short session
-(about 6.6 s of motor time) must identify R, Ke and J of the motor part, and the fault
-paths of a board (AVR reset, a board that freezes, a pulled cable) must each be one
-line from the driver, the motor safe, and nothing left running. Skipped in one line
-where the AVR tools or simavr are missing (``.ci/run`` installs them).
+(about 6.6 s of motor time) must identify R, Ke and J of the motor part with every
+sample the board sent in the bag and every staircase level applied before it was judged
+settled, and the fault paths of a board (AVR reset, a board that freezes, a pulled
+cable) must each be one line from the driver, the motor safe, and nothing left
+running. Skipped in one line where the AVR tools or simavr are missing (``.ci/run``
+installs them).
 
-Tolerances of 1.5 s for the host's stalls (as the demo's): this machine is shared, and
-the nodes of several sessions hold each other up for more than the 0.5 s defaults.
+How many samples a session holds is decided on the board's clock (the plan advances by
+driver time, staircase levels until they settle), never by the host's: what is checked
+is that none of them is missing, not a count. (A count of > 6,000 failed a loaded CI run
+at 5,700 with every sample present: both staircase levels had ended at their minimum
+hold before the late commands closed the armature.)
+
+Tolerances for the host's stalls: 1.5 s in the fault tests (as the demo's), the
+product's 3 s data timeout for the identification itself. This machine is shared: the
+nodes of several sessions hold each other up, and seen beside two CPU hogs, for more
+than 1.5 s once in every four or five sessions.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -24,7 +35,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
+import yaml
 
 from pmdc_ident.backends.emulated_board import tools_missing
 from pmdc_ident.core.motors import load_motor
@@ -103,6 +116,7 @@ def _session(
     board: Board,
     during: Callable[[dict[str, Any], float], None] | None = None,
     identification: dict[str, Any] | None = None,
+    driver: dict[str, Any] | None = None,
 ) -> BringupResult:
     with realtime_thread():  # the test's watch reacts at the nodes' priority
         return run_session(
@@ -115,6 +129,7 @@ def _session(
                 "baud": BAUD,
                 "rate_hz": 1000.0,
                 "watchdog_s": 1.5,
+                **(driver or {}),
             },
             identification_params={**SHORT, **(identification or {})},
             log_dir=tmp_path / "logs",
@@ -128,17 +143,39 @@ def _logs(res: BringupResult, board: Board) -> str:
     return "\n".join([*parts, f"== board\n{board.text()[-2000:]}"])
 
 
+def _driver_samples_said(bag: Path) -> dict[str, Any]:
+    """What the recorder wrote into the bag's metadata: driver samples expected on the
+    session's stamp grid, present and missing, per topic."""
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())
+    return json.loads(
+        meta["rosbag2_bagfile_information"]["custom_data"]["pmdc_ident.driver_samples"]
+    )
+
+
 def test_a_short_session_over_the_emulated_board_identifies_the_motor_part(
     tmp_path: Path, ros_domain: int, board: Board
 ) -> None:
-    res = _session(tmp_path, ros_domain, board)
-    assert res.identification_rc == 0 and res.result is not None, _logs(res, board)
+    tolerant = {"safety.data_timeout_s": 3.0}  # the product's default (see the docstring)
+    res = _session(tmp_path, ros_domain, board, None, tolerant, {"watchdog_s": 3.0})
+    logs = _logs(res, board)
+    assert res.identification_rc == 0 and res.result is not None, logs
     assert res.bag is not None and (res.bag / "metadata.yaml").is_file()
     arrays = read_driver_arrays(res.bag)
-    assert arrays.encoder_ns.size > 6000  # the session, sampled at 1 kHz
-    # the telemetry's grid: 1 ms apart (the board's clock, whatever the host's)
-    steps = set((arrays.encoder_ns[1:] - arrays.encoder_ns[:-1]).tolist())
-    assert min(steps) == 1_000_000
+    # every sample the board sent is in the bag: none left out by the driver (it would
+    # say so), none missing on the session's grid (1 ms apart on the board's clock)
+    assert "driver samples not published" not in res.logs["driver"].read_text(), logs
+    said = _driver_samples_said(res.bag)
+    assert said["missing_max"] == 0, said
+    assert arrays.encoder_ns.size == said["topics"]["encoder"]["expected"], said
+    assert set(np.diff(arrays.encoder_ns).tolist()) == {1_000_000}
+    assert res.result["driver_samples"] == said
+    # the whole plan ran, and each staircase level ended with the driver applying it
+    ends = {m.label: m.t_s for m in arrays.markers if m.event.value == "end"}
+    assert list(ends) == ["staircase_01", "staircase_02", "step_up", "step_down", "sweep", "coast"]
+    t_v = arrays.voltage_ns * 1e-9
+    for label in ("staircase_01", "staircase_02"):
+        last = arrays.voltage_v[(t_v < ends[label]) & (t_v >= ends[label] - 0.1)]
+        assert last.size and np.all(last > 1.0), (label, last[-5:])
     p = load_motor("seed000_ebike").model.params
     got = {k: v["value"] for k, v in res.result["parameters"].items()}
     # The identification closes the (Kt, J) scale with Kt = Ke; the part has Kt != Ke,
@@ -205,6 +242,10 @@ def test_a_board_fault_mid_session_is_one_line_and_the_motor_safe(
         assert ("driver samples missing" in ident and res.identification_rc == 0) or (
             "ABORTED (lost_driver_data)" in ident
         ), logs
+        if res.identification_rc == 0:
+            # the check the identifying session passes (no sample missing) fails here:
+            # the samples the board sent while it rebooted are holes on the grid
+            assert res.bag is not None and _driver_samples_said(res.bag)["missing_max"] > 0
     elif fault == "freeze":
         assert "no telemetry from the board" in errors[0] and "watchdog_s" in errors[0], logs
         assert "ABORTED (lost_driver_data)" in ident and "safety.data_timeout_s" in ident, logs

@@ -1,9 +1,9 @@
 """Samples from the reader thread to ``poll()``, and the one-line report of a lost link.
 
-Host stalls: if the caller polls so late that more than ``max_catch_up`` samples wait,
-only the newest are returned; the first carries :attr:`Fault.LINK` and
-:attr:`SampleQueue.skipped` counts the rest (the policy of the simulated backend), so
-published samples never lag far behind the board.
+Host stalls: a caller that polls late gets every sample waiting, up to ``max_catch_up``
+of them (a bound on the backlog, set by the backend); past it only the newest are
+returned, the first carries :attr:`Fault.LINK` and :attr:`SampleQueue.skipped` counts
+the rest (which the driver reports).
 """
 
 from __future__ import annotations
@@ -44,8 +44,7 @@ class SampleQueue:
             out = list(self._samples)
             self._samples.clear()
             if len(out) > self.max_catch_up:
-                # The host fell behind: deliver only the newest max_catch_up_s, as the
-                # simulated backend does, so published samples never lag far behind.
+                # The host fell behind past the bound: deliver only the newest.
                 skip = len(out) - self.max_catch_up
                 out = out[skip:]
                 self.skipped += skip

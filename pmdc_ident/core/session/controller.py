@@ -124,6 +124,7 @@ class SessionController:
         self._prep_deadline_s = 0.0
         self._last_current_a = 0.0
         self._currents: deque[tuple[int, float]] = deque(maxlen=8192)  # (stamp, A)
+        self._applied: deque[tuple[int, float]] = deque(maxlen=8192)  # (stamp, V applied)
         self._held: deque[tuple[int, float, float, float]] = (
             deque()
         )  # stamp, speed, arrived, angle
@@ -204,6 +205,7 @@ class SessionController:
 
     def on_voltage(self, stamp_ns: int, voltage_v: float, terminal_v: float) -> None:
         self.peers.on_stamp("voltage_applied", stamp_ns)
+        self._applied.append((stamp_ns, voltage_v))
         if self.recording_samples:
             self.recording.voltage.append(stamp_ns, voltage_v, terminal_v)
             s = self.session
@@ -217,6 +219,7 @@ class SessionController:
             state = self.confirmation.on_voltage(stamp_ns, voltage_v)
             if state:
                 self.ports.log("info", f"motor confirmed safe by the driver: {state}")
+        self._release(None)
 
     def on_encoder(
         self, stamp_ns: int, position_rad: float, speed_rad_s: float, now_s: float, now_ns: int
@@ -242,15 +245,16 @@ class SessionController:
         self._release(now_s)
 
     def _release(self, now_s: float | None) -> None:
-        """Step the session on each held encoder sample with the current of its stamp
-        (the newest at or before it), in stamp order, once that current has arrived: a
-        node held up by the host drains its queues one topic after another, and a stall
-        judged on a stale current would be judged late. A sample waits at most
-        :data:`CURRENT_WAIT_S`, and not at all from a driver that sends no current."""
-        held, cur = self._held, self._currents
+        """Step the session on each held encoder sample with the current and the applied
+        voltage of its stamp (the newest at or before it), in stamp order, once they have
+        arrived: a node held up by the host drains its queues one topic after another,
+        and a stall judged on a stale current would be judged late, a staircase level on
+        a stale voltage settled before it was applied. A sample waits at most
+        :data:`CURRENT_WAIT_S`, and not at all for a topic the driver does not send."""
+        held, cur, vol = self._held, self._currents, self._applied
         while held and self.phase is Phase.RUNNING and self.session is not None:
             stamp_ns, speed_rad_s, arrived_s, position_rad = held[0]
-            waiting = cur and cur[-1][0] < stamp_ns
+            waiting = (cur and cur[-1][0] < stamp_ns) or (vol and vol[-1][0] < stamp_ns)
             if waiting and (now_s is None or now_s - arrived_s < CURRENT_WAIT_S):
                 return
             held.popleft()
@@ -259,10 +263,24 @@ class SessionController:
             if cur and cur[0][0] <= stamp_ns:
                 self._last_current_a = cur[0][1]
             step = self.session.on_sample(
-                stamp_ns * 1e-9, self._last_current_a, speed_rad_s, arrived_s, position_rad
+                stamp_ns * 1e-9,
+                self._last_current_a,
+                speed_rad_s,
+                arrived_s,
+                position_rad,
+                self._applied_at(stamp_ns),
             )
             self._apply(step, arrived_s)
         held.clear()  # the session is over: nothing left to step
+
+    def _applied_at(self, stamp_ns: int) -> float | None:
+        """The driver's applied voltage at ``stamp_ns`` (the newest at or before it: one
+        still on its way after :data:`CURRENT_WAIT_S` reads as the previous one, which
+        only delays a staircase's steady-state test), None before the first arrives."""
+        vol = self._applied
+        while len(vol) > 1 and vol[1][0] <= stamp_ns:
+            vol.popleft()
+        return vol[0][1] if vol and vol[0][0] <= stamp_ns else None
 
     def on_recorder_status(self, text: str, now_s: float) -> None:
         self.peers.on_recorder_status(text, now_s)

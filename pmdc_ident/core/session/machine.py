@@ -71,6 +71,7 @@ class _Cursor:
     pos: int = 0  # commands issued within the current segment
     samples: int = 0
     last_v: float = 0.0
+    before_v: float = 0.0  # the command before the current segment (0 V: the session's start)
     issued: int = 0  # plan samples issued over the session
     markers: list[Marker] = field(default_factory=list)
 
@@ -169,12 +170,18 @@ class Session:
         speed_rad_s: float,
         wall_s: float | None = None,
         position_rad: float | None = None,
+        applied_v: float | None = None,
     ) -> SessionStep:
         """Consume the driver sample at ``t_s``; return the command for the next sample.
 
         The plan advances by driver time: when samples were lost on the way, the
         plan skips as many samples as the driver produced, so segments keep their
         length on the driver's clock. A sample not newer than the last is ignored.
+        ``applied_v``: the voltage the driver applied at ``t_s`` (NaN: armature open;
+        None: not known). A staircase level is judged settled only on samples at which
+        the driver applies that level: a command that reaches it late (a loaded host,
+        a command topic matched late) leaves a rotor at rest, 'steady' at the wrong
+        level, and the level ended at its minimum hold without ever being applied.
         """
         if wall_s is not None:
             self._last_wall_s = wall_s
@@ -205,21 +212,31 @@ class Session:
             return SessionStep(Command(0.0) if self.awaiting_release else self.safe_command)
         for j in range(steps):
             t = t_prev + (j + 1) * self.dt_s
-            if self._advance(t, current_a, speed_rad_s, markers, real=j == steps - 1):
+            real = j == steps - 1
+            if self._advance(t, current_a, speed_rad_s, markers, real, applied_v):
                 return SessionStep(self.safe_command, tuple(markers))
         if self._c.seg >= len(self.plan.segments):
             return SessionStep(self.safe_command, tuple(markers))
         return SessionStep(Command(self._next_voltage()), tuple(markers))
 
     def _advance(
-        self, t_s: float, current_a: float, speed_rad_s: float, markers: list[Marker], real: bool
+        self,
+        t_s: float,
+        current_a: float,
+        speed_rad_s: float,
+        markers: list[Marker],
+        real: bool,
+        applied_v: float | None = None,
     ) -> bool:
         """One driver sample of the plan; True when the session just completed."""
         c = self._c
         c.samples += 1
         seg = self.plan.segments[c.seg]
         if real and seg.kind is TestKind.STAIRCASE:
-            self.detector.push(t_s, current_a, speed_rad_s)
+            if _applies(applied_v, c.last_v, c.before_v):
+                self.detector.push(t_s, current_a, speed_rad_s)
+            else:  # the level is not applied yet: its settling has not started
+                self.detector.reset()
         if not self._segment_finished(seg):
             if not real:
                 self._next_voltage()  # a lost sample still used its plan slot
@@ -229,6 +246,7 @@ class Session:
         markers.append(self._mark(MarkerEvent.END, seg.label, t_next))
         c.seg += 1
         c.pos = 0
+        c.before_v = c.last_v
         self.detector.reset()
         if c.seg >= len(self.plan.segments) and self.open_ended:
             self.holding = True  # more may come (extend) or the end (finish)
@@ -268,6 +286,7 @@ class Session:
         if not self.holding:
             return SessionStep(None)
         self.holding = False
+        self._c.before_v = 0.0  # the hold's safe command (0 V or an open armature)
         t_next = self._t_last_s + self.dt_s
         mark = self._mark(MarkerEvent.START, self.plan.segments[self._c.seg].label, t_next)
         return SessionStep(Command(self._next_voltage()), (mark,))
@@ -357,3 +376,17 @@ class Session:
         m = Marker(event, label, float(t_s), self.name, detail)
         self._c.markers.append(m)
         return m
+
+
+def _applies(applied_v: float | None, level_v: float, before_v: float) -> bool:
+    """Whether the driver applies the staircase level ``level_v`` (commanded after
+    ``before_v``): armature closed and nearer this level than the one before it (a
+    board's reading of its own output, or a sagging supply, is close, not exact).
+    ``None``: not known, taken as applied."""
+    if applied_v is None:
+        return True
+    if not math.isfinite(applied_v):
+        return False
+    if not math.isfinite(before_v) or before_v == level_v:
+        return True
+    return abs(applied_v - level_v) <= abs(applied_v - before_v)
