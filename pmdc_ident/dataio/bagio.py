@@ -29,7 +29,7 @@ import math
 import struct
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -38,11 +38,11 @@ from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Run, Segment, link_history
 from pmdc_ident.core.errors import DataError, PmdcError
+from pmdc_ident.core.samples import DriverSamples
 from pmdc_ident.core.session import Marker, MarkerEvent
 
 __all__ = [
     "BagWriter",
-    "DriverArrays",
     "RecordingState",
     "TOPIC_TYPES",
     "assemble_run",
@@ -129,23 +129,6 @@ def parse_joint_state(cdr: bytes | memoryview) -> tuple[int, float, float, float
 # ---------------------------------------------------------------------------
 # Assembling a Run from the driver topics
 # ---------------------------------------------------------------------------
-@dataclass
-class DriverArrays:
-    """Driver samples per topic: stamps in ns (driver clock) and values (SI units)."""
-
-    current_ns: IntArray
-    current_a: FloatArray
-    encoder_ns: IntArray
-    position_rad: FloatArray | None
-    speed_rad_s: FloatArray | None
-    voltage_ns: IntArray
-    voltage_v: FloatArray
-    terminal_v: FloatArray | None
-    markers: list[Marker]
-    # what reading left out (a truncated file), one line each
-    notes: list[str] = field(default_factory=list)
-
-
 @dataclass(frozen=True)
 class RecordingState:
     """How whole a recording is: what :func:`assemble_run` read and what it left out.
@@ -216,7 +199,7 @@ def _period(ns: IntArray) -> int:
 
 
 def _join(
-    arrays: DriverArrays, source: str
+    arrays: DriverSamples, source: str
 ) -> tuple[IntArray, dict[str, FloatArray | None], list[str], int]:
     """The driver topics joined on their stamps: (stamps, columns, notes, samples missing).
 
@@ -347,7 +330,7 @@ def _interval_mean(ns: IntArray, values: FloatArray, grid: IntArray) -> FloatArr
     return np.where(n > 0, out, last)
 
 
-def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = None) -> Run:
+def assemble_run(arrays: DriverSamples, source: str = "", session: str | None = None) -> Run:
     """Join the driver topics on their stamps (:func:`_join`) and cut the session's
     segments.
 
@@ -476,7 +459,7 @@ def _topic_role(topic: str) -> str | None:
     return last if last in TOPIC_TYPES else None
 
 
-def read_driver_arrays(path: str | Path) -> DriverArrays:
+def read_driver_arrays(path: str | Path) -> DriverSamples:
     """The driver topics and segment markers of a bag directory or ``.mcap`` file.
 
     A bag its recorder never closed (killed, power cut, a copy cut short) has no
@@ -559,7 +542,7 @@ def _check_types(p: Path, conns: Sequence[Any]) -> None:
             raise DataError(msg)
 
 
-def _recovered_arrays(p: Path, mcap: Path) -> DriverArrays:
+def _recovered_arrays(p: Path, mcap: Path) -> DriverSamples:
     """The driver topics in the complete chunks of ``mcap``; one line says what was lost."""
     from pmdc_ident.dataio.mcap_recover import cut_markers, scan_mcap
 
@@ -580,18 +563,19 @@ def _recovered_arrays(p: Path, mcap: Path) -> DriverArrays:
     arrays = _arrays_from(p, messages)
     ends = [a[-1] for a in (arrays.encoder_ns, arrays.voltage_ns, arrays.current_ns) if a.size]
     note = ""
+    markers = arrays.markers
     if ends and arrays.encoder_ns.size > 1:
         dt_ns = int(np.median(np.diff(arrays.encoder_ns)))
-        arrays.markers, note = cut_markers(arrays.markers, int(min(ends)), dt_ns)
+        kept, note = cut_markers(markers, int(min(ends)), dt_ns)
+        markers = tuple(kept)
     _log.warning(rec.line() + note)
-    arrays.notes.append(rec.line() + note)
-    return arrays
+    return replace(arrays, markers=markers, notes=(*arrays.notes, rec.line() + note))
 
 
 def _arrays_from(
     p: Path, messages: list[tuple[str, bytes]], topics: list[str] | None = None
-) -> DriverArrays:
-    """DriverArrays from (topic, CDR) pairs of the driver topics and the markers."""
+) -> DriverSamples:
+    """DriverSamples from (topic, CDR) pairs of the driver topics and the markers."""
     roles = (
         {_topic_role(t) for t, _ in messages} if topics is None else set(map(_topic_role, topics))
     )
@@ -651,11 +635,11 @@ def _driver_arrays(
     encoder: tuple[IntArray, FloatArray, FloatArray],
     voltage: tuple[IntArray, FloatArray, FloatArray],
     markers: list[Marker],
-) -> DriverArrays:
-    """DriverArrays from (stamps, values...) per topic: NaN-holding encoder columns are absent."""
+) -> DriverSamples:
+    """DriverSamples from (stamps, values...) per topic: NaN-holding encoder columns are absent."""
     enc_ns, pos, vel = encoder
     volt_ns, volt, term = voltage
-    return DriverArrays(
+    return DriverSamples(
         current_ns=current[0],
         current_a=current[1],
         encoder_ns=enc_ns,
@@ -664,7 +648,7 @@ def _driver_arrays(
         voltage_ns=volt_ns,
         voltage_v=volt,
         terminal_v=term if term.size and np.isfinite(term).any() else None,
-        markers=markers,
+        markers=tuple(markers),
     )
 
 
@@ -687,7 +671,7 @@ def _mcap_files(p: Path) -> list[Path] | None:
     return files if files and all(f.is_file() for f in files) else None
 
 
-def _read_driver_arrays_fast(p: Path) -> DriverArrays | None:
+def _read_driver_arrays_fast(p: Path) -> DriverSamples | None:
     """read_driver_arrays by one compiled pass over complete MCAP files (mcap_scan), or None.
 
     None (the caller then reads with rosbags) for other storage, unfinished or
