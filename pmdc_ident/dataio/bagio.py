@@ -40,6 +40,7 @@ from pmdc_ident.core.data import Run, Segment, link_history
 from pmdc_ident.core.errors import DataError, PmdcError
 from pmdc_ident.core.samples import DriverSamples
 from pmdc_ident.core.session import Marker, MarkerEvent
+from pmdc_ident.core.stream_join import join_driver_samples
 
 __all__ = [
     "BagWriter",
@@ -194,144 +195,9 @@ def _state_key(source: str | Path) -> str:
     return str(Path(source)) if str(source) else ""
 
 
-def _period(ns: IntArray) -> int:
-    return int(np.median(np.diff(ns))) if ns.size > 2 else 0
-
-
-def _join(
-    arrays: DriverSamples, source: str
-) -> tuple[IntArray, dict[str, FloatArray | None], list[str], int]:
-    """The driver topics joined on their stamps: (stamps, columns, notes, samples missing).
-
-    Topics at one rate are joined on the stamps they share (a stamp missing on one
-    topic is a hole the fit steps over as a gap, and said here). A topic at a lower
-    rate is never allowed to thin the others out silently:
-
-    * a measured topic (``current`` or ``encoder``) at a lower rate sets the grid: the
-      run is joined on its stamps, the other measured topic taken at them
-      (interpolated where it has no sample there) and the applied voltage *averaged*
-      over each interval of the grid (its volt-seconds kept, so the model's
-      zero-order hold sees the voltage the motor got; taking one held value per
-      interval instead shifts every edge by up to a sample: R +4 %, J -4 %, outside
-      their intervals, on a seed-000 session with every other current sample);
-    * ``voltage_applied`` alone at a lower rate is held between its samples (the
-      command changes only when it is published).
-
-    Either way a note names the rates and what was done.
-    """
-    enc_ns = np.asarray(arrays.encoder_ns, dtype=np.int64)
-    v_ns = np.asarray(arrays.voltage_ns, dtype=np.int64)
-    c_ns = np.asarray(arrays.current_ns, dtype=np.int64)
-    topics = {"encoder": enc_ns, "voltage_applied": v_ns}
-    if c_ns.size:
-        topics["current"] = c_ns
-    periods = {k: _period(v) for k, v in topics.items()}
-    fast = min((p for p in periods.values() if p > 0), default=0)
-    slow = {k for k, p in periods.items() if fast and p > 1.5 * fast}
-    if len(slow) == len(topics):
-        slow = set()
-    measured_slow = sorted(slow - {"voltage_applied"})
-    notes: list[str] = []
-    if measured_slow:
-        grid_topics = measured_slow
-    else:
-        grid_topics = [k for k in topics if k not in slow]
-    stamps = topics[grid_topics[0]]
-    union = stamps
-    for k in grid_topics[1:]:
-        stamps = np.intersect1d(stamps, topics[k])
-        union = np.union1d(union, topics[k])
-    stamps = np.unique(stamps)
-    # a hole is a stamp inside every grid topic's span that one of them lacks (where a
-    # truncated file ends the topics one sample apart, nothing is missing)
-    first = max(int(topics[k].min()) for k in grid_topics)
-    last = min(int(topics[k].max()) for k in grid_topics)
-    union = union[(union >= first) & (union <= last)]
-    missing = int(union.size - np.count_nonzero((stamps >= first) & (stamps <= last)))
-    if missing:
-        per = {k: int(np.setdiff1d(union, topics[k]).size) for k in grid_topics}
-        which = ", ".join(f"{k} {n}" for k, n in per.items() if n)
-        notes.append(
-            f"{missing} driver sample(s) are missing on some topic ({which}): those stamps "
-            "are holes the fit steps over (gaps)"
-        )
-    others = [k for k in topics if k not in grid_topics]
-    for k in others:  # the grid within every other topic's span
-        ns = topics[k]
-        if ns.size:
-            stamps = stamps[(stamps >= ns.min()) & (stamps <= ns.max())]
-    if stamps.size < 2:
-        msg = f"{source or 'data'}: fewer than 2 driver samples with matching stamps"
-        raise DataError(msg)
-    if measured_slow:
-        rate = 1e9 / periods[measured_slow[0]]
-        what = ", ".join(repr(k) for k in measured_slow)
-        fast_ones = ", ".join(repr(k) for k in topics if k not in slow)
-        notes.append(
-            f"{what} arrives every {periods[measured_slow[0]] * 1e-6:.4g} ms, "
-            f"{periods[measured_slow[0]] / fast:.3g} x the period of {fast_ones} "
-            f"({fast * 1e-6:.4g} ms): joined on its stamps ({rate:.4g} Hz), the voltage "
-            "averaged over each of its intervals (volt-seconds kept), the other topics "
-            "taken at its stamps; their samples in between are not fitted"
-        )
-    elif "voltage_applied" in slow:
-        notes.append(
-            f"'voltage_applied' arrives every {periods['voltage_applied'] * 1e-6:.4g} ms, "
-            f"{periods['voltage_applied'] / fast:.3g} x the period of the measured topics "
-            f"({fast * 1e-6:.4g} ms): each applied voltage is held until the next one"
-        )
-
-    def at(ns: IntArray, values: FloatArray | None, how: str) -> FloatArray | None:
-        """``values`` (stamped ``ns``) on the grid: exact, interpolated, held or averaged."""
-        if values is None or not ns.size:
-            return None
-        values = np.asarray(values, dtype=float)
-        if values.size != ns.size:
-            return None
-        order = np.argsort(ns, kind="stable")
-        ns, values = ns[order], values[order]
-        idx = np.searchsorted(ns, stamps)
-        exact = (idx < ns.size) & (ns[np.minimum(idx, ns.size - 1)] == stamps)
-        if how == "mean" and measured_slow:
-            return _interval_mean(ns, values, stamps)
-        if exact.all():
-            return values[idx]
-        if how in ("held", "mean"):
-            return values[np.clip(np.searchsorted(ns, stamps, side="right") - 1, 0, ns.size - 1)]
-        return np.interp(stamps.astype(float), ns.astype(float), values)
-
-    cols: dict[str, FloatArray | None] = {
-        "position": at(enc_ns, arrays.position_rad, "linear"),
-        "speed": at(enc_ns, arrays.speed_rad_s, "linear"),
-        "voltage": at(v_ns, arrays.voltage_v, "mean"),
-        "terminal": at(v_ns, arrays.terminal_v, "mean"),
-        "current": at(c_ns, arrays.current_a, "linear") if c_ns.size else None,
-    }
-    return stamps, cols, notes, missing
-
-
-def _interval_mean(ns: IntArray, values: FloatArray, grid: IntArray) -> FloatArray:
-    """The mean of the held ``values`` whose stamps fall in each interval of ``grid``
-    (the last interval as long as the one before it). An interval entirely open (NaN)
-    stays open; one that opens or closes inside takes its last value's state."""
-    edges = np.append(grid, grid[-1] + (grid[-1] - grid[-2]))
-    lo = np.searchsorted(ns, edges[:-1], side="left")
-    hi = np.searchsorted(ns, edges[1:], side="left")
-    finite = np.isfinite(values)
-    filled = np.where(finite, values, 0.0)
-    csum = np.concatenate(([0.0], np.cumsum(filled)))
-    ccount = np.concatenate(([0], np.cumsum(finite)))
-    n = hi - lo
-    nf = ccount[hi] - ccount[lo]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = (csum[hi] - csum[lo]) / nf
-    last = values[np.clip(hi - 1, 0, values.size - 1)]
-    out = np.where(nf == n, mean, last)  # partly open: the state it ends in
-    return np.where(n > 0, out, last)
-
-
 def assemble_run(arrays: DriverSamples, source: str = "", session: str | None = None) -> Run:
-    """Join the driver topics on their stamps (:func:`_join`) and cut the session's
+    """Join the driver topics on their stamps (:func:`pmdc_ident.core.stream_join.
+    join_driver_samples`: the one joining policy) and cut the session's
     segments.
 
     With ``session`` given only that session's markers are used (default: every
@@ -341,7 +207,8 @@ def assemble_run(arrays: DriverSamples, source: str = "", session: str | None = 
     when no segment is complete, nothing is: :class:`DataError`. What was read and
     what was left out is kept as the source's :func:`recording_state`.
     """
-    stamps, cols, join_notes, missing = _join(arrays, source)
+    joined = join_driver_samples(arrays, source)
+    stamps, cols, join_notes, missing = joined.stamps, joined.columns, joined.notes, joined.missing
     pos, spd, volt, term, cur = (
         cols[k] for k in ("position", "speed", "voltage", "terminal", "current")
     )

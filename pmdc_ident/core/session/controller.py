@@ -56,6 +56,7 @@ from pmdc_ident.core.session.startup import (
     StartRules,
     build_session,
 )
+from pmdc_ident.core.stream_join import HeldStream
 
 __all__ = [
     "ControllerConfig",
@@ -123,7 +124,7 @@ class SessionController:
         self.peers = Peers()  # what is known of the driver and the recorder
         self._prep_deadline_s = 0.0
         self._last_current_a = 0.0
-        self._currents: deque[tuple[int, float]] = deque(maxlen=8192)  # (stamp, A)
+        self._currents = HeldStream()  # the current, held at each encoder stamp
         self._held: deque[tuple[int, float, float, float]] = (
             deque()
         )  # stamp, speed, arrived, angle
@@ -199,7 +200,7 @@ class SessionController:
         self.peers.on_stamp("current", stamp_ns)
         if self.recording_samples:
             self.recording.current.append(stamp_ns, current_a)
-        self._currents.append((stamp_ns, current_a))
+        self._currents.add(stamp_ns, current_a)
         self._release(None)
 
     def on_voltage(self, stamp_ns: int, voltage_v: float, terminal_v: float) -> None:
@@ -246,18 +247,16 @@ class SessionController:
         (the newest at or before it), in stamp order, once that current has arrived: a
         node held up by the host drains its queues one topic after another, and a stall
         judged on a stale current would be judged late. A sample waits at most
-        :data:`CURRENT_WAIT_S`, and not at all from a driver that sends no current."""
+        :data:`CURRENT_WAIT_S`, and not at all from a driver that sends no current (the
+        joining policy's rule 4: :mod:`pmdc_ident.core.stream_join`)."""
         held, cur = self._held, self._currents
         while held and self.phase is Phase.RUNNING and self.session is not None:
             stamp_ns, speed_rad_s, arrived_s, position_rad = held[0]
-            waiting = cur and cur[-1][0] < stamp_ns
+            waiting = cur.waiting_for(stamp_ns)
             if waiting and (now_s is None or now_s - arrived_s < CURRENT_WAIT_S):
                 return
             held.popleft()
-            while len(cur) > 1 and cur[1][0] <= stamp_ns:
-                cur.popleft()
-            if cur and cur[0][0] <= stamp_ns:
-                self._last_current_a = cur[0][1]
+            self._last_current_a = cur.at(stamp_ns, self._last_current_a)
             step = self.session.on_sample(
                 stamp_ns * 1e-9, self._last_current_a, speed_rad_s, arrived_s, position_rad
             )
