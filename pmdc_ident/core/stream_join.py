@@ -32,7 +32,11 @@ lose a message. Every consumer joins them by the same rules:
 :func:`join_driver_samples` is the offline form (a bag, and the identification node's
 run of a finished session: :func:`pmdc_ident.dataio.bagio.assemble_run`);
 :class:`StampJoiner` (the monitor node) and :class:`HeldStream` (the session
-controller) are the on-line forms, rules 2 and 3 applied as the samples arrive.
+controller) are the on-line forms. One difference remains, said here so it is not
+mistaken for a second policy: the monitor's :class:`StampJoiner` does not apply rule 3
+- a topic at a lower rate thins its samples to that topic's stamps, every sample left
+out counted in :attr:`StampJoiner.dropped` (the node's ``samples_dropped``
+diagnostic), so never silently.
 """
 
 from __future__ import annotations

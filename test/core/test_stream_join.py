@@ -109,3 +109,14 @@ def test_the_controllers_held_current_is_the_offline_held_value():
             added += 1
         out.append(stream.at(int(q), float("nan")))
     assert np.array_equal(np.array(out), held_at(ns, values, queries))
+
+
+def test_the_monitor_join_thins_to_a_slower_topic_and_counts_every_sample_left_out():
+    """The one difference from the offline join (module doc): no rule 3 on line."""
+    j = StampJoiner(hold_s=0.01)
+    for k in range(100):
+        for kind in ("current", "speed") + (("voltage",) if k % 2 == 0 else ()):
+            j.add(kind, k * 1_000_000, float(k))
+    t = j.take()[0]  # samples 91-99 ms are within hold_s of the newest: still waiting
+    assert np.array_equal(np.round(t * 1e3), np.arange(0, 91, 2))
+    assert j.dropped == 45  # every odd sample up to 89 ms: said, not silent
