@@ -29,7 +29,7 @@ import math
 import struct
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -38,11 +38,12 @@ from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Run, Segment, link_history
 from pmdc_ident.core.errors import DataError, PmdcError
+from pmdc_ident.core.samples import DriverSamples
 from pmdc_ident.core.session import Marker, MarkerEvent
+from pmdc_ident.core.stream_join import join_driver_samples
 
 __all__ = [
     "BagWriter",
-    "DriverArrays",
     "RecordingState",
     "TOPIC_TYPES",
     "assemble_run",
@@ -94,8 +95,12 @@ _NAN = math.nan
 def parse_joint_state(cdr: bytes | memoryview) -> tuple[int, float, float, float, float]:
     """(stamp ns, position[0], velocity[0], effort[0], effort[1]) of a raw JointState.
 
-    Decodes little-endian CDR directly (missing entries are NaN): about ten
-    times cheaper than building a message object, which matters at 3 kHz.
+    Decodes little-endian CDR directly (missing entries are NaN). Kept beside
+    ``rosbags``' ``deserialize_cdr`` because that costs time: per message 1.2 us
+    against 5.6 us (4.9x, docs/results.md), which the identification node pays at
+    3 kHz; reading a ``make demo`` bag through ``rosbags``' reader, 0.63 s of CPU
+    with this decode against 1.57 s with the library's (2.5x,
+    ``benchmarks/bench_bag_read.py``, second reads).
     """
     b = cdr
     if len(b) < 16 or b[1] != 1:
@@ -129,23 +134,6 @@ def parse_joint_state(cdr: bytes | memoryview) -> tuple[int, float, float, float
 # ---------------------------------------------------------------------------
 # Assembling a Run from the driver topics
 # ---------------------------------------------------------------------------
-@dataclass
-class DriverArrays:
-    """Driver samples per topic: stamps in ns (driver clock) and values (SI units)."""
-
-    current_ns: IntArray
-    current_a: FloatArray
-    encoder_ns: IntArray
-    position_rad: FloatArray | None
-    speed_rad_s: FloatArray | None
-    voltage_ns: IntArray
-    voltage_v: FloatArray
-    terminal_v: FloatArray | None
-    markers: list[Marker]
-    # what reading left out (a truncated file), one line each
-    notes: list[str] = field(default_factory=list)
-
-
 @dataclass(frozen=True)
 class RecordingState:
     """How whole a recording is: what :func:`assemble_run` read and what it left out.
@@ -211,144 +199,9 @@ def _state_key(source: str | Path) -> str:
     return str(Path(source)) if str(source) else ""
 
 
-def _period(ns: IntArray) -> int:
-    return int(np.median(np.diff(ns))) if ns.size > 2 else 0
-
-
-def _join(
-    arrays: DriverArrays, source: str
-) -> tuple[IntArray, dict[str, FloatArray | None], list[str], int]:
-    """The driver topics joined on their stamps: (stamps, columns, notes, samples missing).
-
-    Topics at one rate are joined on the stamps they share (a stamp missing on one
-    topic is a hole the fit steps over as a gap, and said here). A topic at a lower
-    rate is never allowed to thin the others out silently:
-
-    * a measured topic (``current`` or ``encoder``) at a lower rate sets the grid: the
-      run is joined on its stamps, the other measured topic taken at them
-      (interpolated where it has no sample there) and the applied voltage *averaged*
-      over each interval of the grid (its volt-seconds kept, so the model's
-      zero-order hold sees the voltage the motor got; taking one held value per
-      interval instead shifts every edge by up to a sample: R +4 %, J -4 %, outside
-      their intervals, on a seed-000 session with every other current sample);
-    * ``voltage_applied`` alone at a lower rate is held between its samples (the
-      command changes only when it is published).
-
-    Either way a note names the rates and what was done.
-    """
-    enc_ns = np.asarray(arrays.encoder_ns, dtype=np.int64)
-    v_ns = np.asarray(arrays.voltage_ns, dtype=np.int64)
-    c_ns = np.asarray(arrays.current_ns, dtype=np.int64)
-    topics = {"encoder": enc_ns, "voltage_applied": v_ns}
-    if c_ns.size:
-        topics["current"] = c_ns
-    periods = {k: _period(v) for k, v in topics.items()}
-    fast = min((p for p in periods.values() if p > 0), default=0)
-    slow = {k for k, p in periods.items() if fast and p > 1.5 * fast}
-    if len(slow) == len(topics):
-        slow = set()
-    measured_slow = sorted(slow - {"voltage_applied"})
-    notes: list[str] = []
-    if measured_slow:
-        grid_topics = measured_slow
-    else:
-        grid_topics = [k for k in topics if k not in slow]
-    stamps = topics[grid_topics[0]]
-    union = stamps
-    for k in grid_topics[1:]:
-        stamps = np.intersect1d(stamps, topics[k])
-        union = np.union1d(union, topics[k])
-    stamps = np.unique(stamps)
-    # a hole is a stamp inside every grid topic's span that one of them lacks (where a
-    # truncated file ends the topics one sample apart, nothing is missing)
-    first = max(int(topics[k].min()) for k in grid_topics)
-    last = min(int(topics[k].max()) for k in grid_topics)
-    union = union[(union >= first) & (union <= last)]
-    missing = int(union.size - np.count_nonzero((stamps >= first) & (stamps <= last)))
-    if missing:
-        per = {k: int(np.setdiff1d(union, topics[k]).size) for k in grid_topics}
-        which = ", ".join(f"{k} {n}" for k, n in per.items() if n)
-        notes.append(
-            f"{missing} driver sample(s) are missing on some topic ({which}): those stamps "
-            "are holes the fit steps over (gaps)"
-        )
-    others = [k for k in topics if k not in grid_topics]
-    for k in others:  # the grid within every other topic's span
-        ns = topics[k]
-        if ns.size:
-            stamps = stamps[(stamps >= ns.min()) & (stamps <= ns.max())]
-    if stamps.size < 2:
-        msg = f"{source or 'data'}: fewer than 2 driver samples with matching stamps"
-        raise DataError(msg)
-    if measured_slow:
-        rate = 1e9 / periods[measured_slow[0]]
-        what = ", ".join(repr(k) for k in measured_slow)
-        fast_ones = ", ".join(repr(k) for k in topics if k not in slow)
-        notes.append(
-            f"{what} arrives every {periods[measured_slow[0]] * 1e-6:.4g} ms, "
-            f"{periods[measured_slow[0]] / fast:.3g} x the period of {fast_ones} "
-            f"({fast * 1e-6:.4g} ms): joined on its stamps ({rate:.4g} Hz), the voltage "
-            "averaged over each of its intervals (volt-seconds kept), the other topics "
-            "taken at its stamps; their samples in between are not fitted"
-        )
-    elif "voltage_applied" in slow:
-        notes.append(
-            f"'voltage_applied' arrives every {periods['voltage_applied'] * 1e-6:.4g} ms, "
-            f"{periods['voltage_applied'] / fast:.3g} x the period of the measured topics "
-            f"({fast * 1e-6:.4g} ms): each applied voltage is held until the next one"
-        )
-
-    def at(ns: IntArray, values: FloatArray | None, how: str) -> FloatArray | None:
-        """``values`` (stamped ``ns``) on the grid: exact, interpolated, held or averaged."""
-        if values is None or not ns.size:
-            return None
-        values = np.asarray(values, dtype=float)
-        if values.size != ns.size:
-            return None
-        order = np.argsort(ns, kind="stable")
-        ns, values = ns[order], values[order]
-        idx = np.searchsorted(ns, stamps)
-        exact = (idx < ns.size) & (ns[np.minimum(idx, ns.size - 1)] == stamps)
-        if how == "mean" and measured_slow:
-            return _interval_mean(ns, values, stamps)
-        if exact.all():
-            return values[idx]
-        if how in ("held", "mean"):
-            return values[np.clip(np.searchsorted(ns, stamps, side="right") - 1, 0, ns.size - 1)]
-        return np.interp(stamps.astype(float), ns.astype(float), values)
-
-    cols: dict[str, FloatArray | None] = {
-        "position": at(enc_ns, arrays.position_rad, "linear"),
-        "speed": at(enc_ns, arrays.speed_rad_s, "linear"),
-        "voltage": at(v_ns, arrays.voltage_v, "mean"),
-        "terminal": at(v_ns, arrays.terminal_v, "mean"),
-        "current": at(c_ns, arrays.current_a, "linear") if c_ns.size else None,
-    }
-    return stamps, cols, notes, missing
-
-
-def _interval_mean(ns: IntArray, values: FloatArray, grid: IntArray) -> FloatArray:
-    """The mean of the held ``values`` whose stamps fall in each interval of ``grid``
-    (the last interval as long as the one before it). An interval entirely open (NaN)
-    stays open; one that opens or closes inside takes its last value's state."""
-    edges = np.append(grid, grid[-1] + (grid[-1] - grid[-2]))
-    lo = np.searchsorted(ns, edges[:-1], side="left")
-    hi = np.searchsorted(ns, edges[1:], side="left")
-    finite = np.isfinite(values)
-    filled = np.where(finite, values, 0.0)
-    csum = np.concatenate(([0.0], np.cumsum(filled)))
-    ccount = np.concatenate(([0], np.cumsum(finite)))
-    n = hi - lo
-    nf = ccount[hi] - ccount[lo]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = (csum[hi] - csum[lo]) / nf
-    last = values[np.clip(hi - 1, 0, values.size - 1)]
-    out = np.where(nf == n, mean, last)  # partly open: the state it ends in
-    return np.where(n > 0, out, last)
-
-
-def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = None) -> Run:
-    """Join the driver topics on their stamps (:func:`_join`) and cut the session's
+def assemble_run(arrays: DriverSamples, source: str = "", session: str | None = None) -> Run:
+    """Join the driver topics on their stamps (:func:`pmdc_ident.core.stream_join.
+    join_driver_samples`: the one joining policy) and cut the session's
     segments.
 
     With ``session`` given only that session's markers are used (default: every
@@ -358,7 +211,8 @@ def assemble_run(arrays: DriverArrays, source: str = "", session: str | None = N
     when no segment is complete, nothing is: :class:`DataError`. What was read and
     what was left out is kept as the source's :func:`recording_state`.
     """
-    stamps, cols, join_notes, missing = _join(arrays, source)
+    joined = join_driver_samples(arrays, source)
+    stamps, cols, join_notes, missing = joined.stamps, joined.columns, joined.notes, joined.missing
     pos, spd, volt, term, cur = (
         cols[k] for k in ("position", "speed", "voltage", "terminal", "current")
     )
@@ -476,7 +330,7 @@ def _topic_role(topic: str) -> str | None:
     return last if last in TOPIC_TYPES else None
 
 
-def read_driver_arrays(path: str | Path) -> DriverArrays:
+def read_driver_arrays(path: str | Path) -> DriverSamples:
     """The driver topics and segment markers of a bag directory or ``.mcap`` file.
 
     A bag its recorder never closed (killed, power cut, a copy cut short) has no
@@ -559,7 +413,7 @@ def _check_types(p: Path, conns: Sequence[Any]) -> None:
             raise DataError(msg)
 
 
-def _recovered_arrays(p: Path, mcap: Path) -> DriverArrays:
+def _recovered_arrays(p: Path, mcap: Path) -> DriverSamples:
     """The driver topics in the complete chunks of ``mcap``; one line says what was lost."""
     from pmdc_ident.dataio.mcap_recover import cut_markers, scan_mcap
 
@@ -580,18 +434,19 @@ def _recovered_arrays(p: Path, mcap: Path) -> DriverArrays:
     arrays = _arrays_from(p, messages)
     ends = [a[-1] for a in (arrays.encoder_ns, arrays.voltage_ns, arrays.current_ns) if a.size]
     note = ""
+    markers = arrays.markers
     if ends and arrays.encoder_ns.size > 1:
         dt_ns = int(np.median(np.diff(arrays.encoder_ns)))
-        arrays.markers, note = cut_markers(arrays.markers, int(min(ends)), dt_ns)
+        kept, note = cut_markers(markers, int(min(ends)), dt_ns)
+        markers = tuple(kept)
     _log.warning(rec.line() + note)
-    arrays.notes.append(rec.line() + note)
-    return arrays
+    return replace(arrays, markers=markers, notes=(*arrays.notes, rec.line() + note))
 
 
 def _arrays_from(
     p: Path, messages: list[tuple[str, bytes]], topics: list[str] | None = None
-) -> DriverArrays:
-    """DriverArrays from (topic, CDR) pairs of the driver topics and the markers."""
+) -> DriverSamples:
+    """DriverSamples from (topic, CDR) pairs of the driver topics and the markers."""
     roles = (
         {_topic_role(t) for t, _ in messages} if topics is None else set(map(_topic_role, topics))
     )
@@ -651,11 +506,11 @@ def _driver_arrays(
     encoder: tuple[IntArray, FloatArray, FloatArray],
     voltage: tuple[IntArray, FloatArray, FloatArray],
     markers: list[Marker],
-) -> DriverArrays:
-    """DriverArrays from (stamps, values...) per topic: NaN-holding encoder columns are absent."""
+) -> DriverSamples:
+    """DriverSamples from (stamps, values...) per topic: NaN-holding encoder columns are absent."""
     enc_ns, pos, vel = encoder
     volt_ns, volt, term = voltage
-    return DriverArrays(
+    return DriverSamples(
         current_ns=current[0],
         current_a=current[1],
         encoder_ns=enc_ns,
@@ -664,7 +519,7 @@ def _driver_arrays(
         voltage_ns=volt_ns,
         voltage_v=volt,
         terminal_v=term if term.size and np.isfinite(term).any() else None,
-        markers=markers,
+        markers=tuple(markers),
     )
 
 
@@ -687,7 +542,7 @@ def _mcap_files(p: Path) -> list[Path] | None:
     return files if files and all(f.is_file() for f in files) else None
 
 
-def _read_driver_arrays_fast(p: Path) -> DriverArrays | None:
+def _read_driver_arrays_fast(p: Path) -> DriverSamples | None:
     """read_driver_arrays by one compiled pass over complete MCAP files (mcap_scan), or None.
 
     None (the caller then reads with rosbags) for other storage, unfinished or

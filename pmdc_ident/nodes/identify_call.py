@@ -36,10 +36,10 @@ from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.safe_write import write_text
+from pmdc_ident.core.samples import DriverSamples
 from pmdc_ident.core.session.ports import ExportRequest, IdentificationJob, IdentificationOutcome
-from pmdc_ident.core.session.recording import SessionSamples
 from pmdc_ident.core.session.sequential import DesignJob, DesignOutcome
-from pmdc_ident.dataio.bagio import DriverArrays, assemble_run
+from pmdc_ident.dataio.bagio import assemble_run
 from pmdc_ident.dataio.completeness import Completeness, completeness
 
 __all__ = [
@@ -171,8 +171,7 @@ def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
     """
     notes: list[tuple[str, str]] = []
     try:
-        arrays = _driver_arrays(job.samples)
-        run = assemble_run(arrays, source=job.source, session=job.session)
+        run = assemble_run(job.samples, source=job.source, session=job.session)
         n = sum(seg.n for seg in run.segments)
         found = _completeness(job.samples)
         notes.append(
@@ -211,7 +210,7 @@ def run_design_job(job: DesignJob) -> DesignOutcome:
     from pmdc_ident.core.session.sequential import run_design_job as decide
 
     try:
-        run = assemble_run(_driver_arrays(job.samples), source=job.source, session=job.session)
+        run = assemble_run(job.samples, source=job.source, session=job.session)
         return decide(job, run)
     except PmdcError as exc:
         return DesignOutcome(
@@ -223,21 +222,7 @@ def run_design_job(job: DesignJob) -> DesignOutcome:
         )
 
 
-def _driver_arrays(s: SessionSamples) -> DriverArrays:
-    return DriverArrays(
-        current_ns=s.current_ns,
-        current_a=s.current_a,
-        encoder_ns=s.encoder_ns,
-        position_rad=s.position_rad,
-        speed_rad_s=s.speed_rad_s,
-        voltage_ns=s.voltage_ns,
-        voltage_v=s.voltage_v,
-        terminal_v=s.terminal_v,
-        markers=list(s.markers),
-    )
-
-
-def _completeness(s: SessionSamples) -> Completeness:
+def _completeness(s: DriverSamples) -> Completeness:
     """The session's driver samples the node received vs the stamp grid."""
     enc = np.unique(s.encoder_ns)
     dt_ns = int(np.median(np.diff(enc))) if enc.size > 2 else 1_000_000

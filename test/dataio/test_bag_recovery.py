@@ -186,3 +186,30 @@ def test_a_segment_whose_samples_the_kill_cut_short_is_left_out(session_bag):
     assert [s.n for s in part.segments] == [s.n for s in whole.segments[:2]]
     assert "2 complete segment(s)" in note and f"'{third.label}' cut short and left out" in note
     assert f"end {third.t[third.n // 2]:.2f} s into session" in note
+
+
+def _chunk_at(data: bytes, o: int) -> tuple[int, int]:
+    """(start, end) of the first chunk record at or after byte ``o`` (a record start)."""
+    while data[o] != 0x06:
+        o += 9 + int.from_bytes(data[o + 1 : o + 9], "little")
+    return o, o + 9 + int.from_bytes(data[o + 1 : o + 9], "little")
+
+
+def test_a_damaged_chunk_ends_reading_there_and_is_told_apart_from_a_cut(small_bag, tmp_path):
+    """A chunk that fits in the file but does not parse is damage (said, with its byte);
+    a chunk the end of the file cuts short is a cut (no damage). Either way every chunk
+    before it is read and none of its own messages."""
+    mcap = next(small_bag.glob("*.mcap"))
+    full, data = scan_mcap(mcap), mcap.read_bytes()
+    end4, n4 = full.chunk_ends[4]
+    start, end = _chunk_at(data, end4)
+    damaged = bytearray(data[: full.chunk_ends[8][0]])
+    damaged[start + 9 : end] = b"\xff" * (end - start - 9)  # framing kept, content garbage
+    (tmp_path / "damaged.mcap").write_bytes(bytes(damaged))
+    rec = scan_mcap(tmp_path / "damaged.mcap")
+    assert len(rec.messages) == n4 and rec.chunks == 5 and rec.good_end == start
+    assert rec.damage.startswith(f"damaged record at byte {start}:"), rec.damage
+    assert "damaged record" in rec.line()
+    (tmp_path / "cut.mcap").write_bytes(data[: end - 1])
+    cut = scan_mcap(tmp_path / "cut.mcap")
+    assert len(cut.messages) == n4 and cut.good_end == start and cut.damage == ""

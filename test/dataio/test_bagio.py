@@ -8,10 +8,10 @@ from helpers.plans import tiny_run
 
 from pmdc_ident.core.data import Run, Segment
 from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.samples import DriverSamples
 from pmdc_ident.core.session import Marker, MarkerEvent
 from pmdc_ident.dataio import load_data
 from pmdc_ident.dataio.bagio import (
-    DriverArrays,
     assemble_run,
     header_stamp_ns,
     read_bag,
@@ -96,7 +96,7 @@ def test_assemble_drops_samples_missing_from_one_topic_and_cuts_at_markers():
         Marker(MarkerEvent.START, "sweep", 5.6, "s"),
         Marker(MarkerEvent.END, "sweep", 5.9, "s"),
     ]
-    arrays = DriverArrays(
+    arrays = DriverSamples(
         current_ns=cur_ns,
         current_a=np.ones(cur_ns.size),
         encoder_ns=ns,
@@ -105,7 +105,7 @@ def test_assemble_drops_samples_missing_from_one_topic_and_cuts_at_markers():
         voltage_ns=ns,
         voltage_v=np.ones(ns.size),
         terminal_v=None,
-        markers=markers,
+        markers=tuple(markers),
     )
     run = assemble_run(arrays)
     assert run.labels == ("step_up", "sweep")

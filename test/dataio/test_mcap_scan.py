@@ -15,6 +15,7 @@ from mcap.writer import CompressionType, Writer
 
 from pmdc_ident.core.data import Run, Segment
 from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.samples import DriverSamples
 from pmdc_ident.core.session import Marker, MarkerEvent
 from pmdc_ident.dataio import bagio
 from pmdc_ident.dataio.bagio import (
@@ -40,13 +41,13 @@ FIELDS = (
 )
 
 
-def _general(path: Path, monkeypatch: pytest.MonkeyPatch) -> bagio.DriverArrays:
+def _general(path: Path, monkeypatch: pytest.MonkeyPatch) -> DriverSamples:
     with monkeypatch.context() as m:
         m.setattr(bagio, "_read_driver_arrays_fast", lambda _p: None)
         return read_driver_arrays(path)
 
 
-def _assert_same(fast: bagio.DriverArrays, slow: bagio.DriverArrays) -> None:
+def _assert_same(fast: DriverSamples, slow: DriverSamples) -> None:
     for name in FIELDS:
         a, b = getattr(fast, name), getattr(slow, name)
         assert (a is None) == (b is None), name

@@ -12,8 +12,8 @@ import pytest
 from pmdc_ident.core._jit import HAVE_NUMBA
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.motors import load_motor
+from pmdc_ident.core.samples import DriverSamples
 from pmdc_ident.core.session.ports import IdentificationJob
-from pmdc_ident.core.session.recording import SessionSamples
 from pmdc_ident.nodes.identify_call import IdentificationWorker, identify_session_run, warm_up
 
 
@@ -48,7 +48,7 @@ def test_a_job_handed_to_a_worker_still_warming_up_does_not_block_the_node(tmp_p
     n = 400_000  # ~13 MB of samples: far more than a pipe holds
     ns = np.arange(n, dtype=np.int64) * 1_000_000
     zeros = np.zeros(n)
-    samples = SessionSamples(ns, zeros, ns, zeros, zeros, ns, zeros, None, markers=())
+    samples = DriverSamples(ns, zeros, ns, zeros, zeros, ns, zeros, None, markers=())
     job = IdentificationJob(samples, "s", "session s", tmp_path / "out", {})
     worker = IdentificationWorker(load_motor("seed001_110v"))
     try:

@@ -56,6 +56,7 @@ from pmdc_ident.core.session.startup import (
     StartRules,
     build_session,
 )
+from pmdc_ident.core.stream_join import HeldStream
 
 __all__ = [
     "ControllerConfig",
@@ -123,8 +124,8 @@ class SessionController:
         self.peers = Peers()  # what is known of the driver and the recorder
         self._prep_deadline_s = 0.0
         self._last_current_a = 0.0
-        self._currents: deque[tuple[int, float]] = deque(maxlen=8192)  # (stamp, A)
-        self._applied: deque[tuple[int, float]] = deque(maxlen=8192)  # (stamp, V applied)
+        self._currents = HeldStream()  # the current, held at each encoder stamp
+        self._applied = HeldStream()  # the driver's applied voltage, likewise
         self._held: deque[tuple[int, float, float, float]] = (
             deque()
         )  # stamp, speed, arrived, angle
@@ -200,12 +201,12 @@ class SessionController:
         self.peers.on_stamp("current", stamp_ns)
         if self.recording_samples:
             self.recording.current.append(stamp_ns, current_a)
-        self._currents.append((stamp_ns, current_a))
+        self._currents.add(stamp_ns, current_a)
         self._release(None)
 
     def on_voltage(self, stamp_ns: int, voltage_v: float, terminal_v: float) -> None:
         self.peers.on_stamp("voltage_applied", stamp_ns)
-        self._applied.append((stamp_ns, voltage_v))
+        self._applied.add(stamp_ns, voltage_v)
         if self.recording_samples:
             self.recording.voltage.append(stamp_ns, voltage_v, terminal_v)
             s = self.session
@@ -250,18 +251,16 @@ class SessionController:
         arrived: a node held up by the host drains its queues one topic after another,
         and a stall judged on a stale current would be judged late, a staircase level on
         a stale voltage settled before it was applied. A sample waits at most
-        :data:`CURRENT_WAIT_S`, and not at all for a topic the driver does not send."""
+        :data:`CURRENT_WAIT_S`, and not at all for a topic the driver does not send (the
+        joining policy's rule 4: :mod:`pmdc_ident.core.stream_join`)."""
         held, cur, vol = self._held, self._currents, self._applied
         while held and self.phase is Phase.RUNNING and self.session is not None:
             stamp_ns, speed_rad_s, arrived_s, position_rad = held[0]
-            waiting = (cur and cur[-1][0] < stamp_ns) or (vol and vol[-1][0] < stamp_ns)
+            waiting = cur.waiting_for(stamp_ns) or vol.waiting_for(stamp_ns)
             if waiting and (now_s is None or now_s - arrived_s < CURRENT_WAIT_S):
                 return
             held.popleft()
-            while len(cur) > 1 and cur[1][0] <= stamp_ns:
-                cur.popleft()
-            if cur and cur[0][0] <= stamp_ns:
-                self._last_current_a = cur[0][1]
+            self._last_current_a = cur.at(stamp_ns, self._last_current_a)
             step = self.session.on_sample(
                 stamp_ns * 1e-9,
                 self._last_current_a,
@@ -277,10 +276,7 @@ class SessionController:
         """The driver's applied voltage at ``stamp_ns`` (the newest at or before it: one
         still on its way after :data:`CURRENT_WAIT_S` reads as the previous one, which
         only delays a staircase's steady-state test), None before the first arrives."""
-        vol = self._applied
-        while len(vol) > 1 and vol[1][0] <= stamp_ns:
-            vol.popleft()
-        return vol[0][1] if vol and vol[0][0] <= stamp_ns else None
+        return self._applied.at(stamp_ns, None)
 
     def on_recorder_status(self, text: str, now_s: float) -> None:
         self.peers.on_recorder_status(text, now_s)

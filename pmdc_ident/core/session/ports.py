@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Protocol
 
 from pmdc_ident.core.motors import MotorSpec
-from pmdc_ident.core.session.recording import SessionSamples
+from pmdc_ident.core.samples import DriverSamples
 
 __all__ = ["ControllerPorts", "ExportRequest", "IdentificationJob", "IdentificationOutcome"]
 
@@ -30,7 +30,7 @@ class ExportRequest:
 class IdentificationJob:
     """A finished session's samples, to be identified off the node's I/O callbacks."""
 
-    samples: SessionSamples
+    samples: DriverSamples
     session: str
     source: str  # the bag's path, or 'session <name>' without a recorder
     output_dir: Path

@@ -4,14 +4,13 @@ and the receive latency of every encoder sample."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numpy.typing import NDArray
 
+from pmdc_ident.core.samples import DriverSamples
 from pmdc_ident.core.session.markers import Marker
 
-__all__ = ["Columns", "Recording", "SessionSamples"]
+__all__ = ["Columns", "Recording"]
 
 
 class Columns:
@@ -43,21 +42,6 @@ class Columns:
         return self.v[: self.n, k].copy()
 
 
-@dataclass(frozen=True)
-class SessionSamples:
-    """A finished session's samples per topic, as the bag would hold them."""
-
-    current_ns: NDArray[np.int64]
-    current_a: NDArray[np.float64]
-    encoder_ns: NDArray[np.int64]
-    position_rad: NDArray[np.float64]
-    speed_rad_s: NDArray[np.float64]
-    voltage_ns: NDArray[np.int64]
-    voltage_v: NDArray[np.float64]
-    terminal_v: NDArray[np.float64] | None  # None when the driver never measured it
-    markers: tuple[Marker, ...]
-
-
 class Recording:
     """The three driver topics of one session and the encoder samples' latency."""
 
@@ -86,9 +70,9 @@ class Recording:
             f"{int(np.argmax(lag_ms))}"
         )
 
-    def samples(self, markers: tuple[Marker, ...]) -> SessionSamples:
+    def samples(self, markers: tuple[Marker, ...]) -> DriverSamples:
         terminal = self.voltage.values(1)
-        return SessionSamples(
+        return DriverSamples(
             current_ns=self.current.stamps(),
             current_a=self.current.values(0),
             encoder_ns=self.encoder.stamps(),

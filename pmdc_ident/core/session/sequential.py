@@ -29,9 +29,9 @@ from pmdc_ident.core.errors import ParameterError, PmdcError
 from pmdc_ident.core.excitation import PlannedSegment, TestPlan
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.safety import COMMAND_DELAY_S, SafetyConfig
+from pmdc_ident.core.samples import DriverSamples
 from pmdc_ident.core.session.machine import Session
 from pmdc_ident.core.session.plan_check import check_plan
-from pmdc_ident.core.session.recording import SessionSamples
 from pmdc_ident.core.session.startup import SessionSettings, driver_limits, safety_for
 
 __all__ = ["DesignJob", "DesignOutcome", "PlanSetting", "build_planned_session"]
@@ -105,7 +105,7 @@ class DesignJob:
     """The samples so far of a ``plan: auto`` session and its design state, for the
     worker (plain data in and out)."""
 
-    samples: SessionSamples
+    samples: DriverSamples
     session: str
     source: str
     design: Any  # pmdc_ident.core.design.sequential.SequentialDesign
