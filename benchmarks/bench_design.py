@@ -214,8 +214,8 @@ def _load(i, pos, dt) -> dict[str, float]:  # type: ignore[no-untyped-def]
 
 def fit(run: Run, fixed: dict[str, float] | None = None) -> dict[str, tuple[float, float]] | str:
     """identify's estimates: name -> (value, stderr); a refusal as its message."""
-    from pmdc_ident.core.estimators.identify import identify, merge_runs
     from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
+    from pmdc_ident.core.identification.identify import identify, merge_runs
 
     try:
         res = identify(

@@ -101,6 +101,47 @@ def test_no_module_imports_a_layer_above_its_own():
     assert upward_imports(SOURCES) == []
 
 
+# Inside core: identification (core/identification/) orchestrates the toolboxes below
+# it; none of them may import it back (no folder-level loop).
+BELOW_IDENTIFICATION = ("estimators", "quality")
+
+
+def imports_of_identification(paths: list[Path]) -> list[str]:
+    offenders = []
+    for path in paths:
+        for line, mod in _imported_modules(path):
+            if mod == "pmdc_ident.core.identification" or mod.startswith(
+                "pmdc_ident.core.identification."
+            ):
+                offenders.append(f"{path.relative_to(REPO)}:{line}: imports {mod}")
+    return offenders
+
+
+def test_the_toolboxes_import_nothing_from_identification():
+    toolbox = [
+        p for d in BELOW_IDENTIFICATION for p in sorted((PACKAGE_DIR / "core" / d).rglob("*.py"))
+    ]
+    assert toolbox, "no module found under core/estimators or core/quality"
+    assert imports_of_identification(toolbox) == []
+
+
+@pytest.mark.parametrize(
+    ("source", "bad"),
+    [
+        ("from pmdc_ident.core.identification.estimate import ParameterEstimate\n", True),
+        ("def f():\n    from pmdc_ident.core.identification import identify\n", True),
+        ("from pmdc_ident.core import identification\n", True),
+        ("from pmdc_ident.core.estimators.output_error import FitResult\n", False),
+    ],
+)
+def test_the_check_catches_imports_of_identification(tmp_path, monkeypatch, source, bad):
+    path = tmp_path / "pmdc_ident" / "core" / "estimators" / "probe.py"
+    path.parent.mkdir(parents=True)
+    path.write_text(source)
+    monkeypatch.setattr(f"{__name__}.REPO", tmp_path)
+    assert bool(imports_of_identification([path])) is bad
+
+
 @pytest.mark.parametrize(
     ("layer", "source", "bad"),
     [

@@ -60,7 +60,7 @@ sys.meta_path.insert(0, Watch())
 
 import numpy as np
 from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
-from pmdc_ident.core.estimators.identify import identify
+from pmdc_ident.core.identification.identify import identify
 from pmdc_ident.core.excitation import plan_for_motor, synthesize_run
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.exports import write_exports

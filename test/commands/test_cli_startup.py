@@ -19,7 +19,7 @@ import pytest
 
 from pmdc_ident.commands.identify import MODEL_CHOICES
 from pmdc_ident.core import _jit
-from pmdc_ident.core.estimators.identify import ModelChoice
+from pmdc_ident.core.identification.identify import ModelChoice
 
 HEAVY = ("numpy", "scipy", "numba", "llvmlite", "matplotlib", "rosbags", "mcap", "yaml")
 

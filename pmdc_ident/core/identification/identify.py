@@ -33,7 +33,6 @@ from pmdc_ident.core.assumptions import register_json
 from pmdc_ident.core.data import Run, Segment, TestKind, check_excitation, unique_labels
 from pmdc_ident.core.effects import CoulombFriction, parameter_unit
 from pmdc_ident.core.errors import DataError, ParameterError, PmdcError
-from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit, unidentified_needed
 from pmdc_ident.core.estimators.classical import ClassicalResult, CoastFit, classical_chain
 from pmdc_ident.core.estimators.equation_error import (
     EquationErrorResult,
@@ -49,14 +48,19 @@ from pmdc_ident.core.estimators.start import (
 )
 from pmdc_ident.core.estimators.validation import holdout_score, residual_tests
 from pmdc_ident.core.fixed import IDENTIFY_FIXABLE, FixedValues
+from pmdc_ident.core.identification.estimate import (
+    ParameterEstimate,
+    estimate_from_fit,
+    unidentified_needed,
+)
+from pmdc_ident.core.identification.fit_checks import FitChecks, check_parameters
+from pmdc_ident.core.identification.results import IdentificationResult
 from pmdc_ident.core.model import Model, simulate_linear
 from pmdc_ident.core.motors import Limits
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
 from pmdc_ident.core.progress import ProgressCallback, silent
 from pmdc_ident.core.quality.findings import Finding
-from pmdc_ident.core.quality.fit_checks import FitChecks, check_parameters
 from pmdc_ident.core.quality.misfit import Refit
-from pmdc_ident.core.results import IdentificationResult
 from pmdc_ident.core.segmentation import contiguous_pieces
 
 __all__ = ["ModelChoice", "identify", "merge_runs", "minus_two_log_likelihood"]
@@ -217,7 +221,7 @@ def _register_checks(
     findings: Sequence[Finding],
     expected_rsd: Mapping[str, float] | None = None,
 ) -> FitChecks:
-    """The fit stage of the assumption register (``core/quality/fit_checks.py``)."""
+    """The fit stage of the assumption register (``core/identification/fit_checks.py``)."""
     white = dict(report.validation.get("residuals", {}).get("white", {}))
     checked = check_parameters(
         parameters,
