@@ -72,8 +72,11 @@ doc = diagnose([run], config=DiagnosisConfig(workers=1)).to_json()
 with tempfile.TemporaryDirectory() as tmp:
     write_exports(spec, tmp, stem="identified", diagnosis=doc)
 nodes = []
-import pmdc_ident.nodes as pkg
-for info in pkgutil.iter_modules(pkg.__path__, "pmdc_ident.nodes."):
+import pmdc_ident.nodes, pmdc_ident.process
+for info in [
+    *pkgutil.iter_modules(pmdc_ident.nodes.__path__, "pmdc_ident.nodes."),
+    *pkgutil.iter_modules(pmdc_ident.process.__path__, "pmdc_ident.process."),
+]:
     try:
         importlib.import_module(info.name)
         nodes.append(info.name)
@@ -96,4 +99,4 @@ def test_identify_diagnose_exports_and_nodes_never_look_for_mujoco():
     )
     result = json.loads(out.stdout.strip().splitlines()[-1])
     assert result["looked"] == []
-    assert "pmdc_ident.nodes.identify_call" in result["nodes"]
+    assert "pmdc_ident.process.identify_call" in result["nodes"]

@@ -213,7 +213,7 @@ def _joined_run() -> Run:
 
 
 def test_the_identification_node_reads_a_session_through_the_register():
-    from pmdc_ident.nodes.identify_call import identify_session_run
+    from pmdc_ident.process.identify_call import identify_session_run
 
     out = identify_session_run(_joined_run())
     doc = json.loads(out.json_text)
