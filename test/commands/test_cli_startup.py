@@ -208,6 +208,7 @@ print(json.dumps({{v: os.environ.get(v) for v in ("OPENBLAS_NUM_THREADS", "MKL_N
     [
         ("from pmdc_ident import cli; cli.main(['--version'])", None, "1"),
         ("import pmdc_ident.nodes", None, "1"),
+        ("import pmdc_ident.process", None, "1"),  # bringup, the worker: as the nodes
         ("from pmdc_ident import cli; cli.main(['--version'])", "2", "2"),  # the user's choice
         ("import numpy, pmdc_ident.nodes", None, "1"),  # too late here; for its children
         ("import pmdc_ident.core.model", None, None),  # a library user's process: untouched
