@@ -47,7 +47,7 @@ setup(
             "driver_node = pmdc_ident.nodes.driver_node:main",
             "identification_node = pmdc_ident.nodes.identification_node:main",
             "recorder_node = pmdc_ident.nodes.recorder_node:main",
-            "bringup = pmdc_ident.nodes.bringup:main",
+            "bringup = pmdc_ident.process.bringup:main",
             "monitor_node = pmdc_ident.nodes.monitor_node:main",
         ],
     },

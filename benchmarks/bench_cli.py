@@ -78,7 +78,7 @@ EAGER_HELP = (
     "import pmdc_ident.cli as cli\n"
     "for m in cli.COMMANDS.values():\n"
     "    __import__('pmdc_ident.commands.' + m)\n"
-    "import pmdc_ident.core.estimators.identify, pmdc_ident.core.diagnosis.pipeline\n"
+    "import pmdc_ident.core.identification.identify, pmdc_ident.core.diagnosis.pipeline\n"
     "import pmdc_ident.dataio.bagio, pmdc_ident.report.plots\n"
     "cli.main(['--help'])\n"
 )

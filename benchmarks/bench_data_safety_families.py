@@ -413,8 +413,8 @@ def early_ctrl_c(t: Tally, d: Path, trials: int = 40) -> None:
 
 # ---------------------------------------------------------------------------------------
 def ros_sessions(t: Tally, d: Path) -> None:
-    from pmdc_ident.nodes.bringup import node_env
-    from pmdc_ident.nodes.dds_domain import allocate_domain
+    from pmdc_ident.process.bringup import node_env
+    from pmdc_ident.process.dds_domain import allocate_domain
 
     print("identification sessions (bringup)")
     base = [
@@ -442,7 +442,7 @@ def ros_sessions(t: Tally, d: Path) -> None:
             argv = [
                 sys.executable,
                 "-m",
-                "pmdc_ident.nodes.bringup",
+                "pmdc_ident.process.bringup",
                 "--motor",
                 "seed001_110v",
                 "--output-dir",

@@ -214,8 +214,8 @@ def _load(i, pos, dt) -> dict[str, float]:  # type: ignore[no-untyped-def]
 
 def fit(run: Run, fixed: dict[str, float] | None = None) -> dict[str, tuple[float, float]] | str:
     """identify's estimates: name -> (value, stderr); a refusal as its message."""
-    from pmdc_ident.core.estimators.identify import identify, merge_runs
     from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
+    from pmdc_ident.core.identification.identify import identify, merge_runs
 
     try:
         res = identify(
@@ -481,7 +481,7 @@ def summary(rows: list[dict]) -> None:
 def travel_case(args: argparse.Namespace) -> int:
     """A geared joint within +-2 rad over ROS (plan: auto) and its position trace."""
     from pmdc_ident.dataio.bagio import read_driver_arrays
-    from pmdc_ident.nodes.bringup import run_session
+    from pmdc_ident.process.bringup import run_session
 
     out = Path(args.out or tempfile.mkdtemp(prefix="bench_design_travel_"))
     out.mkdir(parents=True, exist_ok=True)

@@ -36,7 +36,7 @@ sys.path.insert(0, os.path.join(REPO, "test"))  # the driver test helpers
 
 from helpers.driver_harness import DriverProcess, apply_ros_env, ros_env  # noqa: E402
 
-from pmdc_ident.nodes.dds_domain import allocate_domain, lock_domain  # noqa: E402
+from pmdc_ident.process.dds_domain import allocate_domain, lock_domain  # noqa: E402
 
 NAIVE = r"""
 import sys, rclpy

@@ -148,7 +148,7 @@ def main() -> int:
 
 
 def long_run(seconds: float) -> None:
-    from pmdc_ident.nodes.priority import realtime_thread
+    from pmdc_ident.process.priority import realtime_thread
 
     print(f"\nlong run: real host over the pty, 1 kHz at 1 Mbaud, {seconds:g} s")
     board = EmulatedBoard(load_motor("seed000_ebike"), baud=1000000).start()
@@ -197,8 +197,8 @@ def long_run(seconds: float) -> None:
 
 def session(out: Path, stall_s: float) -> None:
     """One bringup session over the emulated board; the parameters against the truth."""
-    from pmdc_ident.nodes.bringup import run_session
-    from pmdc_ident.nodes.dds_domain import allocate_domain
+    from pmdc_ident.process.bringup import run_session
+    from pmdc_ident.process.dds_domain import allocate_domain
 
     spec = load_motor("seed000_ebike")
     counts, why = counts_for_motor(spec)

@@ -22,8 +22,8 @@ import mujoco
 import numpy as np
 
 from pmdc_ident.core.control_design import TOLERANCES, check_gains, design_gains
-from pmdc_ident.core.estimators.identify import identify, merge_runs
 from pmdc_ident.core.excitation import plan_for_motor, synthesize_run
+from pmdc_ident.core.identification.identify import identify, merge_runs
 from pmdc_ident.core.model import Model, simulate, simulate_linear
 from pmdc_ident.core.motors import MotorSpec, load_motor
 from pmdc_ident.exports.mujoco_xml import mujoco_xml

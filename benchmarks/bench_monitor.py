@@ -165,7 +165,7 @@ def _cpu_s(pid: int) -> float:
 
 
 def node_cpu(window_s: float = 20.0, repeats: int = 2) -> None:
-    from pmdc_ident.nodes.bringup import node_env as ros_env
+    from pmdc_ident.process.bringup import node_env as ros_env
 
     env = ros_env(16)
     py = sys.executable

@@ -73,7 +73,7 @@ def measure_node_start(repeat: int, env: dict[str, str]) -> tuple[list[float], l
     import rclpy
     from rclpy.node import Node
 
-    from pmdc_ident.nodes.dds_domain import allocate_domain
+    from pmdc_ident.process.dds_domain import allocate_domain
 
     held = allocate_domain(purpose="bench_node_start")
     env = _ros_env(env, held.domain_id)

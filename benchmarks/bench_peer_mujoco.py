@@ -59,13 +59,13 @@ import numpy as np  # noqa: E402
 
 from pmdc_ident.core.data import Segment  # noqa: E402
 from pmdc_ident.core.effects import CoulombFriction  # noqa: E402
-from pmdc_ident.core.estimators.identify import identify  # noqa: E402
 from pmdc_ident.core.excitation import (  # noqa: E402
     SequenceConfig,
     TestPlan,
     plan_for_motor,
     synthesize_run,
 )
+from pmdc_ident.core.identification.identify import identify  # noqa: E402
 from pmdc_ident.core.model import Model, simulate  # noqa: E402
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec, load_motor  # noqa: E402
 from pmdc_ident.core.params import MotorParams  # noqa: E402

@@ -31,8 +31,8 @@ from pmdc_ident.dataio.bagio import (  # noqa: E402
     parse_joint_state,
     read_driver_arrays,
 )
-from pmdc_ident.nodes.bringup import run_session  # noqa: E402
-from pmdc_ident.nodes.dds_domain import allocate_domain, lock_domain  # noqa: E402
+from pmdc_ident.process.bringup import run_session  # noqa: E402
+from pmdc_ident.process.dds_domain import allocate_domain, lock_domain  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))  # test helpers
 from helpers.plans import SHORT_SEQUENCE  # noqa: E402

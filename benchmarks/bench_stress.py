@@ -44,8 +44,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))  # the test helpers
 
 from pmdc_ident.dataio.bagio import header_stamp_ns, read_driver_arrays  # noqa: E402
-from pmdc_ident.nodes.bringup import node_env, priority_setter, run_session  # noqa: E402
-from pmdc_ident.nodes.dds_domain import allocate_domain  # noqa: E402
+from pmdc_ident.process.bringup import node_env, priority_setter, run_session  # noqa: E402
+from pmdc_ident.process.dds_domain import allocate_domain  # noqa: E402
 
 TOPICS = ("current", "encoder", "voltage_applied")
 CUSTOM = "pmdc_ident.driver_samples"  # the recorder's entry in metadata.yaml

@@ -6,7 +6,7 @@
 The node reads ``share/pmdc_ident/config/driver.yaml`` (every default, keyed ``/**``
 so it reaches the node under any namespace), then ``params_file:=``, then the launch
 arguments given (``''`` changes nothing). ``ros2 launch`` exits with status 1 when the
-driver ends with a non-zero status. See ``pmdc_ident/nodes/launching.py``.
+driver ends with a non-zero status. See ``pmdc_ident/process/launching.py``.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from ament_index_python.packages import get_package_share_directory
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 
 from launch import LaunchDescription
-from pmdc_ident.nodes.launching import DRIVER_ARGUMENTS, session_actions
-from pmdc_ident.nodes.parameter_tables import DRIVER
+from pmdc_ident.process.launching import DRIVER_ARGUMENTS, session_actions
+from pmdc_ident.process.parameter_tables import DRIVER
 
 
 def generate_launch_description() -> LaunchDescription:

@@ -19,7 +19,7 @@ side by side (``two_motors.launch.py``). ``ros2 launch`` exits with status 1 whe
 session did not complete (refused, aborted, interrupted), after every session is over.
 For a larger stack that asks for runs on demand, use ``exit_when_done:=false
 autostart:=false`` and call the ``run_session`` service; the result stays latched on
-``identified_parameters``. See ``pmdc_ident/nodes/launching.py`` and
+``identified_parameters``. See ``pmdc_ident/process/launching.py`` and
 ``docs/integration.md``.
 """
 
@@ -31,8 +31,8 @@ from ament_index_python.packages import get_package_share_directory
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 
 from launch import LaunchDescription
-from pmdc_ident.nodes.launching import LAUNCH_DEFAULTS, SESSION_ARGUMENTS, session_actions
-from pmdc_ident.nodes.parameter_tables import DRIVER, IDENTIFICATION, RECORDER
+from pmdc_ident.process.launching import LAUNCH_DEFAULTS, SESSION_ARGUMENTS, session_actions
+from pmdc_ident.process.parameter_tables import DRIVER, IDENTIFICATION, RECORDER
 
 
 def generate_launch_description() -> LaunchDescription:

@@ -2,7 +2,7 @@
 
 Starts the driver (simulated seed-000 e-bike motor), the recorder and the
 identification node as separate processes over DDS on loopback
-(:func:`pmdc_ident.nodes.bringup.run_session`), runs the default sequence
+(:func:`pmdc_ident.process.bringup.run_session`), runs the default sequence
 (staircase to steady state, steps both ways, log chirp, coast-down with the
 armature open), then prints the identified parameters with their intervals, the
 bag's path, and the sim-to-real gap diagnosis of that bag.
@@ -57,7 +57,7 @@ def run_session_demo(
 
 def _own_domain(domain: int) -> Any:
     """Lock ``domain`` for this demo, or a free one if another session holds it (said so)."""
-    from pmdc_ident.nodes.dds_domain import DomainBusyError, allocate_domain, lock_domain
+    from pmdc_ident.process.dds_domain import DomainBusyError, allocate_domain, lock_domain
 
     try:
         return lock_domain(domain, purpose="make demo")
@@ -68,7 +68,7 @@ def _own_domain(domain: int) -> Any:
 
 
 def _session_demo(out: Path, logs: Path, motor: str, domain: int) -> int:
-    from pmdc_ident.nodes.bringup import parameter_table, run_session, session_outcome
+    from pmdc_ident.process.bringup import parameter_table, run_session, session_outcome
 
     print(f"== identification session on the simulated {motor} motor (ROS_DOMAIN_ID {domain})")
     print(f"   driver, recorder and identification nodes in separate processes; logs in {logs}")

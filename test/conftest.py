@@ -2,7 +2,7 @@
 
 Several suites (other worktrees), benchmarks and ``make demo`` run at once on this
 machine. A domain id is taken with an exclusive cross-process lock
-(:mod:`pmdc_ident.nodes.dds_domain`, ``/tmp/pmdc_dds_domain_<id>.lock``) and held
+(:mod:`pmdc_ident.process.dds_domain`, ``/tmp/pmdc_dds_domain_<id>.lock``) and held
 for the test's duration, so no two of them ever share one. The pool leaves out
 42 (``make demo``) and 11-20 (``make test ROS_DOMAIN_ID=...``).
 
@@ -20,7 +20,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from pmdc_ident.nodes.dds_domain import HELD_ENV, allocate_domain
+from pmdc_ident.process.dds_domain import HELD_ENV, allocate_domain
 
 _LOOPBACK_PROFILE = os.path.join(
     os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "config", "fastdds_localhost.xml"

@@ -1,7 +1,7 @@
 """The launch files' descriptions and decisions, inspected without a ROS installation.
 
 The PyPI set has no ``launch``/``launch_ros``: a shim of the few classes the launch
-files and :mod:`pmdc_ident.nodes.launching` use records what they are given, so each
+files and :mod:`pmdc_ident.process.launching` use records what they are given, so each
 file's ``generate_launch_description()`` really runs, its ``OpaqueFunction`` is called
 with a stand-in launch context, and the process-exit and shutdown handlers it
 registers are called with stand-in events. Checked: executables that exist, parameters
@@ -28,8 +28,8 @@ import yaml
 from helpers.paths import REPO
 
 from pmdc_ident.core.errors import PmdcError
-from pmdc_ident.nodes.launching import LAUNCH_DEFAULTS, REGISTRY_KEY
-from pmdc_ident.nodes.parameter_tables import DRIVER, IDENTIFICATION, RECORDER
+from pmdc_ident.process.launching import LAUNCH_DEFAULTS, REGISTRY_KEY
+from pmdc_ident.process.parameter_tables import DRIVER, IDENTIFICATION, RECORDER
 
 TABLES = {t.node: t for t in (DRIVER, IDENTIFICATION, RECORDER)}
 
@@ -377,7 +377,7 @@ def test_launch_files_name_no_default_of_their_own():
 
 
 def test_the_integration_guide_names_every_launch_argument():
-    from pmdc_ident.nodes.launching import DRIVER_ARGUMENTS, SESSION_ARGUMENTS
+    from pmdc_ident.process.launching import DRIVER_ARGUMENTS, SESSION_ARGUMENTS
 
     guide = (REPO / "docs" / "integration.md").read_text()
     names = {a.name for a in (*SESSION_ARGUMENTS, *DRIVER_ARGUMENTS)} | {"namespace"}

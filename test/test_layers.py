@@ -1,7 +1,7 @@
 """The package's layers, enforced: a module imports only from its own layer or below.
 
     core <- protocol <- dataio, report, exports <- backends, benchmark, app
-    <- commands (and cli) <- nodes <- demo
+    <- commands (and cli), process <- nodes <- demo
 
 Every ``import`` / ``from ... import`` statement of every module is read from its
 syntax tree, including imports inside functions (a lazy import is still a
@@ -32,6 +32,7 @@ LAYERS: dict[str, int] = {
     "app": 3,
     "commands": 4,
     "cli": 4,
+    "process": 4,
     "nodes": 5,
     "demo": 6,
 }
@@ -101,11 +102,52 @@ def test_no_module_imports_a_layer_above_its_own():
     assert upward_imports(SOURCES) == []
 
 
+# Inside core: identification (core/identification/) orchestrates the toolboxes below
+# it; none of them may import it back (no folder-level loop).
+BELOW_IDENTIFICATION = ("estimators", "quality")
+
+
+def imports_of_identification(paths: list[Path]) -> list[str]:
+    offenders = []
+    for path in paths:
+        for line, mod in _imported_modules(path):
+            if mod == "pmdc_ident.core.identification" or mod.startswith(
+                "pmdc_ident.core.identification."
+            ):
+                offenders.append(f"{path.relative_to(REPO)}:{line}: imports {mod}")
+    return offenders
+
+
+def test_the_toolboxes_import_nothing_from_identification():
+    toolbox = [
+        p for d in BELOW_IDENTIFICATION for p in sorted((PACKAGE_DIR / "core" / d).rglob("*.py"))
+    ]
+    assert toolbox, "no module found under core/estimators or core/quality"
+    assert imports_of_identification(toolbox) == []
+
+
+@pytest.mark.parametrize(
+    ("source", "bad"),
+    [
+        ("from pmdc_ident.core.identification.estimate import ParameterEstimate\n", True),
+        ("def f():\n    from pmdc_ident.core.identification import identify\n", True),
+        ("from pmdc_ident.core import identification\n", True),
+        ("from pmdc_ident.core.estimators.output_error import FitResult\n", False),
+    ],
+)
+def test_the_check_catches_imports_of_identification(tmp_path, monkeypatch, source, bad):
+    path = tmp_path / "pmdc_ident" / "core" / "estimators" / "probe.py"
+    path.parent.mkdir(parents=True)
+    path.write_text(source)
+    monkeypatch.setattr(f"{__name__}.REPO", tmp_path)
+    assert bool(imports_of_identification([path])) is bad
+
+
 @pytest.mark.parametrize(
     ("layer", "source", "bad"),
     [
         ("core", "from pmdc_ident.backends.base import Telemetry\n", True),
-        ("core", "def f():\n    import pmdc_ident.nodes.bringup\n", True),
+        ("core", "def f():\n    import pmdc_ident.process.bringup\n", True),
         ("protocol", "from pmdc_ident.core.enums import Fault\n", False),
         ("dataio", "from pmdc_ident import commands\n", True),
         ("nodes", "from pmdc_ident.commands.identify import parse_fix\n", False),
@@ -119,3 +161,74 @@ def test_the_check_catches_upward_imports(tmp_path, monkeypatch, layer, source, 
     monkeypatch.setattr(f"{__name__}.PACKAGE_DIR", fake_pkg)
     monkeypatch.setattr(f"{__name__}.REPO", tmp_path)
     assert bool(upward_imports([path])) is bad
+
+
+# nodes/ holds only the rclpy side: Node subclasses, QoS, parameter declaration, and
+# the rclpy glue every node runs through. The ROS-free code of the nodes' processes
+# (bring-up, launching, domain locks, priorities, the worker, parameter tables and
+# settings) lives in process/.
+NODES_WITHOUT_A_NODE = {
+    "__init__": "the package (one BLAS thread per node process)",
+    "qos": "the QoS profiles",
+    "parameters": "parameter declaration from the tables",
+    "runtime": "rclpy's init, executor and signals around every node (run_node)",
+    "result_topics": "the std_msgs messages of the typed result topics",
+}
+ROS_MODULES = ("rclpy", "std_msgs", "sensor_msgs", "diagnostic_msgs", "std_srvs")
+
+
+def _defines_a_node(tree: ast.Module) -> bool:
+    def named_node(base: ast.expr) -> bool:
+        return (isinstance(base, ast.Name) and base.id == "Node") or (
+            isinstance(base, ast.Attribute) and base.attr == "Node"
+        )
+
+    return any(
+        isinstance(n, ast.ClassDef) and any(named_node(b) for b in n.bases) for n in tree.body
+    )
+
+
+def _imports_ros_at_top(tree: ast.Module) -> bool:
+    names = []
+    for n in tree.body:
+        if isinstance(n, ast.Import):
+            names += [a.name for a in n.names]
+        elif isinstance(n, ast.ImportFrom) and not n.level:
+            names.append(n.module or "")
+    return any(m.split(".")[0] in ROS_MODULES for m in names)
+
+
+def misplaced_in_nodes(paths: list[Path]) -> list[str]:
+    out = []
+    for path in paths:
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        if path.stem == "__init__":
+            continue
+        if not _defines_a_node(tree) and path.stem not in NODES_WITHOUT_A_NODE:
+            out.append(f"{path.name}: defines no Node subclass and is not QoS/parameters")
+        elif not _imports_ros_at_top(tree):
+            out.append(f"{path.name}: imports no ROS (ROS-free code goes to process/)")
+    return out
+
+
+def test_nodes_holds_only_node_subclasses_qos_and_parameter_declaration():
+    paths = sorted((PACKAGE_DIR / "nodes").glob("*.py"))
+    assert {p.stem for p in paths} >= set(NODES_WITHOUT_A_NODE)
+    assert misplaced_in_nodes(paths) == []
+
+
+@pytest.mark.parametrize(
+    ("name", "source", "bad"),
+    [
+        ("probe_node", "from rclpy.node import Node\n\nclass Probe(Node):\n    pass\n", False),
+        ("probe_node", "import rclpy.node\n\nclass Probe(rclpy.node.Node):\n    pass\n", False),
+        ("helper", "import os\n\ndef f():\n    return os.getpid()\n", True),
+        ("helper", "from std_msgs.msg import Float64\n", True),  # ROS glue, no Node
+        ("qos", "import os\n", True),  # allowed by name, yet ROS-free
+        ("probe_node", "class Probe(Node):\n    pass\n", True),  # a Node without ROS?
+    ],
+)
+def test_the_check_catches_misplaced_node_modules(tmp_path, name, source, bad):
+    path = tmp_path / f"{name}.py"
+    path.write_text(source)
+    assert bool(misplaced_in_nodes([path])) is bad

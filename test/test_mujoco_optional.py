@@ -60,7 +60,7 @@ sys.meta_path.insert(0, Watch())
 
 import numpy as np
 from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
-from pmdc_ident.core.estimators.identify import identify
+from pmdc_ident.core.identification.identify import identify
 from pmdc_ident.core.excitation import plan_for_motor, synthesize_run
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.exports import write_exports
@@ -72,8 +72,11 @@ doc = diagnose([run], config=DiagnosisConfig(workers=1)).to_json()
 with tempfile.TemporaryDirectory() as tmp:
     write_exports(spec, tmp, stem="identified", diagnosis=doc)
 nodes = []
-import pmdc_ident.nodes as pkg
-for info in pkgutil.iter_modules(pkg.__path__, "pmdc_ident.nodes."):
+import pmdc_ident.nodes, pmdc_ident.process
+for info in [
+    *pkgutil.iter_modules(pmdc_ident.nodes.__path__, "pmdc_ident.nodes."),
+    *pkgutil.iter_modules(pmdc_ident.process.__path__, "pmdc_ident.process."),
+]:
     try:
         importlib.import_module(info.name)
         nodes.append(info.name)
@@ -96,4 +99,4 @@ def test_identify_diagnose_exports_and_nodes_never_look_for_mujoco():
     )
     result = json.loads(out.stdout.strip().splitlines()[-1])
     assert result["looked"] == []
-    assert "pmdc_ident.nodes.identify_call" in result["nodes"]
+    assert "pmdc_ident.process.identify_call" in result["nodes"]

@@ -43,8 +43,8 @@ from pmdc_ident.core.errors import ParameterError
 
 if TYPE_CHECKING:
     from pmdc_ident.core.data import Run, Segment
+    from pmdc_ident.core.identification.results import IdentificationResult
     from pmdc_ident.core.quality import QualityReport
-    from pmdc_ident.core.results import IdentificationResult
     from pmdc_ident.dataio.units import LoadedInput
 
 __all__ = [
@@ -123,8 +123,8 @@ def identify_inputs(
 ) -> IdentifyDocuments:
     """Gate, segment and identify the DATA of ``options`` (or the ``loaded`` inputs);
     ``extra`` entries are added at the end of the JSON dict (the node's session)."""
-    from pmdc_ident.core.estimators.identify import identify, merge_runs
     from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
+    from pmdc_ident.core.identification.identify import identify, merge_runs
 
     check_identify_options(options)
     lines: list[str] = []

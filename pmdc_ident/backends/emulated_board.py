@@ -168,7 +168,7 @@ def motor_arguments(spec: MotorSpec) -> str:
 def _raise_priority() -> None:
     """In the emulator before exec: a lower niceness where permitted.
 
-    (A local copy of what nodes/priority.py does for the nodes: backends may not
+    (A local copy of what process/priority.py does for the nodes: backends may not
     import the node layer.) The emulator then asks for its CPU reservation itself
     (``--cpu-share``, SCHED_DEADLINE); this niceness is what it keeps where that is
     refused. Never a real-time priority: a catching-up emulator would take a whole

@@ -31,7 +31,7 @@ from pmdc_ident.commands.outputs import (
 
 HELP = "identify R, L, Ke, Kt, J, B and friction from recorded runs (CSV or bag)"
 
-# The values of core.estimators.identify.ModelChoice (a test checks they agree): the
+# The values of core.identification.identify.ModelChoice (a test checks they agree): the
 # numerical core is imported by run(), not to build the help (see pmdc_ident.cli).
 MODEL_CHOICES: tuple[str, ...] = ("auto", "linear", "coulomb")
 MAX_BOOTSTRAP = 500  # parametric-bootstrap refits at most

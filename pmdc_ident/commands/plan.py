@@ -173,8 +173,8 @@ def _prior(args: argparse.Namespace, fixed: dict[str, float], dt: float):  # typ
 
 def _identified(args: argparse.Namespace, fixed: dict[str, float]):  # type: ignore[no-untyped-def]
     """The motor identified from a recorded pre-test (identify's pipeline)."""
-    from pmdc_ident.core.estimators.identify import identify, merge_runs
     from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
+    from pmdc_ident.core.identification.identify import identify, merge_runs
     from pmdc_ident.dataio.units import load_input
 
     # read as identify reads it: its sidecar's units and columns apply

@@ -15,7 +15,7 @@ Every command reads data through the same checks:
   to the data-quality gate (``core/quality/gate.py``), and :func:`segment_reading`
   is how the segments were read (which one continues which), written into every
   command's JSON under ``assumptions_checked``, the same function for all;
-* **fit** stage (``identify`` and the node, in ``core.estimators.identify.identify``):
+* **fit** stage (``identify`` and the node, in ``core.identification.identify.identify``):
   the checks of :mod:`pmdc_ident.core.quality.misfit` flag every parameter that fails one;
 * **diagnosis** stage: :func:`check_holdout` before the baseline is fitted.
 

@@ -33,7 +33,7 @@ The node only wires: every decision (refusing, clamping, trips, watchdog, the
 status) is :class:`pmdc_ident.backends.driver.Driver`, the plant is
 :class:`pmdc_ident.backends.sim.SimBackend` or the board behind
 :class:`pmdc_ident.backends.serial_board.SerialBackend`; parameters are declared from
-:data:`pmdc_ident.nodes.parameter_tables.DRIVER`. The motor is made safe on every way
+:data:`pmdc_ident.process.parameter_tables.DRIVER`. The motor is made safe on every way
 out (Ctrl-C, SIGTERM, exception, shutdown: :mod:`pmdc_ident.nodes.runtime`); a
 stop holds 0 V while a node still commands the driver (at most ``stop_wait_s``), so
 the identification node's own safe command lands before the armature opens
@@ -60,12 +60,12 @@ from pmdc_ident.backends.base import Telemetry
 from pmdc_ident.backends.driver import Driver
 from pmdc_ident.backends.status import Level
 from pmdc_ident.core.enums import ExitCode
-from pmdc_ident.nodes.diagnostics import LevelLog, hardware_id, status_name
-from pmdc_ident.nodes.parameter_tables import DRIVER
 from pmdc_ident.nodes.parameters import declare
 from pmdc_ident.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, sample_qos
 from pmdc_ident.nodes.runtime import log as node_log
 from pmdc_ident.nodes.runtime import run_node
+from pmdc_ident.process.diagnostics import LevelLog, hardware_id, status_name
+from pmdc_ident.process.parameter_tables import DRIVER
 
 __all__ = ["DriverNode", "main"]
 

@@ -28,9 +28,9 @@ The node only wires: every decision is
 :class:`pmdc_ident.core.session.controller.SessionController` (start-up, safety
 defaults, latency, publish policy, confirming the safe state), which this node feeds
 with its callbacks and which publishes through the methods below. Parameters are
-declared from :data:`pmdc_ident.nodes.parameter_tables.IDENTIFICATION`; QoS profiles
+declared from :data:`pmdc_ident.process.parameter_tables.IDENTIFICATION`; QoS profiles
 come from :mod:`pmdc_ident.nodes.qos`. The finished session is identified in a child
-process (:class:`~pmdc_ident.nodes.identify_call.IdentificationWorker`, started and
+process (:class:`~pmdc_ident.process.identify_call.IdentificationWorker`, started and
 warmed up when the session starts) with the same function and options as
 ``pmdc-ident identify``.
 """
@@ -57,8 +57,6 @@ from pmdc_ident.core.session.controller import SessionController
 from pmdc_ident.core.session.ports import IdentificationJob
 from pmdc_ident.core.session.sequential import DesignOutcome
 from pmdc_ident.dataio.bagio import parse_joint_state
-from pmdc_ident.nodes.identify_call import IdentificationWorker
-from pmdc_ident.nodes.parameter_tables import IDENTIFICATION
 from pmdc_ident.nodes.parameters import declare
 from pmdc_ident.nodes.qos import (
     COMMAND_QOS,
@@ -69,7 +67,9 @@ from pmdc_ident.nodes.qos import (
 from pmdc_ident.nodes.result_topics import array_message, parameter_topics
 from pmdc_ident.nodes.runtime import log as node_log
 from pmdc_ident.nodes.runtime import run_node
-from pmdc_ident.nodes.settings import controller_config
+from pmdc_ident.process.identify_call import IdentificationWorker
+from pmdc_ident.process.parameter_tables import IDENTIFICATION
+from pmdc_ident.process.settings import controller_config
 
 __all__ = ["IdentificationNode", "main"]
 

@@ -7,7 +7,7 @@ publishes:
 
 * ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, every
   ``diagnostics_period_s``): one status ``<namespace>/monitor_node: motor drift``
-  (:mod:`pmdc_ident.nodes.diagnostics`), hardware id ``pmdc_motor<namespace>`` (or
+  (:mod:`pmdc_ident.process.diagnostics`), hardware id ``pmdc_motor<namespace>`` (or
   the ``hardware_id`` parameter), level OK/WARN/ERROR, or STALE when no driver sample
   came for ``stale_s``; each quantity with its 95 % interval and unit in the key
   names; every level change is logged once;
@@ -47,13 +47,13 @@ from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.schema import SCHEMA_VERSION
 from pmdc_ident.core.stream_join import StampJoiner
 from pmdc_ident.dataio.bagio import parse_joint_state
-from pmdc_ident.nodes.diagnostics import LevelLog, hardware_id, status_name
-from pmdc_ident.nodes.parameter_tables import MONITOR
 from pmdc_ident.nodes.parameters import declare
 from pmdc_ident.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, LATCHED_QOS, sample_qos
 from pmdc_ident.nodes.result_topics import NumericTopic, array_message, drift_topics
 from pmdc_ident.nodes.runtime import log as node_log
 from pmdc_ident.nodes.runtime import run_node
+from pmdc_ident.process.diagnostics import LevelLog, hardware_id, status_name
+from pmdc_ident.process.parameter_tables import MONITOR
 
 __all__ = ["MonitorNode", "main"]
 

@@ -22,7 +22,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from pmdc_ident.core.errors import PmdcError
-from pmdc_ident.nodes.parameter_tables import NodeParameter, ParameterTable
+from pmdc_ident.process.parameter_tables import NodeParameter, ParameterTable
 
 __all__ = ["declare", "descriptor"]
 

@@ -35,10 +35,10 @@ from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.session import Marker, MarkerEvent
 from pmdc_ident.dataio.bagio import TOPIC_TYPES, BagWriter, header_stamp_ns
 from pmdc_ident.dataio.completeness import Completeness, completeness
-from pmdc_ident.nodes.parameter_tables import RECORDER
 from pmdc_ident.nodes.parameters import declare
 from pmdc_ident.nodes.qos import COMMAND_QOS, LATCHED_QOS, SEGMENT_QOS, sample_qos
 from pmdc_ident.nodes.runtime import run_node
+from pmdc_ident.process.parameter_tables import RECORDER
 
 __all__ = ["RecorderNode", "main"]
 

@@ -24,7 +24,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
-from pmdc_ident.nodes.priority import raise_own_priority
+from pmdc_ident.process.priority import raise_own_priority
 
 __all__ = ["ManagedNode", "events_executor", "log", "run_node"]
 
@@ -80,7 +80,7 @@ def run_node(
 
     ``realtime``: a node of the motor loop, raised to the loop's priority before any
     thread starts where its parent did not choose one (``ros2 run``/``ros2 launch``;
-    see :mod:`pmdc_ident.nodes.priority`). A :class:`PmdcError` while building or
+    see :mod:`pmdc_ident.process.priority`). A :class:`PmdcError` while building or
     running is one line and status 2; any other exception one line and status 1.
     """
     if realtime:

@@ -27,7 +27,7 @@ from pmdc_ident.core.estimators.classical import (  # noqa: E402
     steady_state_points,
 )
 from pmdc_ident.core.estimators.frequency import model_frequency_response  # noqa: E402
-from pmdc_ident.core.results import IdentificationResult  # noqa: E402
+from pmdc_ident.core.identification.results import IdentificationResult  # noqa: E402
 from pmdc_ident.core.safe_write import save_figure  # noqa: E402
 
 __all__ = ["write_identify_report"]

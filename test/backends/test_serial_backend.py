@@ -18,7 +18,7 @@ from pmdc_ident.backends.virtual_board import VirtualBoard
 from pmdc_ident.core.enums import Fault, SafeMode
 from pmdc_ident.core.model import simulate
 from pmdc_ident.core.motors import MotorSpec, load_motor
-from pmdc_ident.nodes.bringup import RT_PRIORITY, realtime_thread
+from pmdc_ident.process.bringup import RT_PRIORITY, realtime_thread
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -19,7 +19,7 @@ import pytest
 
 from pmdc_ident.commands.identify import MODEL_CHOICES
 from pmdc_ident.core import _jit
-from pmdc_ident.core.estimators.identify import ModelChoice
+from pmdc_ident.core.identification.identify import ModelChoice
 
 HEAVY = ("numpy", "scipy", "numba", "llvmlite", "matplotlib", "rosbags", "mcap", "yaml")
 
@@ -208,6 +208,7 @@ print(json.dumps({{v: os.environ.get(v) for v in ("OPENBLAS_NUM_THREADS", "MKL_N
     [
         ("from pmdc_ident import cli; cli.main(['--version'])", None, "1"),
         ("import pmdc_ident.nodes", None, "1"),
+        ("import pmdc_ident.process", None, "1"),  # bringup, the worker: as the nodes
         ("from pmdc_ident import cli; cli.main(['--version'])", "2", "2"),  # the user's choice
         ("import numpy, pmdc_ident.nodes", None, "1"),  # too late here; for its children
         ("import pmdc_ident.core.model", None, None),  # a library user's process: untouched

@@ -21,7 +21,7 @@ from pmdc_ident.core.diagnosis.candidates import DataScales, starting_effects
 from pmdc_ident.core.diagnosis.scoring import NoiseModel, Residuals
 from pmdc_ident.core.effects import EFFECT_NAMES
 from pmdc_ident.core.errors import DataError
-from pmdc_ident.core.estimators.identify import minus_two_log_likelihood
+from pmdc_ident.core.identification.identify import minus_two_log_likelihood
 from pmdc_ident.core.model import simulate
 from pmdc_ident.core.motors import load_motor
 

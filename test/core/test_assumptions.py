@@ -20,8 +20,8 @@ from pmdc_ident.cli import EXIT_USER_ERROR, main
 from pmdc_ident.core.assumptions import REGISTER, Treatment, markdown_table, segment_reading
 from pmdc_ident.core.continuity import boundary_jump, restarts, step_limits
 from pmdc_ident.core.data import Run, Segment, link_history
-from pmdc_ident.core.estimate import ParameterEstimate
 from pmdc_ident.core.excitation import plan_for_motor, synthesize_run
+from pmdc_ident.core.identification.estimate import ParameterEstimate
 from pmdc_ident.core.motors import load_motor, motor_from_mapping, motor_to_yaml
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -163,8 +163,8 @@ def test_kt_is_reported_as_assumed_not_identified(tmp_path, capsys):
 
 
 def test_a_value_outside_the_physical_range_is_flagged_and_the_yaml_exports(tmp_path):
-    from pmdc_ident.core.quality.fit_checks import FitChecks, _physical_range
-    from pmdc_ident.core.results import IdentificationResult
+    from pmdc_ident.core.identification.fit_checks import FitChecks, _physical_range
+    from pmdc_ident.core.identification.results import IdentificationResult
 
     spec = load_motor("seed001_110v")
     L = ParameterEstimate("L", 4.1e-10, (3e-10, 5e-10), "H", True, stderr=5e-11)
@@ -213,7 +213,7 @@ def _joined_run() -> Run:
 
 
 def test_the_identification_node_reads_a_session_through_the_register():
-    from pmdc_ident.nodes.identify_call import identify_session_run
+    from pmdc_ident.process.identify_call import identify_session_run
 
     out = identify_session_run(_joined_run())
     doc = json.loads(out.json_text)

@@ -25,7 +25,7 @@ from pmdc_ident.core.errors import DataError, ParameterError
 from pmdc_ident.core.excitation import plan_for_motor, synthesize_run
 from pmdc_ident.core.model import simulate
 from pmdc_ident.core.motors import load_motor
-from pmdc_ident.nodes.identify_call import identify_session_run
+from pmdc_ident.process.identify_call import identify_session_run
 
 DT = 1e-3
 E_BIKE = load_motor("seed000_ebike")

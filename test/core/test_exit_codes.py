@@ -9,7 +9,7 @@ from helpers.paths import REPO
 
 from pmdc_ident import cli
 from pmdc_ident.core.enums import ExitCode
-from pmdc_ident.nodes.launching import exit_meaning
+from pmdc_ident.process.launching import exit_meaning
 
 
 def test_the_exit_statuses_in_the_reference_are_the_enums_values():

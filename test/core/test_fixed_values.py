@@ -9,8 +9,8 @@ import pytest
 
 from pmdc_ident.core.diagnosis import DiagnosisConfig
 from pmdc_ident.core.errors import ParameterError
-from pmdc_ident.core.estimators.identify import identify
 from pmdc_ident.core.fixed import IDENTIFY_FIXABLE, FixedValues, parse_fix
+from pmdc_ident.core.identification.identify import identify
 from pmdc_ident.core.params import PARAMETER_NAMES
 
 

@@ -38,8 +38,8 @@ from pmdc_ident.core.session.startup import (
 )
 from pmdc_ident.core.session.steady_state import SteadyStateConfig
 from pmdc_ident.exports import EXPORT_FILES
-from pmdc_ident.nodes.parameter_tables import IDENTIFICATION
-from pmdc_ident.nodes.settings import controller_config
+from pmdc_ident.process.parameter_tables import IDENTIFICATION
+from pmdc_ident.process.settings import controller_config
 
 DT = 1e-3
 MOTOR = load_motor("seed001_110v")
@@ -425,7 +425,7 @@ def test_exports_are_written_beside_the_results_and_a_failed_one_is_one_line(
     URDF, ros2_control and gains files for the driver's joint; a failure is a warning
     and a field of the result, never a failed identification. The job names its bag by
     absolute path, whatever path the recorder (started in the same folder) gave."""
-    from pmdc_ident.nodes.identify_call import run_identification_job, write_session_exports
+    from pmdc_ident.process.identify_call import run_identification_job, write_session_exports
 
     monkeypatch.chdir(tmp_path)
     cfg = _config(settle_s=0.0, export_models=True, export_reduction=3.0)

@@ -19,9 +19,9 @@ from pmdc_ident.core.motors import MotorSpec, load_motor
 from pmdc_ident.core.session.controller import ControllerConfig, Phase, SessionController
 from pmdc_ident.core.session.ports import IdentificationJob
 from pmdc_ident.core.session.sequential import DesignJob, PlanSetting
-from pmdc_ident.nodes.identify_call import run_design_job
-from pmdc_ident.nodes.parameter_tables import IDENTIFICATION
-from pmdc_ident.nodes.settings import controller_config
+from pmdc_ident.process.identify_call import run_design_job
+from pmdc_ident.process.parameter_tables import IDENTIFICATION
+from pmdc_ident.process.settings import controller_config
 
 DT = 1e-3
 MOTOR = load_motor("seed001_110v")
@@ -135,7 +135,7 @@ def test_plan_auto_runs_the_pretest_designs_refits_and_stops_at_the_target():
     assert events[0] == "session_start" and events[-1] == "session_end"
     assert "abort" not in events
     # the final identification gets every segment, the designed ones included
-    from pmdc_ident.nodes.identify_call import run_identification_job
+    from pmdc_ident.process.identify_call import run_identification_job
 
     assert {m.label for m in job.samples.markers if m.label} >= set(labels)
     del run_identification_job

@@ -4,7 +4,7 @@ Used by the DDS tests and ``benchmarks/bench_driver_rate.py``; not part of the
 installed package. ``python test/helpers/driver_harness.py`` runs the one-step demo
 (:func:`run_step_demo`); ``make demo`` runs the whole session.
 
-* :func:`ros_env` - :func:`pmdc_ident.nodes.bringup.node_env`, the environment that keeps DDS
+* :func:`ros_env` - :func:`pmdc_ident.process.bringup.node_env`, the environment that keeps DDS
   on this machine (loopback Fast DDS profile, localhost discovery, a chosen domain id);
 * :class:`DriverProcess` - ``python -m pmdc_ident.nodes.driver_node`` as a child,
   stopped with SIGINT, its exit status and stderr kept;
@@ -35,10 +35,10 @@ from std_srvs.srv import Trigger
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.model import simulate
 from pmdc_ident.core.motors import load_motor
-from pmdc_ident.nodes.bringup import node_env as ros_env
-from pmdc_ident.nodes.bringup import priority_setter, realtime_thread
-from pmdc_ident.nodes.dds_domain import HELD_ENV, lock_domain
 from pmdc_ident.nodes.qos import COMMAND_QOS, sample_qos
+from pmdc_ident.process.bringup import node_env as ros_env
+from pmdc_ident.process.bringup import priority_setter, realtime_thread
+from pmdc_ident.process.dds_domain import HELD_ENV, lock_domain
 
 __all__ = [
     "DriverClient",

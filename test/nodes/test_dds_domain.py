@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from pmdc_ident.nodes import dds_domain
-from pmdc_ident.nodes.dds_domain import (
+from pmdc_ident.process import dds_domain
+from pmdc_ident.process.dds_domain import (
     HELD_ENV,
     POOL,
     DomainBusyError,
@@ -22,7 +22,7 @@ from pmdc_ident.nodes.dds_domain import (
 
 _HOLD = r"""
 import sys, time
-from pmdc_ident.nodes.dds_domain import lock_domain
+from pmdc_ident.process.dds_domain import lock_domain
 lock = lock_domain(int(sys.argv[1]), purpose="holder test")
 print("held", flush=True)
 time.sleep(60)
@@ -86,7 +86,7 @@ def test_a_child_runs_under_its_parents_lock_and_only_for_that_domain(lock_dir):
         env = {**os.environ, **child_env(31)}
         assert env[HELD_ENV] == "31" and child_env(32) == {}
         code = (
-            "from pmdc_ident.nodes.dds_domain import lock_domain, DomainBusyError\n"
+            "from pmdc_ident.process.dds_domain import lock_domain, DomainBusyError\n"
             "lock_domain(31).release()\n"
             "try:\n    lock_domain(32)\nexcept DomainBusyError:\n    raise SystemExit(3)\n"
         )
@@ -101,7 +101,7 @@ def test_bringup_on_a_busy_domain_is_one_line_and_exit_2(lock_dir):
     holder = _holder(33)
     try:
         proc = subprocess.run(
-            [sys.executable, "-m", "pmdc_ident.nodes.bringup", "--domain-id", "33"]
+            [sys.executable, "-m", "pmdc_ident.process.bringup", "--domain-id", "33"]
             + ["--output-dir", str(lock_dir / "out")],
             capture_output=True,
             text=True,

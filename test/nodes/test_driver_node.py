@@ -30,7 +30,7 @@ from helpers.driver_harness import (  # noqa: E402
 
 from pmdc_ident.core.model import simulate  # noqa: E402
 from pmdc_ident.core.motors import load_motor  # noqa: E402
-from pmdc_ident.nodes.bringup import realtime_thread  # noqa: E402
+from pmdc_ident.process.bringup import realtime_thread  # noqa: E402
 
 RATE_HZ = 1000.0
 DT_NS = 1_000_000

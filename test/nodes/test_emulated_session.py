@@ -42,7 +42,7 @@ import yaml
 from pmdc_ident.backends.emulated_board import tools_missing
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.dataio.bagio import read_driver_arrays
-from pmdc_ident.nodes.bringup import BringupResult, node_env, realtime_thread, run_session
+from pmdc_ident.process.bringup import BringupResult, node_env, realtime_thread, run_session
 
 _MISSING = tools_missing()
 pytestmark = [

@@ -1,6 +1,6 @@
 """End to end over DDS: driver, recorder and identification nodes in separate processes.
 
-Each test runs one session through :func:`pmdc_ident.nodes.bringup.run_session`
+Each test runs one session through :func:`pmdc_ident.process.bringup.run_session`
 on the simulated motor, with a probe process that records what the driver
 really applied (``voltage_applied``) and the session's markers and status. The
 probe is independent of the nodes under test, so "the motor is safe after an
@@ -34,7 +34,7 @@ from pmdc_ident.core.motors import load_motor
 from pmdc_ident.dataio.bagio import read_bag, read_driver_arrays
 from pmdc_ident.dataio.mcap_recover import scan_mcap
 from pmdc_ident.exports import EXPORT_FILES
-from pmdc_ident.nodes.bringup import (
+from pmdc_ident.process.bringup import (
     BringupResult,
     node_env,
     priority_setter,
@@ -350,7 +350,7 @@ def test_independent_mcap_ros2_decoder_reads_the_session_bag(short_session):
 
 def test_offline_reidentification_of_the_bag_matches_the_online_result(short_session):
     pytest.importorskip("pmdc_ident.commands.identify")
-    from pmdc_ident.nodes.identify_call import identify_session_run
+    from pmdc_ident.process.identify_call import identify_session_run
 
     res, probe = short_session
     assert res.result is not None, _logs(res)
@@ -885,7 +885,7 @@ def test_ctrl_c_on_bringup_is_forwarded_and_everything_stops_safe(tmp_path, ros_
     cmd = [
         sys.executable,
         "-m",
-        "pmdc_ident.nodes.bringup",
+        "pmdc_ident.process.bringup",
         "--motor",
         "seed001_110v",
         "--output-dir",

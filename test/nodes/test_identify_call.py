@@ -14,7 +14,7 @@ from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesiz
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.samples import DriverSamples
 from pmdc_ident.core.session.ports import IdentificationJob
-from pmdc_ident.nodes.identify_call import IdentificationWorker, identify_session_run, warm_up
+from pmdc_ident.process.identify_call import IdentificationWorker, identify_session_run, warm_up
 
 
 def _kernels() -> dict[str, int]:

@@ -9,7 +9,7 @@ from helpers.paths import REPO
 
 from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.session.steady_state import SteadyStateConfig
-from pmdc_ident.nodes.parameter_tables import (
+from pmdc_ident.process.parameter_tables import (
     DRIVER,
     IDENTIFICATION,
     RECORDER,
@@ -35,7 +35,7 @@ def test_generated_files_are_up_to_date():
         for path, text in generated_files(REPO).items()
         if path.read_text(encoding="utf-8") != text
     ]
-    assert stale == [], "run: python -m pmdc_ident.nodes.parameter_tables --write"
+    assert stale == [], "run: python -m pmdc_ident.process.parameter_tables --write"
 
 
 def test_the_check_reports_a_drifted_file(tmp_path, capsys):

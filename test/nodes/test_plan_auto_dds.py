@@ -16,7 +16,7 @@ import yaml
 
 from pmdc_ident.benchmark.motors import MOTORS
 from pmdc_ident.dataio.bagio import read_driver_arrays
-from pmdc_ident.nodes.bringup import run_session
+from pmdc_ident.process.bringup import run_session
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

@@ -12,11 +12,11 @@ import time
 import pytest
 from helpers.paths import REPO
 
-from pmdc_ident.nodes.bringup import node_env
+from pmdc_ident.process.bringup import node_env
 
 _PROBE = """
 import json, os
-from pmdc_ident.nodes.priority import raise_own_priority
+from pmdc_ident.process.priority import raise_own_priority
 said = raise_own_priority()
 print(json.dumps({"said": said, "policy": os.sched_getscheduler(0),
                   "nice": os.getpriority(os.PRIO_PROCESS, 0)}))

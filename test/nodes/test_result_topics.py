@@ -9,7 +9,6 @@ import pytest
 
 from pmdc_ident.core.drift_monitor import DriftMonitor
 from pmdc_ident.core.motors import load_motor
-from pmdc_ident.nodes.diagnostics import LevelLog, hardware_id, status_name
 from pmdc_ident.nodes.result_topics import (
     DRIFT_FIELDS,
     PARAMETER_FIELDS,
@@ -18,6 +17,7 @@ from pmdc_ident.nodes.result_topics import (
     parameter_topics,
     topic_token,
 )
+from pmdc_ident.process.diagnostics import LevelLog, hardware_id, status_name
 
 DOC = {
     "schema_version": 1,

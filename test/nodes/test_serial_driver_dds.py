@@ -31,7 +31,7 @@ def test_driver_over_serial_streams_then_survives_the_port_closing(
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from helpers.driver_harness import DriverClient, DriverProcess, apply_ros_env
 
-    from pmdc_ident.nodes.bringup import priority_setter, realtime_thread
+    from pmdc_ident.process.bringup import priority_setter, realtime_thread
 
     apply_ros_env(ros_domain)
     # The board in its own process, as hardware is: SIGUSR1 resets it, SIGTERM pulls it.

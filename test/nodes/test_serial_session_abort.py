@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from pmdc_ident.nodes.bringup import node_env, priority_setter
+from pmdc_ident.process.bringup import node_env, priority_setter
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.timeout(150)]
 
@@ -52,7 +52,7 @@ def test_unplugging_the_board_mid_session_aborts_cleanly_with_the_motor_safe(
     try:
         assert _wait_for(link.exists, 30.0), "virtual board did not come up"
         session = subprocess.Popen(
-            [sys.executable, "-m", "pmdc_ident.nodes.bringup", "--backend", "serial"]
+            [sys.executable, "-m", "pmdc_ident.process.bringup", "--backend", "serial"]
             + ["--port", str(link), "--domain-id", str(ros_domain)]
             + ["--output-dir", str(tmp_path / "bags"), "--timeout", "100"]
             + ["-p", "driver:baud=1000000", "-p", "driver:rate_hz=500.0"],

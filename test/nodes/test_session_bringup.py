@@ -7,7 +7,7 @@ from pathlib import Path
 import yaml
 from helpers.paths import REPO
 
-from pmdc_ident.nodes.bringup import _ros_args, main, node_env, parameter_table
+from pmdc_ident.process.bringup import _ros_args, main, node_env, parameter_table
 
 
 def test_every_child_gets_loopback_dds_and_its_own_domain():

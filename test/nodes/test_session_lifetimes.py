@@ -24,7 +24,7 @@ import pytest
 from helpers.paths import REPO
 from helpers.plans import SHORT_SEQUENCE
 
-from pmdc_ident.nodes.bringup import node_env
+from pmdc_ident.process.bringup import node_env
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 pytest.importorskip("rclpy")
@@ -36,7 +36,7 @@ def _bringup(tmp_path: Path, domain: int, *extra: str) -> subprocess.Popen[str]:
     cmd = [
         sys.executable,
         "-m",
-        "pmdc_ident.nodes.bringup",
+        "pmdc_ident.process.bringup",
         "--motor",
         "seed001_110v",
         "--output-dir",
@@ -87,7 +87,7 @@ def _lock_dir(tmp_path: Path) -> Path:
 def _busy(tmp_path: Path, domain: int) -> bool:
     """Another process (a second session) finds ``domain`` busy in bringup's lock folder."""
     probe = (
-        "import sys\nfrom pmdc_ident.nodes.dds_domain import DomainBusyError, lock_domain\n"
+        "import sys\nfrom pmdc_ident.process.dds_domain import DomainBusyError, lock_domain\n"
         f"try:\n    lock_domain({domain})\nexcept DomainBusyError:\n    sys.exit(3)\n"
     )
     env = {**node_env(domain), "PMDC_DDS_LOCK_DIR": str(_lock_dir(tmp_path))}

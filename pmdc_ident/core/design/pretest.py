@@ -28,7 +28,7 @@ from pmdc_ident.core.excitation import PlannedSegment, TestPlan
 from pmdc_ident.core.model import Model, simulate
 
 if TYPE_CHECKING:
-    from pmdc_ident.core.results import IdentificationResult
+    from pmdc_ident.core.identification.results import IdentificationResult
 
 __all__ = ["MAX_PRETEST_S", "PRETEST_PREFIX", "prior_from_result", "pretest_plan"]
 

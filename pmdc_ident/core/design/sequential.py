@@ -276,8 +276,8 @@ class SequentialDesign:
         return name != "Tc" or KEYS["Tc"] in result.parameters
 
     def _fit(self, segments: Sequence[Segment]) -> tuple[Any, dict[str, float]]:
-        from pmdc_ident.core.estimators.identify import identify
         from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE
+        from pmdc_ident.core.identification.identify import identify
 
         result = identify(
             list(segments),

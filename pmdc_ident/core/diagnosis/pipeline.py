@@ -56,9 +56,9 @@ from pmdc_ident.core.diagnosis.search import (
 )
 from pmdc_ident.core.effects import EFFECT_TYPES, CandidateContext
 from pmdc_ident.core.errors import DataError
-from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit
 from pmdc_ident.core.estimators.output_error import FitResult
 from pmdc_ident.core.estimators.start import equation_error_start
+from pmdc_ident.core.identification.estimate import ParameterEstimate, estimate_from_fit
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.params import MotorParams
 from pmdc_ident.core.progress import ProgressCallback

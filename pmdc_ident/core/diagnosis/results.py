@@ -10,7 +10,7 @@ from typing import Any
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.diagnosis.holdout import HoldoutSplit
 from pmdc_ident.core.diagnosis.localization import Localization
-from pmdc_ident.core.estimate import ParameterEstimate, finite_or_none
+from pmdc_ident.core.identification.estimate import ParameterEstimate, finite_or_none
 from pmdc_ident.core.params import PARAMETER_NAMES
 
 __all__ = [

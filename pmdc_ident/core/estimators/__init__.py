@@ -1,1 +1,1 @@
-"""Identification estimators: classical chain, equation error, frequency response, pipeline."""
+"""Identification estimators: classical chain, equation error, frequency response, output error."""

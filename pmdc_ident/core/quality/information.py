@@ -40,7 +40,7 @@ HARDWARE_MAX_HZ = 100e3
 # Sub-sample timing no record can show (the voltage update and the current's sampling
 # against the sample instants), as a share of the sample period: an offset reads as an
 # L changed by about offset / (L/R), so it enters L's expected sd here and L's interval
-# after the fit (core/quality/fit_checks.py), the same figure in both.
+# after the fit (core/identification/fit_checks.py), the same figure in both.
 TIMING_SHARE = 0.01
 
 FloatArray = NDArray[np.float64]

@@ -12,8 +12,8 @@ from pmdc_ident.core.estimators.frequency import (
     estimate_frequency_response,
     model_frequency_response,
 )
-from pmdc_ident.core.estimators.identify import identify
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
+from pmdc_ident.core.identification.identify import identify
 from pmdc_ident.core.model import simulate_linear
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.params import PARAMETER_NAMES

@@ -9,8 +9,8 @@ import pytest
 
 from pmdc_ident.benchmark.motors import MOTORS
 from pmdc_ident.core.effects import CoulombFriction
-from pmdc_ident.core.estimators.identify import identify
 from pmdc_ident.core.excitation import plan_for_motor, synthesize_run
+from pmdc_ident.core.identification.identify import identify
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec
 

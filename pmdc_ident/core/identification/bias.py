@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
 
-from pmdc_ident.core.estimate import ParameterEstimate
+from pmdc_ident.core.identification.estimate import ParameterEstimate
 from pmdc_ident.core.quality.findings import Finding, Severity
 
 __all__ = ["BIASED_BY", "flag_biased"]

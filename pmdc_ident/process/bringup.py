@@ -31,9 +31,9 @@ import yaml
 from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.motors import share_file
 from pmdc_ident.core.workers import pdeathsig_preexec
-from pmdc_ident.nodes.dds_domain import HELD_ENV, DomainBusyError, child_env, lock_domain
-from pmdc_ident.nodes.parameter_tables import DRIVER, IDENTIFICATION, RECORDER
-from pmdc_ident.nodes.priority import RT_PRIORITY, priority_setter, realtime_thread
+from pmdc_ident.process.dds_domain import HELD_ENV, DomainBusyError, child_env, lock_domain
+from pmdc_ident.process.parameter_tables import DRIVER, IDENTIFICATION, RECORDER
+from pmdc_ident.process.priority import RT_PRIORITY, priority_setter, realtime_thread
 
 __all__ = [
     "RT_PRIORITY",

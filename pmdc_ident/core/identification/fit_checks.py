@@ -4,7 +4,7 @@ is called identified (``identify`` and the identification node alike).
 :func:`check_parameters` takes the fit's estimates and returns them with the flags of
 
 * the gate's findings that bias a parameter (``armature-voltage``: :mod:`.bias`);
-* the misfit-robust checks when the residuals are not white (:mod:`.misfit`:
+* the misfit-robust checks when the residuals are not white (:mod:`pmdc_ident.core.quality.misfit`:
   ``run-start``, ``parts-agree``, ``electrical-resolution``);
 * the gate's expectation and the fit's verdict as one message (``gate-and-fit``);
 * the Kt = Ke closure reported as an assumption, never a measurement (``kt-equals-ke``);
@@ -23,10 +23,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from pmdc_ident.core.data import Segment
-from pmdc_ident.core.estimate import ParameterEstimate
 from pmdc_ident.core.estimators.output_error import FitResult
+from pmdc_ident.core.identification.bias import flag_biased
+from pmdc_ident.core.identification.estimate import ParameterEstimate
 from pmdc_ident.core.params import PARAMETER_RANGES
-from pmdc_ident.core.quality.bias import flag_biased
 from pmdc_ident.core.quality.findings import Finding
 from pmdc_ident.core.quality.information import NOT_IDENTIFIABLE, TIMING_SHARE, WEAK
 from pmdc_ident.core.quality.misfit import Refit

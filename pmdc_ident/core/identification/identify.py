@@ -17,46 +17,63 @@
 
 Current-driven data (no voltage column) give the mechanical side only (J, B,
 Coulomb, load torque), given Kt.
+
+Steps 1. and 7. are here; 2.-4. in :mod:`.methods`, 5.-6. in :mod:`.validation`, and
+what the steps share (the checked inputs, the report they add to) in :mod:`.state`.
 """
 
 from __future__ import annotations
 
-import enum
-import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from pmdc_ident.core.assumptions import register_json
-from pmdc_ident.core.data import Run, Segment, TestKind, check_excitation, unique_labels
+from pmdc_ident.core.data import Run, Segment, check_excitation, unique_labels
 from pmdc_ident.core.effects import CoulombFriction, parameter_unit
-from pmdc_ident.core.errors import DataError, ParameterError, PmdcError
-from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit, unidentified_needed
-from pmdc_ident.core.estimators.classical import ClassicalResult, CoastFit, classical_chain
-from pmdc_ident.core.estimators.equation_error import (
-    EquationErrorResult,
-    fit_equation_error,
-    fit_mechanical_equation_error,
-)
-from pmdc_ident.core.estimators.frequency import FrequencyResponse, estimate_frequency_response
+from pmdc_ident.core.errors import DataError, ParameterError
+from pmdc_ident.core.estimators.classical import ClassicalResult
 from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE, FitResult, fit_output_error
-from pmdc_ident.core.estimators.start import (
-    COULOMB_TORQUE,
-    start_model,
-    start_values,
-)
-from pmdc_ident.core.estimators.validation import holdout_score, residual_tests
+from pmdc_ident.core.estimators.start import COULOMB_TORQUE
 from pmdc_ident.core.fixed import IDENTIFY_FIXABLE, FixedValues
-from pmdc_ident.core.model import Model, simulate_linear
+from pmdc_ident.core.identification.estimate import (
+    ParameterEstimate,
+    estimate_from_fit,
+    unidentified_needed,
+)
+from pmdc_ident.core.identification.fit_checks import FitChecks, check_parameters
+from pmdc_ident.core.identification.methods import (
+    _choose,
+    _classical,
+    _equation_error,
+    _note_choice,
+    _output_error,
+    minus_two_log_likelihood,
+)
+from pmdc_ident.core.identification.results import IdentificationResult
+from pmdc_ident.core.identification.state import (
+    ModelChoice,
+    WarningCode,
+    _added_for,
+    _fixed_for,
+    _Report,
+    _Setup,
+)
+from pmdc_ident.core.identification.validation import (
+    _frequency_response,
+    _holdout_validation,
+    _initial_state_note,
+    _quantisation_note,
+    _residual_validation,
+)
+from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import Limits
 from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
 from pmdc_ident.core.progress import ProgressCallback, silent
 from pmdc_ident.core.quality.findings import Finding
-from pmdc_ident.core.quality.fit_checks import FitChecks, check_parameters
 from pmdc_ident.core.quality.misfit import Refit
-from pmdc_ident.core.results import IdentificationResult
 from pmdc_ident.core.segmentation import contiguous_pieces
 
 __all__ = ["ModelChoice", "identify", "merge_runs", "minus_two_log_likelihood"]
@@ -65,65 +82,9 @@ TABLE_MAX_ROWS = 20
 TC = COULOMB_TORQUE
 
 
-class ModelChoice(enum.StrEnum):
-    """Which model the output-error fit reports (auto: Coulomb when significant)."""
-
-    AUTO = "auto"
-    LINEAR = "linear"
-    COULOMB = "coulomb"
-
-
 def merge_runs(runs: Sequence[Run]) -> list[Segment]:
     """All segments of several runs, labels made unique (``step_up``, ``step_up_2``...)."""
     return unique_labels(s for run in runs for s in run.segments)
-
-
-@dataclass(frozen=True)
-class _Setup:
-    """The checked inputs of one identification."""
-
-    segments: list[Segment]
-    dynamic: list[Segment]  # long, regularly sampled: for the dynamic methods
-    fixed: dict[str, float]
-    closure: str | None  # the closure actually used
-    added: dict[str, float]  # known added inertia by segment label, kg*m^2
-    current_mode: bool  # no voltage column: mechanical side only
-
-    def fit(self, segs: Sequence[Segment], model: Model, **kwargs: Any) -> FitResult:
-        """The output-error fit of ``model`` on ``segs`` with this setup's fixed values,
-        closure and added inertia."""
-        return fit_output_error(
-            segs,
-            model,
-            fixed=_fixed_for(self.fixed, model),
-            closure=self.closure,
-            added_inertia=_added_for(self.added, segs),
-            **kwargs,
-        )
-
-
-class WarningCode(enum.Enum):
-    """Warnings a later step of :func:`identify` looks for (by code, not by its text)."""
-
-    OUTPUT_ERROR_FAILED = "output-error-failed"  # a model's output-error fit failed
-    SEGMENTS_WITH_GAPS = "segments-with-gaps"  # segments left out for gaps in time
-
-
-@dataclass
-class _Report:
-    """What the steps add to the result as they go."""
-
-    assumptions: list[str]
-    warnings: list[str] = field(default_factory=list)
-    methods: dict[str, dict[str, Any]] = field(default_factory=dict)
-    validation: dict[str, Any] = field(default_factory=dict)
-    said: dict[str, str] = field(default_factory=dict)  # register entry -> what was done
-    coded: dict[WarningCode, list[str]] = field(default_factory=dict)
-
-    def warn(self, code: WarningCode, text: str) -> None:
-        """A warning of the result that a later step may look for by ``code``."""
-        self.warnings.append(text)
-        self.coded.setdefault(code, []).append(text)
 
 
 def identify(
@@ -217,7 +178,7 @@ def _register_checks(
     findings: Sequence[Finding],
     expected_rsd: Mapping[str, float] | None = None,
 ) -> FitChecks:
-    """The fit stage of the assumption register (``core/quality/fit_checks.py``)."""
+    """The fit stage of the assumption register (``core/identification/fit_checks.py``)."""
     white = dict(report.validation.get("residuals", {}).get("white", {}))
     checked = check_parameters(
         parameters,
@@ -428,336 +389,6 @@ def _limits(segs: Sequence[Segment]) -> Limits:
 
 
 # ---------------------------------------------------------------------------
-# 2.-3. equation error and the classical chain
-# ---------------------------------------------------------------------------
-def _equation_error(
-    setup: _Setup, report: _Report, say: ProgressCallback
-) -> EquationErrorResult | None:
-    """A fast start; also gives the classical chain an R."""
-    if not setup.dynamic:
-        return None
-    say("equation error (discretised equations)")
-    try:
-        if setup.current_mode:
-            kt = setup.fixed.get("Kt")
-            j = setup.fixed.get("J") if kt is None else None
-            ee = fit_mechanical_equation_error(setup.dynamic, Kt=kt, J=j)
-        else:
-            j_known = setup.fixed.get("J") if setup.closure is None else None
-            ee = fit_equation_error(setup.dynamic, Kt=setup.fixed.get("Kt"), J=j_known)
-    except DataError as exc:
-        if "no excitation" in str(exc):
-            raise
-        report.warnings.append(f"equation error skipped: {exc}")
-        return None
-    report.methods["equation_error"] = {"values": dict(ee.values), "method": ee.method}
-    report.warnings.extend(ee.notes)
-    return ee
-
-
-def _classical(
-    setup: _Setup, ee: EquationErrorResult | None, report: _Report, say: ProgressCallback
-) -> ClassicalResult | None:
-    """The classical chain on staircase / coast-down (tables or time series)."""
-    kinds = (TestKind.STAIRCASE, TestKind.COAST)
-    if setup.current_mode or not any(s.kind in kinds for s in setup.segments):
-        return None
-    say("classical chain (staircase, coast-down)")
-    cfix = dict(setup.fixed)
-    if "R" not in cfix and ee is not None and "R" in ee.values:
-        # no multimeter value: the staircase alone pins R poorly
-        cfix["R"] = ee.values["R"]
-    try:
-        classical = classical_chain(setup.segments, fixed=cfix)
-    except DataError as exc:
-        report.warnings.append(f"classical chain skipped: {exc}")
-        return None
-    from pmdc_ident.core.estimators.classical import staircase_levels
-
-    for s in setup.segments:
-        if s.kind is TestKind.STAIRCASE and len(levels := staircase_levels(s)) > 1:
-            line = (
-                f"staircase segment {s.label!r} holds {len(levels)} voltage levels: each is "
-                "one steady level of the classical chain"
-            )
-            report.assumptions.append(line)
-            report.said["staircase-levels"] = line
-    if "R" not in setup.fixed and "R" in cfix:
-        note = (
-            f"classical: R = {cfix['R']:.4g} ohm taken from the equation-error "
-            "fit (no multimeter value given)"
-        )
-        classical = replace(classical, notes=(note, *classical.notes))
-    report.methods["classical"] = {
-        "values": dict(classical.values),
-        "ci95": {k: list(v) if v else None for k, v in classical.ci95.items()},
-        "notes": list(classical.notes),
-    }
-    if classical.coast is not None:
-        report.methods["classical"]["coast"] = _coast_json(classical.coast)
-    return classical
-
-
-def _coast_json(c: CoastFit) -> dict[str, Any]:
-    return {
-        "J": c.J,
-        "J_ci95": list(c.J_ci95),
-        "J_from_Tc_shape": c.J_from_Tc,
-        "J_from_B_shape": c.J_from_B,
-        "average_slope_rad_s2": c.average_slope_rad_s2,
-        "J_one_average_slope": (c.Tc + c.B * c.w0_rad_s) / c.average_slope_rad_s2
-        if c.average_slope_rad_s2 > 0
-        else None,
-        "rms_speed_rad_s": c.rms_speed_rad_s,
-    }
-
-
-# ---------------------------------------------------------------------------
-# 4. output error, linear and Coulomb
-# ---------------------------------------------------------------------------
-def _output_error(
-    setup: _Setup,
-    model: str,
-    ee: EquationErrorResult | None,
-    classical: ClassicalResult | None,
-    report: _Report,
-    say: ProgressCallback,
-) -> dict[str, FitResult]:
-    start = start_values(
-        classical.values if classical is not None else {},
-        ee.values if ee is not None else {},
-        setup.dynamic,
-        setup.fixed,
-        setup.current_mode,
-    )
-    want = [ModelChoice.LINEAR, ModelChoice.COULOMB] if model == ModelChoice.AUTO else [model]
-    fits: dict[str, FitResult] = {}
-    for kind in map(str, want):
-        m0 = start_model(start, kind == ModelChoice.COULOMB, setup.current_mode, setup.fixed)
-        say(f"output error, {kind} model")
-        try:
-            fits[kind] = setup.fit(
-                setup.dynamic,
-                m0,
-                progress=lambda it, cost, k=kind: say(f"  {k}: iteration {it}, cost {cost:.6g}"),
-            )
-        except PmdcError as exc:
-            report.warn(WarningCode.OUTPUT_ERROR_FAILED, f"output error ({kind}) failed: {exc}")
-    if not fits:
-        why = "; ".join(report.coded.get(WarningCode.OUTPUT_ERROR_FAILED, []))
-        msg = f"the output-error fit failed on every model: {why}"
-        raise DataError(msg)
-    _restart_coulomb(setup, fits, say)
-    for kind, f in fits.items():
-        report.methods[f"output_error_{kind}"] = {
-            "values": dict(f.values),
-            "ci95": {k: list(v) if v else None for k, v in f.ci95.items()},
-            "rms": dict(f.rms),
-            "cost": f.cost,
-            "minus_2_log_likelihood": minus_two_log_likelihood(f),
-            "iterations": f.iterations,
-            "converged": f.converged,
-        }
-    return fits
-
-
-def _restart_coulomb(setup: _Setup, fits: dict[str, FitResult], say: ProgressCallback) -> None:
-    """The Coulomb model contains the linear one (Tc = 0): a worse fit is a poor local
-    minimum; restart it from the linear solution and keep the better of the two."""
-    lin, cou = fits.get(ModelChoice.LINEAR), fits.get(ModelChoice.COULOMB)
-    if lin is None or cou is None:
-        return
-    if minus_two_log_likelihood(cou) <= minus_two_log_likelihood(lin) + 1e-6:
-        return
-    say("output error, coulomb model restarted from the linear fit")
-    m0 = Model(lin.model.params, (CoulombFriction(1e-6 * lin.model.params.Kt),))
-    again = setup.fit(setup.dynamic, m0)
-    if minus_two_log_likelihood(again) < minus_two_log_likelihood(cou):
-        fits[ModelChoice.COULOMB] = again
-
-
-def minus_two_log_likelihood(fit: FitResult) -> float:
-    """-2 log L of Gaussian white residuals with per-signal variances set to their ML value."""
-    n_per = fit.n_samples
-    return float(sum(n_per * 2.0 * math.log(max(r, 1e-300)) for r in fit.rms.values()))
-
-
-def _choose(fits: Mapping[str, FitResult], model: str) -> str:
-    """Coulomb when its torque's interval lies above zero and the likelihood-ratio test
-    (one added parameter, 95 %: -2 log L falls by more than 3.84) accepts it."""
-    if model != ModelChoice.AUTO:
-        return model
-    c = fits.get(ModelChoice.COULOMB)
-    lin = fits.get(ModelChoice.LINEAR)
-    if c is None:
-        return ModelChoice.LINEAR
-    if lin is None:
-        return ModelChoice.COULOMB
-    ci = c.ci95.get(TC)
-    better = minus_two_log_likelihood(lin) - minus_two_log_likelihood(c) > 3.84
-    if ci is not None and ci[0] > 0 and c.identifiable.get(TC, False) and better:
-        return ModelChoice.COULOMB
-    return ModelChoice.LINEAR
-
-
-def _note_choice(chosen: str, model: str, fits: Mapping[str, FitResult], report: _Report) -> None:
-    if chosen == ModelChoice.COULOMB:
-        report.assumptions.append(
-            "friction is Coulomb plus viscous (Coulomb torque significant: its 95 % interval "
-            "lies above zero and the likelihood-ratio test prefers it)"
-        )
-    elif model == ModelChoice.AUTO and ModelChoice.COULOMB in fits:
-        report.assumptions.append("friction is viscous only (no significant Coulomb torque found)")
-    warnings = report.warnings
-    warnings.extend(w for w in fits[chosen].warnings if w not in warnings)
-
-
-# ---------------------------------------------------------------------------
-# 5.-6. validation and frequency response
-# ---------------------------------------------------------------------------
-def _quantisation_note(fit: FitResult, report: _Report) -> None:
-    """Each quantised signal the fit used, and the noise its step holds it at."""
-    units = {"current": "A", "speed": "rad/s", "position": "rad"}
-    for name, step in fit.quantisation_steps.items():
-        enc = f" (an encoder of {2 * math.pi / step:.6g} counts/rev)" if name == "position" else ""
-        report.assumptions.append(
-            f"{name} is quantised in steps of {step:.6g} {units[name]}{enc}: the fit's "
-            f"noise model starts from no less than step / sqrt(12) = "
-            f"{step / math.sqrt(12):.3g} {units[name]}, then takes the residuals' level"
-        )
-
-
-def _initial_state_note(fit: FitResult, dyn: Sequence[Segment], report: _Report) -> None:
-    """A record that starts with the voltage already on: its initial state is estimated."""
-    for s in dyn:
-        if s.voltage is None or (s.history_voltage is not None and s.history_voltage.size):
-            continue
-        v0 = float(s.voltage[0])
-        x0 = fit.initial_states.get(s.label)
-        if x0 is None or not math.isfinite(v0) or v0 == 0.0:
-            continue
-        report.assumptions.append(
-            f"{s.label} starts with {v0:.4g} V already on and nothing recorded before it: its "
-            f"initial current and speed are estimated with the parameters (i0 = {x0[0]:.4g} A, "
-            f"w0 = {x0[1]:.4g} rad/s), not assumed at rest"
-        )
-
-
-def _holdout_segments(dyn: Sequence[Segment]) -> list[Segment]:
-    """One segment to predict: a step (prefer step_down), else the last non-sweep one."""
-    if len(dyn) < 2:
-        return []
-    steps = [s for s in dyn if s.kind is TestKind.STEP]
-    for s in steps:
-        if "down" in s.label:
-            return [s]
-    if len(steps) >= 2:
-        return [steps[-1]]
-    others = [s for s in dyn if s.kind is not TestKind.SWEEP]
-    return [others[-1]] if len(others) >= 2 else [dyn[-1]]
-
-
-def _holdout_validation(
-    setup: _Setup,
-    fits: Mapping[str, FitResult],
-    chosen: str,
-    report: _Report,
-    say: ProgressCallback,
-) -> None:
-    """Refit the chosen model without one segment and predict that segment free-running.
-
-    Only the chosen model: a refit of the other one (a second output-error fit, a
-    sixth of ``identify``'s time) changed nothing that is reported or decided."""
-    held = _holdout_segments(setup.dynamic)
-    if not held:
-        report.warnings.append("only one dynamic segment: no held-out validation possible")
-        return
-    rest = [s for s in setup.dynamic if s not in held]
-    say(f"validation: refit without {', '.join(s.label for s in held)}")
-    for kind, f in fits.items():
-        if kind != chosen:
-            continue
-        try:
-            f_rest = setup.fit(rest, f.model)
-        except DataError as exc:
-            report.warnings.append(f"hold-out refit ({kind}) failed: {exc}")
-            continue
-        score = holdout_score(f_rest, held)
-        report.methods[f"output_error_{kind}"]["holdout_rms"] = score.rms
-        report.methods[f"output_error_{kind}"]["holdout_nrmse"] = score.nrmse
-        if kind == chosen:
-            report.validation["holdout"] = {
-                "labels": list(score.labels),
-                "rms": score.rms,
-                "nrmse": score.nrmse,
-                "model": kind,
-            }
-
-
-def _residual_validation(fit: FitResult, dyn: Sequence[Segment], report: _Report) -> float:
-    """Residual whiteness and independence of the input; returns the factor by which the
-    intervals widen for coloured residuals (1 when they are white)."""
-    tests = residual_tests(fit, dyn)
-    residuals: dict[str, Any] = {
-        "autocorr_fraction_outside_95": tests.autocorr_outside,
-        "crosscorr_input_fraction_outside_95": tests.crosscorr_outside,
-        "autocorr_max": tests.autocorr_max,
-        "crosscorr_max": tests.crosscorr_max,
-        "white": tests.white,
-        "independent_of_input": tests.independent_of_input,
-    }
-    report.validation["residuals"] = residuals
-    widen = 1.0
-    if not all(tests.white.values()):
-        from pmdc_ident.core.estimators.uncertainty import coloured_noise_factor
-
-        factors = coloured_noise_factor(fit, dyn)
-        widen = math.sqrt(max([1.0, *factors.values()]))
-        residuals["variance_inflation"] = factors
-        residuals["interval_widening"] = widen
-    for sig, ok in tests.white.items():
-        if not ok:
-            report.warnings.append(
-                f"{sig} residuals are not white ({100 * tests.autocorr_outside[sig]:.0f} % of "
-                "lags outside the 95 % band): unmodelled dynamics or coloured noise "
-                "(see `pmdc-ident diagnose`); intervals widened x"
-                f"{widen:.2g} for the residuals' autocorrelation"
-            )
-    return widen
-
-
-def _frequency_response(
-    setup: _Setup, fit: FitResult, report: _Report
-) -> FrequencyResponse | None:
-    """The sweep's measured frequency response against the fitted model's."""
-    sweeps = [s for s in setup.dynamic if s.kind is TestKind.SWEEP]
-    if not sweeps or setup.current_mode:
-        return None
-    sw = sweeps[0]
-    try:
-        x0 = np.array(fit.initial_states.get(sw.label, (0.0, 0.0, 0.0)))
-        free = simulate_linear(fit.model.params, np.zeros(sw.n), sw.dt_s, x0=x0)
-        freq = estimate_frequency_response(sw, free_response=(free.current, free.speed))
-        mism = freq.mismatch_db(fit.model.params)
-    except DataError as exc:
-        report.warnings.append(f"frequency response skipped: {exc}")
-        return None
-    report.methods["frequency"] = {
-        "segment": freq.label,
-        "n_points": int(freq.freq_hz.size),
-        "band_hz": [float(freq.freq_hz[0]), float(freq.freq_hz[-1])],
-        "median_abs_mismatch_db": mism,
-        "coherent_fraction": {
-            "current": float(np.mean(freq.coherence_current >= 0.9))
-            if freq.coherence_current is not None
-            else None,
-            "speed": float(np.mean(freq.coherence_speed >= 0.9)),
-        },
-    }
-    return freq
-
-
-# ---------------------------------------------------------------------------
 # 7. the estimates
 # ---------------------------------------------------------------------------
 def _estimates(
@@ -819,16 +450,6 @@ def _fit_info(fit: FitResult, dyn: Sequence[Segment]) -> dict[str, Any]:
         "fast_path": fit.fast_path,
         "segments": [s.label for s in dyn],
     }
-
-
-def _added_for(added: Mapping[str, float], segs: Sequence[Segment]) -> dict[str, float]:
-    labels = {s.label for s in segs}
-    return {k: v for k, v in added.items() if k in labels}
-
-
-def _fixed_for(fixed: Mapping[str, float], m: Model) -> dict[str, float]:
-    names = set(PARAMETER_NAMES) | {f"{e.NAME}.{f}" for e in m.effects for f in e.as_dict()}
-    return {k: v for k, v in fixed.items() if k in names}
 
 
 def _classical_only(

@@ -1,6 +1,6 @@
 """The identification node's parameter values as the core's configuration (ROS-free).
 
-The values are those of :data:`pmdc_ident.nodes.parameter_tables.IDENTIFICATION`,
+The values are those of :data:`pmdc_ident.process.parameter_tables.IDENTIFICATION`,
 by name; :func:`controller_config` builds the
 :class:`~pmdc_ident.core.session.controller.ControllerConfig` the node's
 :class:`~pmdc_ident.core.session.controller.SessionController` runs on, so the

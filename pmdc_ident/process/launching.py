@@ -30,7 +30,7 @@ from typing import Any
 
 from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
-from pmdc_ident.nodes.parameter_tables import DRIVER, IDENTIFICATION, RECORDER, ParameterTable
+from pmdc_ident.process.parameter_tables import DRIVER, IDENTIFICATION, RECORDER, ParameterTable
 
 __all__ = [
     "DRIVER_ARGUMENTS",

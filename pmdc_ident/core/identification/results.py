@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from pmdc_ident.core.estimate import ParameterEstimate, finite_or_none
 from pmdc_ident.core.estimators.output_error import FitResult
+from pmdc_ident.core.identification.estimate import ParameterEstimate, finite_or_none
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import Limits, MotorSpec, SensorSpec, motor_to_yaml
 from pmdc_ident.core.schema import SCHEMA_VERSION
