@@ -295,3 +295,30 @@ def test_a_late_current_reading_biases_l_and_the_predicted_interval_covers_it():
     assert "L" in ebike.dropped and "late" in ebike.dropped["L"]
     assert "L" not in ebike.target and ebike.predicted_rsd["L"] > 0.3
     assert Noise(0.01).current_lag(DT) == pytest.approx(DT / (2 * math.pi))
+
+
+def test_cogging_crawls_pass_their_periods_at_the_mechanical_bandwidth_at_three_speeds():
+    """A cogging ripple reaches the current whole below the mechanical bandwidth
+    1/(2 pi tau_m) and by 1/(2 pi f tau_m) above it: the crawls put 48, 16 and 4 periods
+    per turn there (each speed at least 3x the last, the fastest at most 8 % of the top
+    speed), each way. Before, every crawl was floored at half the family's crawl
+    voltage (2.5 % of the top voltage and up): seed 001's three speeds were two, the
+    slowest 30x above the bandwidth for 48 periods."""
+    from pmdc_ident.core.model import simulate
+
+    prior = Prior.from_spec(S001)
+    lim = session_limits(prior, S001.limits, DT)
+    segs = reveal_segments(prior, lim, DT, ("cogging",))
+    assert [c.kind for c in segs] == ["crawl"] * 6
+    tau = S001.model.params.mechanical_time_constant_s
+    speeds = []
+    for c in segs[::2]:
+        sim = simulate(prior.model, c.voltage, DT)
+        w = float(np.median(np.abs(sim.speed[sim.speed.size // 2 :])))
+        assert w > 0
+        speeds.append(w)
+    assert [c.voltage[0] for c in segs[1::2]] == [-c.voltage[0] for c in segs[::2]]
+    assert speeds[1] >= 2.5 * speeds[0] and speeds[2] >= 2.5 * speeds[1]
+    # the slowest: 48 periods per turn pass at about the bandwidth (not 5-30x above it)
+    f48 = 48 * speeds[0] / (2 * math.pi)
+    assert f48 <= 2.0 / (2 * math.pi * tau)
