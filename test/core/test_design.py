@@ -322,3 +322,14 @@ def test_cogging_crawls_pass_their_periods_at_the_mechanical_bandwidth_at_three_
     # the slowest: 48 periods per turn pass at about the bandwidth (not 5-30x above it)
     f48 = 48 * speeds[0] / (2 * math.pi)
     assert f48 <= 2.0 / (2 * math.pi * tau)
+
+
+def test_a_coast_is_one_segment_and_no_level_is_held_longer_than_the_target_needs():
+    """Consecutive open-armature decays are one coast (B is told from the Coulomb torque
+    by the deceleration's change with speed over the one coast: a second initial speed
+    to fit halves it), and the longest segments before the last are cut as short as
+    the target allows. The e-bike plan was 0.89 s with two coasts in a row."""
+    designed = plan_experiment(Prior.from_spec(E_BIKE), E_BIKE.limits, DT)
+    kinds = [p.candidate.kind for p in designed.pieces]
+    assert not any(a == b == "decay" for a, b in zip(kinds, kinds[1:])), kinds
+    assert designed.met and designed.duration_s <= 0.85

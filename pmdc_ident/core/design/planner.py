@@ -51,6 +51,7 @@ DESIGN_MARGIN = 0.9  # the plan aims at this fraction of each target
 PRIOR_MARGIN_CAP = 0.5  # ... and lower by at most 1 / 1.5 for a parameter the prior knows badly
 UNREACHABLE_FACTOR = 10.0  # a default-target parameter 10x off at the budget is not pursued
 UNREACHABLE_L = 3.0  # ... L 3x off, when L/R is below the sample period
+SHORTEN_INNER = 4  # segments before the last cut as short as the target allows
 FLOOR_SHARE = 0.8  # a parameter whose systematic sd alone is this share of its target: dropped
 MAX_ROUNDS = 200
 NUISANCE_TC = 1e-3  # A x Ke: a Coulomb torque the prior lacks, as a direction only
@@ -623,6 +624,7 @@ def _shorten(
                 chosen, evs, info = trial, t_evs, t_info
                 changed = True
                 break
+    chosen = _shorten_inner(d, forced, chosen, start)
     # the last one as short as the target allows (bisection on its samples)
     head = forced + chosen[:-1]
     last = chosen[-1]
@@ -638,6 +640,41 @@ def _shorten(
     ev = d.evaluate(_truncate(last, hi), h_st)
     if ev.violation is None and d.met(h_info + ev.info):
         chosen = chosen[:-1] + [_truncate(last, hi)]
+    return chosen
+
+
+def _shorten_inner(
+    d: _Designer, forced: list[Candidate], chosen: list[Candidate], start: _State
+) -> list[Candidate]:
+    """The longest segments before the last (``SHORTEN_INNER`` of them) each as short as
+    the target allows, the rest re-simulated from it. The greedy holds a level while a
+    later segment cannot pay yet (a coast-down pays only from the top speed): the servo
+    motor's plan held -24 V for 0.69 s (32 tau_m) before its coasts, where 0.1 s left
+    every predicted sd within 1 % (B 0.624 against 0.617 %)."""
+    inner = sorted(range(len(chosen) - 1), key=lambda k: -chosen[k].n)[:SHORTEN_INNER]
+    for k in inner:
+        seg = chosen[k]
+        if seg.n <= 2 * MIN_SAMPLES:
+            continue
+
+        def trial(
+            m: int, k: int = k, seg: Candidate = seg, now: list[Candidate] = chosen
+        ) -> list[Candidate] | None:
+            t = now[:k] + [_truncate(seg, m)] + now[k + 1 :]
+            t_evs, t_info, _ = d.replay(forced + t, start)
+            return t if d.feasible(t_evs) and d.met(t_info) else None
+
+        lo, hi = MIN_SAMPLES, seg.n
+        best = None
+        while hi - lo > max(2, seg.n // 20):
+            mid = (lo + hi) // 2
+            got = trial(mid)
+            if got is not None:
+                hi, best = mid, got
+            else:
+                lo = mid
+        if best is not None:
+            chosen = best
     return chosen
 
 
@@ -685,7 +722,11 @@ def stop_segment(
 
 
 def _merged(chosen: Sequence[Candidate]) -> list[Candidate]:
-    """Consecutive levels at one voltage as one segment (one initial state less to fit)."""
+    """Consecutive levels at one voltage, and consecutive open-armature decays, as one
+    segment (one initial state less to fit). For decays it is most of B's information:
+    B is told from the Coulomb torque by how the deceleration changes with speed over
+    the one coast, which a second initial speed to fit cuts in two (a 1.7 s coast on
+    the scooter motor, cut in two pieces for re-fits: B's fitted sd 0.46 -> 0.95 %)."""
     out: list[Candidate] = []
     for c in chosen:
         prev = out[-1] if out else None
@@ -695,6 +736,10 @@ def _merged(chosen: Sequence[Candidate]) -> list[Candidate]:
             and prev.settings.get("v") == c.settings.get("v")
         ):
             out[-1] = replace(prev, voltage=np.concatenate([prev.voltage, c.voltage]))
+        elif prev is not None and prev.kind == c.kind == "decay":
+            t_s = float(prev.settings.get("t_s", 0.0)) + float(c.settings.get("t_s", 0.0))
+            voltage = np.concatenate([prev.voltage, c.voltage])
+            out[-1] = replace(prev, voltage=voltage, settings={**prev.settings, "t_s": t_s})
         else:
             out.append(c)
     return out
