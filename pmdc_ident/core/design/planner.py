@@ -651,6 +651,11 @@ def _shorten_inner(
     later segment cannot pay yet (a coast-down pays only from the top speed): the servo
     motor's plan held -24 V for 0.69 s (32 tau_m) before its coasts, where 0.1 s left
     every predicted sd within 1 % (B 0.624 against 0.617 %)."""
+    if d.limits.travel_rad is not None:
+        # a joint's plan runs in parts, each designed again from the measured angle: cut
+        # to the bone, the first design left the node's travel-limited session (test/
+        # nodes/test_plan_auto_dds.py) 2.51 s of motor time against 1.97 s planned
+        return chosen
     inner = sorted(range(len(chosen) - 1), key=lambda k: -chosen[k].n)[:SHORTEN_INNER]
     for k in inner:
         seg = chosen[k]
