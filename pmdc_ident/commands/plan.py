@@ -115,6 +115,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     s.add_argument("--current-noise", type=float, default=None, metavar="A")
     s.add_argument("--speed-noise", type=float, default=None, metavar="RAD_S")
     s.add_argument("--counts-per-rev", type=float, default=None, metavar="N")
+    s.add_argument(
+        "--current-lag-us",
+        type=float,
+        default=None,
+        metavar="US",
+        help="how late the current reading may be, at most (anti-alias filter, ADC timing): "
+        "it biases L by up to lag / (L/R), counted in L's predicted sd (default: "
+        "1/(2 pi) of a sample, a first-order filter at the sample rate; 0: none)",
+    )
     parser.add_argument(
         "--criterion",
         choices=("A", "D"),
@@ -168,6 +177,9 @@ def _prior(args: argparse.Namespace, fixed: dict[str, float], dt: float):  # typ
         counts_per_rev=args.counts_per_rev,
         source=("pre-test " if is_data else "motor ") + str(args.motor),
     )
+    if args.current_lag_us is not None:
+        lag = 1e-6 * args.current_lag_us
+        prior = replace(prior, noise=replace(prior.noise, current_lag_s=lag))
     return prior, limits
 
 
@@ -219,6 +231,10 @@ def run(args: argparse.Namespace) -> int:
             ),
             (Bound("--current-noise", 0.0, 1e6, "the current's sd, A"), args.current_noise),
             (Bound("--speed-noise", 0.0, 1e9, "the speed's sd, rad/s"), args.speed_noise),
+            (
+                Bound("--current-lag-us", 0.0, 1e6, "the current reading's lag, us"),
+                args.current_lag_us,
+            ),
             (
                 Bound(
                     "--counts-per-rev", 0.0, 1e12, "encoder counts per revolution", open_low=True

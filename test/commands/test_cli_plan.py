@@ -79,6 +79,7 @@ def test_a_pretest_log_is_read_with_its_sidecar(tmp_path: Path, capsys):
         (["--start-rad", "nan"], "--start-rad"),
         (["--counts-per-rev", "-5"], "--counts-per-rev"),
         (["--speed-noise", "inf"], "--speed-noise"),
+        (["--current-lag-us", "-1"], "--current-lag-us"),
         (["--reveal", "warp_drive"], "unknown"),
         (["--csv", "nowhere/plan.csv"], "does not exist"),
     ],

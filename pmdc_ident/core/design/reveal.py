@@ -15,9 +15,11 @@ effect                      segments
 ``load_torque``             low speed
 ``stribeck_friction``       a staircase through the lowest speeds both ways (1.5 to 25 % of
                             the top speed), each level held to steady state
-``cogging``                 slow crawls over up to a turn (or what the travel allows) at
-                            0.5, 2 and 8 % of the top speed, each way (``crawl``): torque
-                            periodic in the angle, at a period the rotor can follow
+``cogging``                 slow crawls over up to a turn (or what the travel allows), each
+                            way (``crawl``), at the speeds where 48, 16 and 4 periods per
+                            turn pass at the mechanical bandwidth (at most 8 % of the top
+                            speed): torque periodic in the angle, at a period the rotor
+                            follows
 ``quadratic_drag``          a staircase to the top speed both ways
 ``brush_drop``,             a low-voltage staircase both ways and a small sweep about 0 V
 ``dead_zone``               (the current reverses)
@@ -49,7 +51,9 @@ from pmdc_ident.core.excitation import log_chirp
 __all__ = ["REVEALABLE", "reveal_segments"]
 
 REVEALABLE: tuple[str, ...] = EFFECT_NAMES
-CRAWL_SPEEDS = (0.005, 0.02, 0.08)  # of the top speed
+COG_COUNTS = (48.0, 16.0, 4.0)  # cogging periods per turn the crawls are sized for
+CRAWL_TOP = 0.08  # the fastest crawl, of the top speed
+CRAWL_FLOOR = 0.002  # the lowest crawl voltage, of the top voltage (a speed to measure)
 STRIBECK_SPEEDS = (0.015, 0.03, 0.06, 0.12, 0.25)
 MAX_CRAWL_S = 6.0
 
@@ -117,19 +121,40 @@ def _stribeck(prior, limits, sc, w_top, tau):  # type: ignore[no-untyped-def]
 
 def _cogging(prior, limits, sc, w_top, tau):  # type: ignore[no-untyped-def]
     """Crawls at three slow speeds, each way: cogging shows where its period passes the
-    shaft slower than the rotor can follow (torque ripple -> speed and current ripple);
-    the number of periods per turn is unknown, so the speeds span a decade and a half."""
+    shaft slower than the rotor can follow. A torque ripple at ``f`` moves the current
+    by the whole ripple / Kt while ``f`` is below the mechanical bandwidth 1/(2 pi
+    tau_m), and by a share ``1 / (2 pi f tau_m)`` of it above (the rotor's inertia
+    filters it; the current sees it only through the back-EMF). So each crawl puts the
+    cogging frequency of one count per turn (``COG_COUNTS``: the number is unknown) at
+    that bandwidth: ``w = 1 / (N tau_m)``, no faster than ``CRAWL_TOP`` of the top speed
+    and each at least 3x slower than the next (a geared motor's counts per output turn
+    are large: its ladder goes on below the cap).
+    The voltage is the prior's steady line (its friction included) with a margin over
+    its breakaway; not floored at the family's crawl (2.5-5 % of the top voltage),
+    which ran every crawl at the same speed, 5-25x above that bandwidth (an industrial
+    motor, 28 periods per turn: 22 Hz against 3.7 Hz, cogging at 5 % of rated torque
+    under a detection limit of 29 %). The slowest may stick in a detent where the
+    cogging is large: the faster ones then move through it."""
     out = []
     travel = limits.travel_rad
     reach = math.inf
     if travel is not None:
         lo, hi = travel
         reach = 0.5 * (hi - lo - 2.0 * limits.margin_rad) * 0.8  # each crawl half the usable range
-    for frac in CRAWL_SPEEDS:
-        w = frac * w_top
-        v = max(_voltage_for_speed(prior, w), 0.5 * sc.v_crawl)
+    p = prior.model.params
+    v_break = p.R * prior.coulomb_nm / p.Kt
+    v_min = max(1.5 * v_break, CRAWL_FLOOR * sc.v_top)
+    speeds, cap = [], CRAWL_TOP * w_top
+    for n in sorted(COG_COUNTS):  # 4, 16, 48 per turn: fastest first
+        # a geared motor's bandwidth speed lies above the cap: the ladder goes on below
+        w = min(1.0 / (n * max(tau, sc.dt_s)), cap)
+        speeds.append(w)
+        cap = w / 3.0
+    for w in reversed(speeds):
+        v = min(max(_voltage_for_speed(prior, w) + 0.5 * v_break, v_min), sc.v_top)
         dist = min(2.0 * math.pi, reach)
-        seconds = min(max(dist / w + 2.0 * tau, 10.0 * tau), MAX_CRAWL_S)
+        # a turn (or the reach), and at least ten periods of the count it is sized for
+        seconds = min(max(dist / w, 20.0 * math.pi * tau) + 2.0 * tau, MAX_CRAWL_S)
         if travel is not None:
             seconds = min(seconds, reach / w + tau)
         # there and back: the angle returns (a joint stays in its range)

@@ -31,6 +31,7 @@ import numpy as np
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.design.api import plan_experiment, session_limits
+from pmdc_ident.core.design.information import Noise, systematic_rsd, with_systematic
 from pmdc_ident.core.design.limits import PlanLimits
 from pmdc_ident.core.design.planner import DesignedPlan, evaluate_plan
 from pmdc_ident.core.design.pretest import pretest_plan, prior_from_result
@@ -184,6 +185,8 @@ class SequentialDesign:
             )
         try:
             prior = prior_from_result(fitted, f"fit of the first {self.run_s:.3g} s")
+            lag = self.nominal.noise.current_lag_s  # the rig's, as the user gave it
+            prior = replace(prior, noise=replace(prior.noise, current_lag_s=lag))
             self.prior = prior
             plan_so_far = TestPlan(
                 tuple(PlannedSegment(s.label, _voltage(s)) for s in segments), self.dt
@@ -292,6 +295,13 @@ class SequentialDesign:
             if e is None or e.stderr is None or not e.value:
                 continue
             out[n] = abs(float(e.stderr) / float(e.value)) if math.isfinite(e.stderr) else math.inf
+        # what the fit's own sd cannot see (a lag of the current reading biases L): the
+        # target counts it, as the design does (information.systematic_rsd)
+        par = result.parameters
+        values = {k: float(par[k].value) for k in ("R", "L") if k in par}
+        if "L" not in self.settings.fixed:
+            lag = Noise(1.0, current_lag_s=self.nominal.noise.current_lag_s)
+            out = with_systematic(out, systematic_rsd(values, lag, self.dt))
         return result, out
 
     def _short(self, achieved: Mapping[str, float], result: Any) -> dict[str, str]:
