@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from pmdc_ident.core.effects import parameter_unit
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.estimators.output_error import FitResult
 from pmdc_ident.core.params import NEEDED_PARAMETERS
 
@@ -98,5 +99,6 @@ def unidentified_needed(
     return (
         f"{names} {verb} not identifiable from these data (relative standard "
         f"error above 50 % or no information), so a motor model would hold a guess; "
-        f"{'; '.join(tips)}; --fix {bad[0]}=... holds a value you know; nothing was written"
+        f"{'; '.join(tips)}; {opt('fix')} {bad[0]}=... holds a value you know; nothing was "
+        "written"
     )

@@ -33,6 +33,7 @@ from pmdc_ident.core.assumptions import register_json
 from pmdc_ident.core.data import Run, Segment, TestKind, check_excitation, unique_labels
 from pmdc_ident.core.effects import CoulombFriction, parameter_unit
 from pmdc_ident.core.errors import DataError, ParameterError, PmdcError
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit, unidentified_needed
 from pmdc_ident.core.estimators.classical import ClassicalResult, CoastFit, classical_chain
 from pmdc_ident.core.estimators.equation_error import (
@@ -349,8 +350,8 @@ def _closure(
             given = f"(Kt, B, Coulomb, load torque) given J = {fixed['J']:g} kg*m^2"
         else:
             msg = (
-                "current-driven data (no voltage column) show only Kt/J: --fix Kt=... (the "
-                "torque constant) or --fix J=... (a known rotor inertia)"
+                f"current-driven data (no voltage column) show only Kt/J: {opt('fix')} Kt=... "
+                f"(the torque constant) or {opt('fix')} J=... (a known rotor inertia)"
             )
             raise ParameterError(msg)
         assumptions.append(f"no voltage column: mechanical-only fit {given}")
@@ -364,7 +365,7 @@ def _closure(
     elif closure_used == CLOSURE_KT_KE:
         assumptions.append(
             "Kt = Ke (SI units, power balance): closes the scale ambiguity of (Kt, J, B); "
-            "replace with --fix Kt=... or --fix J=..."
+            f"replace with {opt('fix')} Kt=... or {opt('fix')} J=..."
         )
     elif "Kt" in fixed:
         assumptions.append(f"Kt fixed at {fixed['Kt']:g} N*m/A (replaces the Kt = Ke closure)")
@@ -852,7 +853,8 @@ def _classical_only(
     params: dict[str, ParameterEstimate] = {}
     placeholder = {
         "L": (
-            "no dynamic electrical data (tables only); fix it from an LCR meter (--fix L=...)",
+            f"no dynamic electrical data (tables only); fix it from an LCR meter ({opt('fix')} "
+            "L=...)",
             vals.get("R", 1.0) * 1e-4,
         ),
         "J": ("no coast-down in the data", 1e-3),
@@ -872,7 +874,7 @@ def _classical_only(
                 if name in fixed
                 else (
                     "assumed equal to Ke (closure Kt = Ke in SI units): not measured by these "
-                    "data; --fix Kt=... holds a value you know"
+                    f"data; {opt('fix')} Kt=... holds a value you know"
                     if name == "Kt"
                     else ""
                 ),

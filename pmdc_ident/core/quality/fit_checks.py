@@ -23,6 +23,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from pmdc_ident.core.data import Segment
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.estimate import ParameterEstimate
 from pmdc_ident.core.estimators.output_error import FitResult
 from pmdc_ident.core.params import PARAMETER_RANGES
@@ -102,8 +103,8 @@ def check_parameters(
         params["Kt"] = _flag(
             params["Kt"],
             "assumed equal to Ke (closure Kt = Ke in SI units): voltage, current and speed "
-            "cannot measure it; --fix Kt=... (a datasheet), or runs with a known added "
-            "inertia (--added-inertia) measure it",
+            f"cannot measure it; {opt('fix')} Kt=... (a datasheet), or runs with a known "
+            f"added inertia ({opt('added_inertia')}) measure it",
         )
         out.said["kt-equals-ke"] = "Kt reported as assumed (Kt = Ke), not identified"
     _physical_range(out)
@@ -171,7 +172,7 @@ def _timing_budget(
             p,
             f"L/R = {tau * 1e3:.3g} ms against a {dt * 1e3:.3g} ms sample: a timing offset of "
             f"{TIMING_SHARE:.0%} of a period alone moves L by {sys_rel:.0%}; fix L from an "
-            "LCR meter (--fix L=...)",
+            f"LCR meter ({opt('fix')} L=...)",
         )
         return
     z = 1.96 * rel
