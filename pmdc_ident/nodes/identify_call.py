@@ -169,8 +169,14 @@ def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
     identification node runs once a session is over.
 
     Runs in a worker process (plain data in and out); never raises: a refusal of the
-    data is the outcome's ``error`` with exit code 2, a bug of ours exit code 1.
+    data is the outcome's ``error`` with exit code 2, a bug of ours exit code 1. Its
+    lines name options in the node's words (:data:`NODE_NAMES`: ``parameter fix``).
     """
+    with wording(NODE_NAMES):
+        return _identification_job(job)
+
+
+def _identification_job(job: IdentificationJob) -> IdentificationOutcome:
     notes: list[tuple[str, str]] = []
     try:
         arrays = _driver_arrays(job.samples)
