@@ -32,6 +32,7 @@ import numpy as np
 from pmdc_ident.core.assumptions import register_json
 from pmdc_ident.core.data import Run, Segment, TestKind, check_excitation, unique_labels
 from pmdc_ident.core.effects import CoulombFriction, parameter_unit
+from pmdc_ident.core.enums import ParameterNote
 from pmdc_ident.core.errors import DataError, ParameterError, PmdcError
 from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.estimate import ParameterEstimate, estimate_from_fit, unidentified_needed
@@ -64,6 +65,7 @@ __all__ = ["ModelChoice", "identify", "merge_runs", "minus_two_log_likelihood"]
 
 TABLE_MAX_ROWS = 20
 TC = COULOMB_TORQUE
+_FIXED_NOTE = frozenset({ParameterNote.FIXED})
 
 
 class ModelChoice(enum.StrEnum):
@@ -776,13 +778,16 @@ def _estimates(
                     stderr=None if est.stderr is None else est.stderr * widen,
                 )
     for name in fit.fixed:
-        params[name] = replace(params[name], reason="fixed by the user", method="fixed")
+        params[name] = replace(
+            params[name], reason="fixed by the user", method="fixed", notes=_FIXED_NOTE
+        )
     if current_mode:
         for name in ("R", "L", "Ke"):
             params[name] = replace(
                 params[name],
                 identifiable=False,
                 reason="no voltage in the data (value is a placeholder)",
+                notes=frozenset(),
             )
     return params
 
@@ -805,6 +810,7 @@ def _one_direction_term(
             params[name],
             reason="one term: Coulomb friction + a constant load torque (the rotor turned one "
             "way only; a run in reverse separates them)",
+            notes=frozenset({ParameterNote.ONE_TERM}),
         )
 
 
@@ -879,6 +885,9 @@ def _classical_only(
                     else ""
                 ),
                 method="fixed" if name in fixed else "classical",
+                notes=_FIXED_NOTE
+                if name in fixed
+                else frozenset({ParameterNote.ASSUMED} if name == "Kt" else ()),
             )
         else:
             reason, value = placeholder.get(name, ("not in the data", 1.0))

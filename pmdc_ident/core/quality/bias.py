@@ -56,6 +56,7 @@ def flag_biased(
                 ci95=None,
                 reason=f"{_WHAT[f.code]} (gate: {f.code}): the fit reads that lag as "
                 f"{name}{fix}, or {opt('fix')} {name}=... from an LCR meter",
+                notes=frozenset(),
             )
             said.append(f"{name} ({f.code})")
     if not said:
