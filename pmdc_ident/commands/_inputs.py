@@ -64,25 +64,12 @@ def input_options(
 def spec_of_args(args: argparse.Namespace) -> Any:
     """The :class:`~pmdc_ident.dataio.units.InputSpec` of the unit options on the command
     line (:func:`add_unit_arguments`)."""
-    from pmdc_ident.dataio.units import spec_from_options
+    from pmdc_ident.dataio.units import UNIT_OPTIONS, spec_from_options
 
-    return spec_from_options(
-        column=tuple(getattr(args, "column", None) or ()),
-        **{k: getattr(args, k, None) for k in _UNIT_FIELDS},
-    )
+    units = {k: getattr(args, k, None) for k in UNIT_OPTIONS}
+    return spec_from_options(column=tuple(getattr(args, "column", None) or ()), **units)
 
 
-_UNIT_FIELDS = (
-    "time_unit",
-    "speed_unit",
-    "position_unit",
-    "current_unit",
-    "voltage_unit",
-    "supply_v",
-    "counts_per_rev",
-    "gear_ratio",
-    "speed_averaged",
-)
 _UNITS = {
     "--time-unit": ("s|ms|us|ns", "time"),
     "--speed-unit": ("rad/s|rpm|deg/s|rev/s|counts/s", "speed"),

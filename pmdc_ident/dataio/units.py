@@ -53,6 +53,7 @@ __all__ = [
     "convert_run",
     "load_input",
     "read_sidecar",
+    "UNIT_OPTIONS",
     "sidecar_path",
     "spec_from_options",
 ]
@@ -267,6 +268,16 @@ class LoadedInput:
 
 
 # -- the caller's options ---------------------------------------------------------
+# the keyword options of spec_from_options beside ``column`` (InputOptions' field names)
+UNIT_OPTIONS = (
+    *_UNIT_KEYS,
+    "supply_v",
+    "counts_per_rev",
+    "gear_ratio",
+    "speed_averaged",
+)
+
+
 def spec_from_options(
     *,
     column: Sequence[str] = (),

@@ -84,10 +84,10 @@ def _timeless(doc):
 def test_the_worker_writes_the_document_of_pmdc_ident_identify_json(tmp_path):
     import json
 
+    from pmdc_ident.app.options import CLI_NAMES
     from pmdc_ident.cli import main
     from pmdc_ident.dataio.csvio import write_csv
     from pmdc_ident.dataio.units import load_input
-    from pmdc_ident.app.options import CLI_NAMES
     from pmdc_ident.nodes.identify_call import NODE_NAMES
 
     path = str(write_csv(_session_like_run(), tmp_path / "session.csv"))
