@@ -36,7 +36,7 @@ import argparse  # noqa: E402
 import gc  # noqa: E402
 import importlib  # noqa: E402
 import os  # noqa: E402
-from collections.abc import Iterator, Sequence  # noqa: E402
+from collections.abc import Iterator, Mapping, Sequence  # noqa: E402
 from contextlib import contextmanager  # noqa: E402
 
 from pmdc_ident import __version__  # noqa: E402
@@ -199,6 +199,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _run(argv: Sequence[str] | None) -> int:
     command = ""
     user_errors: tuple[type[Exception], ...] = ()
+    names: Mapping[str, str] | None = None
     try:
         words = list(sys.argv[1:] if argv is None else argv)
         command = next((w for w in words if w in COMMANDS), "")
@@ -206,26 +207,31 @@ def _run(argv: Sequence[str] | None) -> int:
         # inside the try: a Ctrl-C at any moment is one line and exit 130.
         with _signals(program=argv is None):
             limit_blas_threads()  # before numpy is imported (batch workers inherit it)
-            from pmdc_ident.core.errors import PmdcError
+            from pmdc_ident.app.options import CLI_NAMES
+            from pmdc_ident.core.errors import PmdcError, wording
             from pmdc_ident.core.safe_write import reading_scope
 
-            user_errors = (PmdcError,)
+            user_errors, names = (PmdcError,), CLI_NAMES
             # the command word first (options aside): only its parser is built; anything
             # else (a typo, --help) gets the full parser and its own message
             first = next((w for w in words if not w.startswith("-")), "")
             parser = build_parser(first if first in COMMANDS else None)
             args = parser.parse_args(argv)
             command = args.command
-            with reading_scope():  # what the command reads, it never writes
+            # what the command reads, it never writes; the core names options as flags
+            with reading_scope(), wording(CLI_NAMES):
                 return int(args._run(args) or 0)
     except BaseException as exc:  # noqa: BLE001 - sorted below; SystemExit passes
         if isinstance(exc, SystemExit):
             raise
-        return _exit_status(command, exc, user_errors)
+        return _exit_status(command, exc, user_errors, names)
 
 
 def _exit_status(
-    command: str, exc: BaseException, user_errors: tuple[type[Exception], ...]
+    command: str,
+    exc: BaseException,
+    user_errors: tuple[type[Exception], ...],
+    names: Mapping[str, str] | None = None,
 ) -> int:
     """One line on stderr for ``exc`` and the exit status; never a traceback."""
     prog = f"pmdc-ident {command}".rstrip()
@@ -237,7 +243,8 @@ def _exit_status(
         _say(f"{prog}: stopped by {signal.Signals(signum).name}")
         return 128 + signum
     if isinstance(exc, user_errors):
-        return _fail(prog, str(exc))
+        render = getattr(exc, "render", None)  # an OptionError: the option as a flag
+        return _fail(prog, render(names) if render is not None else str(exc))
     if isinstance(exc, BrokenPipeError):
         # the reader of stdout went away (`| head`): not an error of ours
         _silence_stdout()

@@ -56,9 +56,10 @@ def load_inputs(options: InputOptions, progress: Show | None = None) -> list[Loa
     cut short, a topic at another rate) carries what was left out in its notes, so
     the gate, the progress lines and the JSON (:func:`input_json`) say so."""
 
-    from pmdc_ident.dataio.units import load_input, spec_from_args
+    from pmdc_ident.dataio.units import UNIT_OPTIONS, load_input, spec_from_options
 
-    spec = spec_from_args(options)
+    units = {k: getattr(options, k) for k in UNIT_OPTIONS}
+    spec = spec_from_options(column=options.column, **units)
     out = []
     for p in options.data:
         if progress is not None:

@@ -20,7 +20,8 @@ __all__ = [
     "InputOptions",
 ]
 
-# neutral option name -> how the command line spells it
+# neutral option name -> how the command line spells it (the core's errors and hints name
+# an option by its key, pmdc_ident.core.errors.option_name; cli.py states these words)
 CLI_NAMES: Mapping[str, str] = {
     "data": "DATA",
     "fix": "--fix",
@@ -35,13 +36,22 @@ CLI_NAMES: Mapping[str, str] = {
     "holdout": "--holdout",
     "effects": "--effects",
     "max_effects": "--max-effects",
+    "time_unit": "--time-unit",
+    "speed_unit": "--speed-unit",
+    "position_unit": "--position-unit",
+    "current_unit": "--current-unit",
+    "voltage_unit": "--voltage-unit",
+    "supply_v": "--supply-v",
+    "counts_per_rev": "--counts-per-rev",
+    "speed_averaged": "--speed-averaged",
+    "gear_ratio": "--gear-ratio",
 }
 
 
 @dataclass(frozen=True)
 class InputOptions:
     """What to read and how: the DATA paths, their columns and units (as the units
-    layer reads them, :func:`pmdc_ident.dataio.units.spec_from_args`), the gate's
+    layer reads them, :func:`pmdc_ident.dataio.units.spec_from_options`), the gate's
     options and the fixed values."""
 
     data: tuple[str, ...]

@@ -61,6 +61,15 @@ def input_options(
     )
 
 
+def spec_of_args(args: argparse.Namespace) -> Any:
+    """The :class:`~pmdc_ident.dataio.units.InputSpec` of the unit options on the command
+    line (:func:`add_unit_arguments`)."""
+    from pmdc_ident.dataio.units import UNIT_OPTIONS, spec_from_options
+
+    units = {k: getattr(args, k, None) for k in UNIT_OPTIONS}
+    return spec_from_options(column=tuple(getattr(args, "column", None) or ()), **units)
+
+
 _UNITS = {
     "--time-unit": ("s|ms|us|ns", "time"),
     "--speed-unit": ("rad/s|rpm|deg/s|rev/s|counts/s", "speed"),

@@ -30,9 +30,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pmdc_ident.dataio.units import convert_run, load_input, read_sidecar, spec_from_args
+    from pmdc_ident.commands._inputs import spec_of_args
+    from pmdc_ident.dataio.units import convert_run, load_input, read_sidecar
 
-    spec = spec_from_args(args)
+    spec = spec_of_args(args)
     src = Path(args.data)
     is_bag = src.is_dir() or src.suffix.lower() == ".mcap"
     if args.session is not None and not is_bag:

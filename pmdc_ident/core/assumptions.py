@@ -391,14 +391,14 @@ def check_holdout(held_out: Sequence[Segment], rule: str) -> None:
     """Refuse (exit 2) a split whose held-out side carries no information: its gap
     could not show anything, and ``no_gap`` would mean nothing."""
     from pmdc_ident.core.data import excitation_problem
-    from pmdc_ident.core.errors import DataError
+    from pmdc_ident.core.errors import DataError, option_name
 
     problem = excitation_problem(held_out) if held_out else ("nothing is held out", "")
     if problem is None:
         return
     what, _fix = problem
     labels = ", ".join(s.label for s in held_out) or "-"
-    hint = "--holdout should name" if rule == "user" else "record"
+    hint = f"{option_name('holdout')} should name" if rule == "user" else "record"
     msg = (
         f"the held-out segments ({labels}) carry no information ({what}): the held-out gap "
         f"could not show a missing effect; {hint} a step, a sweep or a coast-down"

@@ -17,7 +17,7 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import NDArray
 
-from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.errors import DataError, SignalRangeError
 
 __all__ = [
     "HISTORY_MAX_SAMPLES",
@@ -468,7 +468,7 @@ def _check_magnitude(label: str, name: str, arr: FloatArray, t: FloatArray) -> N
             f"segment {label!r}: {name} = {arr[k]:.6g} {unit}{at} is beyond "
             f"any motor test (|{name}| <= {limit:g} {unit}): a unit mistake?"
         )
-        raise DataError(msg)
+        raise SignalRangeError(msg, signal=name, value=float(arr[k]), unit=unit)
 
 
 def _float_array(name: str, value: object, label: str) -> FloatArray:

@@ -4,15 +4,16 @@ One place for the enums several layers use, so that none of them has to import a
 layer above it: the serial protocol (:mod:`pmdc_ident.protocol`) and every backend
 (:mod:`pmdc_ident.backends`) carry :class:`Fault` bits, the driver and the session
 make the motor safe the :class:`SafeMode` way, a session that stops early says
-why with an :class:`AbortReason`, and every program of the package (``pmdc-ident``,
-the nodes, the bring-up, the demo) ends with an :class:`ExitCode`.
+why with an :class:`AbortReason`, the identification node publishes its state as a
+:class:`SessionStatus`, and every program of the package (``pmdc-ident``, the nodes,
+the bring-up, the demo) ends with an :class:`ExitCode`.
 """
 
 from __future__ import annotations
 
 import enum
 
-__all__ = ["AbortReason", "ExitCode", "Fault", "SafeMode"]
+__all__ = ["AbortReason", "ExitCode", "Fault", "ParameterNote", "SafeMode", "SessionStatus"]
 
 
 class SafeMode(enum.Enum):
@@ -51,6 +52,39 @@ class AbortReason(enum.Enum):
     INTERRUPTED = "interrupted"
     DRIVER_FAULT = "driver_fault"
     OUT_OF_TRAVEL = "out_of_travel"  # the measured position left the joint's travel range
+
+
+class SessionStatus(enum.Enum):
+    """The ``state`` of the identification node's ``status`` topic: its one vocabulary.
+
+    The values are the strings of the topic's JSON, a stable interface
+    (``docs/reference.md``): ``idle``, ``preparing``, ``running`` and ``identifying``
+    follow the controller's phase (``Phase.status``); the others say how a request or
+    a session ended.
+    """
+
+    IDLE = "idle"
+    PREPARING = "preparing"  # waiting for the driver, its limits and the recorder
+    RUNNING = "running"
+    IDENTIFYING = "identifying"
+    DONE = "done"  # identified: parameters published and written
+    FAILED = "failed"  # the identification of the session failed
+    REFUSED = "refused"  # a request or a setting refused before anything moved
+    STOPPED = "stopped"  # stopped by a signal
+    ABORTED = "aborted"  # a tripped limit or a lost peer ended the session
+
+
+class ParameterNote(enum.Enum):
+    """What an estimated parameter's ``reason`` says, by code: the table and the checks
+    match these, never the words (``ParameterEstimate.notes``; the JSON keeps the words).
+    """
+
+    FIXED = "fixed"  # held at the user's value
+    ASSUMED = "assumed"  # set by an assumption (the Kt = Ke closure), not measured
+    WEAKLY_IDENTIFIABLE = "weakly"  # relative standard error 10-50 %
+    FAST_ELECTRICAL = "L/R"  # L/R at or below the sample period: how L was still pinned
+    ONE_TERM = "one term"  # Coulomb friction and a load torque, one direction only
+    GATE_EXPECTED = "gate expected"  # the gate expected more doubt than the fit's bound
 
 
 class ExitCode(enum.IntEnum):

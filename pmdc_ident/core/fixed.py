@@ -1,4 +1,5 @@
-"""Parameter values the user fixes (``--fix NAME=VALUE``; the node's ``fix`` parameter).
+"""Parameter values the user fixes (option ``fix``: ``--fix NAME=VALUE`` on the command
+line, the identification node's ``fix`` parameter).
 
 :class:`FixedValues` is the one type of held values: the command line's and the node's
 ``NAME=VALUE`` items (:func:`parse_fix`), ``identify(fixed=...)`` and
@@ -14,8 +15,8 @@ import math
 from collections.abc import Iterable, Iterator, Mapping
 
 from pmdc_ident.core.effects import EFFECT_TYPES
-from pmdc_ident.core.errors import ParameterError
-from pmdc_ident.core.params import PARAMETER_NAMES, check_physical_range
+from pmdc_ident.core.errors import OptionError
+from pmdc_ident.core.params import PARAMETER_NAMES, physical_range_problem
 
 __all__ = ["IDENTIFY_FIXABLE", "FixedValues", "parse_fix"]
 
@@ -32,7 +33,8 @@ class FixedValues(Mapping[str, float]):
     checked; an immutable mapping.
 
     ``known``: the names the caller can hold (default :data:`IDENTIFY_FIXABLE`);
-    ``source``: how the message names where the values came from.
+    ``option``: the key of the option the values came from (an error names it in the
+    caller's words, :class:`~pmdc_ident.core.errors.OptionError`).
     """
 
     __slots__ = ("_values",)
@@ -42,7 +44,7 @@ class FixedValues(Mapping[str, float]):
         values: Mapping[str, float] | Iterable[tuple[str, float]] = (),
         *,
         known: Iterable[str] | None = None,
-        source: str = "--fix",
+        option: str = "fix",
     ) -> None:
         names = tuple(IDENTIFY_FIXABLE if known is None else known)
         pairs = values.items() if isinstance(values, Mapping) else values
@@ -52,20 +54,16 @@ class FixedValues(Mapping[str, float]):
             try:
                 v = float(raw)
             except (TypeError, ValueError):
-                msg = f"{source} {name}: {raw!r} is not a number"
-                raise ParameterError(msg) from None
+                raise OptionError(option, raw, f"{name}: {raw!r} is not a number") from None
             if not math.isfinite(v):
-                msg = f"{source} {name}: value must be finite, got {raw!r}"
-                raise ParameterError(msg)
+                raise OptionError(option, raw, f"{name}: value must be finite, got {raw!r}")
             if name not in names:
-                msg = f"{source} {name}: unknown parameter (can be fixed: {', '.join(names)})"
-                raise ParameterError(msg)
-            _check_range(name, v, source)
+                why = f"{name}: unknown parameter (can be fixed: {', '.join(names)})"
+                raise OptionError(option, name, why)
+            _check_range(name, v, option)
             if name in out and out[name] != v:
-                msg = (
-                    f"{source} {name} given twice with different values ({out[name]:g} and {v:g})"
-                )
-                raise ParameterError(msg)
+                why = f"{name} given twice with different values ({out[name]:g} and {v:g})"
+                raise OptionError(option, raw, why)
             out[name] = v
         self._values = out
 
@@ -97,8 +95,8 @@ def _rebuild(items: tuple[tuple[str, float], ...]) -> FixedValues:
 
 
 def parse_fix(items: Iterable[str], known: tuple[str, ...] | None = None) -> FixedValues:
-    """``--fix NAME=VALUE`` items (the CLI option and the identification node's ``fix``
-    parameter) as :class:`FixedValues`.
+    """``NAME=VALUE`` items of option ``fix`` (the CLI's ``--fix``, the identification
+    node's ``fix`` parameter) as :class:`FixedValues`.
 
     ``known``: the names that may be fixed (default :data:`IDENTIFY_FIXABLE`).
     """
@@ -107,25 +105,25 @@ def parse_fix(items: Iterable[str], known: tuple[str, ...] | None = None) -> Fix
         name, sep, value = item.partition("=")
         name = name.strip()
         if not sep or not name:
-            msg = f"--fix expects NAME=VALUE (e.g. L=3e-4), got {item!r}"
-            raise ParameterError(msg)
+            raise OptionError("fix", item, f"expects NAME=VALUE (e.g. L=3e-4), got {item!r}")
         pairs.append((name, value))
     return FixedValues(pairs, known=known)
 
 
-def _check_range(name: str, value: float, source: str) -> None:
+def _check_range(name: str, value: float, option: str) -> None:
     if name in PARAMETER_NAMES:
-        check_physical_range(name, value, source=source)
+        problem = physical_range_problem(name, value)
+        if problem:
+            raise OptionError(option, value, f"{name}={value:g}: {problem}")
         return
     effect, _, field_name = name.partition(".")
     cls = EFFECT_TYPES.get(effect)
     spec = cls.SPECS.get(field_name) if cls is not None else None
     if spec is None:
-        msg = f"{source} {name}: unknown parameter"
-        raise ParameterError(msg)
+        raise OptionError(option, name, f"{name}: unknown parameter")
     if not spec.lower <= value <= spec.upper:
-        msg = (
-            f"{source} {name}={value:g}: outside the range of the {spec.description}, "
+        why = (
+            f"{name}={value:g}: outside the range of the {spec.description}, "
             f"[{spec.lower:g}, {spec.upper:g}] {spec.unit}"
         )
-        raise ParameterError(msg)
+        raise OptionError(option, value, why)

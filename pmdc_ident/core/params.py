@@ -35,6 +35,7 @@ __all__ = [
     "PARAMETER_UNITS",
     "MotorParams",
     "check_physical_range",
+    "physical_range_problem",
 ]
 
 PARAMETER_NAMES: tuple[str, ...] = ("R", "L", "Ke", "Kt", "J", "B")
@@ -73,15 +74,22 @@ PARAMETER_RANGES: dict[str, tuple[float, float]] = {
 
 def check_physical_range(name: str, value: float, source: str = "motor parameter") -> float:
     """``value`` if it lies in :data:`PARAMETER_RANGES` for ``name``, else a ParameterError."""
-    lo, hi = PARAMETER_RANGES[name]
-    if not (math.isfinite(value) and lo <= value <= hi):
-        msg = (
-            f"{source} {name}={value:g}: outside the physical range of the "
-            f"{PARAMETER_DESCRIPTIONS[name]}, [{lo:g}, {hi:g}] {PARAMETER_UNITS[name]} "
-            "(a unit mistake?)"
-        )
+    problem = physical_range_problem(name, value)
+    if problem:
+        msg = f"{source} {name}={value:g}: {problem}"
         raise ParameterError(msg)
     return value
+
+
+def physical_range_problem(name: str, value: float) -> str:
+    """Why ``value`` is not a possible ``name`` ('' when it lies in its range)."""
+    lo, hi = PARAMETER_RANGES[name]
+    if math.isfinite(value) and lo <= value <= hi:
+        return ""
+    return (
+        f"outside the physical range of the {PARAMETER_DESCRIPTIONS[name]}, "
+        f"[{lo:g}, {hi:g}] {PARAMETER_UNITS[name]} (a unit mistake?)"
+    )
 
 
 @dataclass(frozen=True)

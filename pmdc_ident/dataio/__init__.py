@@ -7,6 +7,7 @@ from pathlib import Path
 
 from pmdc_ident.core.data import Run
 from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.errors import option_name as opt
 
 __all__ = ["load_data"]
 
@@ -30,7 +31,7 @@ def load_data(
     protect([p])  # what a command reads, it never writes (core.safe_write)
     if p.is_dir() or p.suffix.lower() == ".mcap":
         if columns or scale:
-            msg = f"{p}: --column and unit scales apply to CSV files only (a bag is in SI)"
+            msg = f"{p}: {opt('column')} and unit scales apply to CSV files only (a bag is in SI)"
             raise DataError(msg)
         from pmdc_ident.dataio.bagio import read_bag
 

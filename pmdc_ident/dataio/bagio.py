@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Run, Segment, link_history
 from pmdc_ident.core.errors import DataError, PmdcError
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.samples import DriverSamples
 from pmdc_ident.core.session import Marker, MarkerEvent
 from pmdc_ident.core.stream_join import join_driver_samples
@@ -353,12 +354,13 @@ def read_driver_arrays(path: str | Path) -> DriverSamples:
         if len(inside) > 1:
             msg = (
                 f"{p}: {len(inside)} .mcap files and no metadata.yaml: not one bag; pass one "
-                f"file ({p / inside[0].name}), or --batch OUTDIR to treat each on its own"
+                f"file ({p / inside[0].name}), or {opt('batch')} OUTDIR to treat each on its own"
             )
         elif csvs:
             msg = (
                 f"{p}: a folder of CSV files ({', '.join(csvs[:3])}{', ...' * (len(csvs) > 3)}), "
-                "not a bag: pass the files themselves, or --batch OUTDIR to treat each on its own"
+                f"not a bag: pass the files themselves, or {opt('batch')} OUTDIR to treat each on "
+                "its own"
             )
         else:
             msg = (

@@ -47,7 +47,8 @@ from typing import TextIO
 import numpy as np
 
 from pmdc_ident.core.data import Run, Segment, link_history
-from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.errors import DataError, DataOptionError, SignalRangeError
+from pmdc_ident.core.errors import option_name as opt
 
 __all__ = ["CSV_COLUMNS", "parse_number", "read_csv", "write_csv"]
 
@@ -121,7 +122,7 @@ def _header(p: Path, row: list[str], columns: Mapping[str, str]) -> tuple[int, d
         msg = (
             f"{p}: no header line: the first line holds numbers ({shown}, ...), not column "
             "names; add a first line naming the columns, such as "
-            "t,voltage,current,position,speed (or your names with --column NAME=HEADER)"
+            f"t,voltage,current,position,speed (or your names with {opt('column')} NAME=HEADER)"
         )
         raise DataError(msg)
     header = _rename(p, header, columns)
@@ -162,7 +163,7 @@ def _hint(row: list[str]) -> str:
                 break
     if not found:
         return ""
-    return "; fix: " + " ".join(f"--column {f}" for f in found)
+    return "; fix: " + " ".join(f"{opt('column')} {f}" for f in found)
 
 
 def _careful_table(p: Path, text: str, columns: Mapping[str, str]) -> _Table:
@@ -399,8 +400,8 @@ def _rename(p: Path, header: list[str], columns: Mapping[str, str]) -> list[str]
     out = list(header)
     for name, wanted in columns.items():
         if name not in CSV_COLUMNS:
-            msg = f"--column {name}=...: {name!r} is not a column name ({', '.join(CSV_COLUMNS)})"
-            raise DataError(msg)
+            why = f"{name}=...: {name!r} is not a column name ({', '.join(CSV_COLUMNS)})"
+            raise DataOptionError("column", name, why)
         key = wanted.strip().lower()
         if key == "none":
             out = [f"(unused {h})" if h == name else h for h in out]
@@ -425,7 +426,7 @@ def _column(p: Path, body: list[list[str]], where: Sequence[int], name: str, k: 
                 out[i] = math.nan  # armature open
                 continue
             if all(not r[k].strip() for r in body):
-                fix = f"--column {name}=none (the file has no {name} measurement)"
+                fix = f"{opt('column')} {name}=none (the file has no {name} measurement)"
             else:
                 fix = "remove the row or fill the cell (a sample missing on one signal)"
             msg = (
@@ -449,7 +450,7 @@ def _column(p: Path, body: list[list[str]], where: Sequence[int], name: str, k: 
             elif cell.strip().lower() == "nan":
                 hint = (
                     f" (a missing {name} measurement: remove the row; a gap in time is fitted "
-                    f"around, or --column {name}=none if the column holds none)"
+                    f"around, or {opt('column')} {name}=none if the column holds none)"
                 )
             else:
                 hint = " (a value beyond any measurement: a logger overflow?)"
@@ -509,6 +510,8 @@ def _segments(p: Path, data: dict[str, np.ndarray], runs: _Runs, where: Sequence
                 speed=cut("speed"),
                 terminal_voltage=cut("terminal_voltage"),
             )
+        except SignalRangeError as exc:  # which signal and value, for the unit hint
+            raise exc.prefixed(f"{p}: ") from None
         except DataError as exc:
             msg = f"{p}: {exc}"
             raise DataError(msg) from None

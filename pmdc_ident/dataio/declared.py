@@ -25,6 +25,7 @@ import numpy as np
 
 from pmdc_ident.core.data import Run
 from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.errors import option_name as opt
 
 if TYPE_CHECKING:
     from pmdc_ident.dataio.units import InputSpec
@@ -77,17 +78,19 @@ def _options(spec: InputSpec, raw_ratio: float) -> list[str]:
         if not changed:
             continue
         words = " ".join(
-            f"--{k}-unit {wanted[k]}" for k in ("time", "speed", "position") if k in changed
+            f"{opt(f'{k}_unit')} {wanted[k]}"
+            for k in ("time", "speed", "position")
+            if k in changed
         )
         found.append((len(changed), miss, words))
     # encoder counts: a speed in counts/s or a position in counts of a whole encoder
     if not found:
         for cpr, words in (
-            (raw_ratio * _TWO_PI, "--speed-unit counts/s --counts-per-rev {}"),
-            (_TWO_PI / raw_ratio, "--position-unit counts --counts-per-rev {}"),
+            (raw_ratio * _TWO_PI, f"{opt('speed_unit')} counts/s"),
+            (_TWO_PI / raw_ratio, f"{opt('position_unit')} counts"),
         ):
             if cpr >= 16 and abs(cpr - round(cpr)) < 0.01 * cpr:
-                found.append((1, 0.5, words.format(round(cpr))))
+                found.append((1, 0.5, f"{words} {opt('counts_per_rev')} {round(cpr)}"))
     found.sort()
     return [w for n, _, w in found if n == found[0][0]][:2] if found else []
 
@@ -125,12 +128,12 @@ def check_declared(where: str, run: Run, spec: InputSpec, voltage_raw_max: float
         limit = 1.0 if spec.voltage_unit is VoltageUnit.DUTY else 100.0
         if voltage_raw_max > limit * 1.001:
             other = (
-                "--voltage-unit duty% (a percentage)"
+                f"{opt('voltage_unit')} duty% (a percentage)"
                 if spec.voltage_unit is VoltageUnit.DUTY and voltage_raw_max <= 100.0
-                else "--voltage-unit V (volts)"
+                else f"{opt('voltage_unit')} V (volts)"
             )
             msg = (
-                f"{where}: --voltage-unit {spec.voltage_unit.value} (from {spec.origin}) "
+                f"{where}: {opt('voltage_unit')} {spec.voltage_unit.value} (from {spec.origin}) "
                 f"contradicts the voltage column: it reaches {voltage_raw_max:.4g}, beyond "
                 f"a duty cycle's {limit:g}; fix: {other}"
             )
@@ -147,7 +150,7 @@ def check_declared(where: str, run: Run, spec: InputSpec, voltage_raw_max: float
     if not options:
         return  # no unit explains it: the gate's speed-position check names it
     given = " ".join(
-        f"--{k}-unit {getattr(spec, f'{k}_unit').value}"
+        f"{opt(f'{k}_unit')} {getattr(spec, f'{k}_unit').value}"
         for k in ("time", "speed", "position")
         if getattr(spec, f"{k}_unit") is not None
     )

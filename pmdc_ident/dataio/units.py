@@ -31,8 +31,7 @@ from __future__ import annotations
 
 import enum
 import math
-import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
@@ -40,7 +39,8 @@ from typing import Any
 import numpy as np
 
 from pmdc_ident.core.data import Run, Segment
-from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.errors import DataError, DataOptionError, SignalRangeError
+from pmdc_ident.core.errors import option_name as opt
 
 __all__ = [
     "CurrentUnit",
@@ -53,8 +53,9 @@ __all__ = [
     "convert_run",
     "load_input",
     "read_sidecar",
+    "UNIT_OPTIONS",
     "sidecar_path",
-    "spec_from_args",
+    "spec_from_options",
 ]
 
 _TWO_PI = 2.0 * math.pi
@@ -224,7 +225,7 @@ class InputSpec:
         return {name: header.strip().lstrip("-").strip() for name, header in self.columns}
 
     def dropped(self) -> frozenset[str]:
-        """Signals to ignore although the file has them (``--column current=none``)."""
+        """Signals to ignore although the file has them (option ``column``: ``current=none``)."""
         return frozenset(name for name, header in self.columns if header.strip().lower() == "none")
 
     def declared(self) -> frozenset[str]:
@@ -266,26 +267,58 @@ class LoadedInput:
     notes: tuple[str, ...]
 
 
-# -- command line ------------------------------------------------------------------
-def spec_from_args(args: Any) -> InputSpec:
-    """The :class:`InputSpec` of the command-line options (refuses malformed ones)."""
-    data: dict[str, Any] = {}
-    for key in (*_UNIT_KEYS, *_NUMBER_KEYS):
-        value = getattr(args, key, None)
-        if value is not None:
-            data[key] = value
-    if getattr(args, "speed_averaged", False):
+# -- the caller's options ---------------------------------------------------------
+# the keyword options of spec_from_options beside ``column`` (InputOptions' field names)
+UNIT_OPTIONS = (
+    *_UNIT_KEYS,
+    "supply_v",
+    "counts_per_rev",
+    "gear_ratio",
+    "speed_averaged",
+)
+
+
+def spec_from_options(
+    *,
+    column: Sequence[str] = (),
+    time_unit: str | None = None,
+    speed_unit: str | None = None,
+    position_unit: str | None = None,
+    current_unit: str | None = None,
+    voltage_unit: str | None = None,
+    supply_v: str | float | None = None,
+    counts_per_rev: str | float | None = None,
+    gear_ratio: str | float | None = None,
+    speed_averaged: bool | None = None,
+    origin: str = "command line",
+) -> InputSpec:
+    """The :class:`InputSpec` of the caller's options (the command line's ``--column``,
+    ``--speed-unit``, ...; ``None``: not given); refuses malformed ones
+    (:class:`~pmdc_ident.core.errors.DataOptionError`, the option in the caller's words).
+    ``column``: ``NAME=HEADER`` items."""
+    given = {
+        "time_unit": time_unit,
+        "speed_unit": speed_unit,
+        "position_unit": position_unit,
+        "current_unit": current_unit,
+        "voltage_unit": voltage_unit,
+        "supply_v": supply_v,
+        "counts_per_rev": counts_per_rev,
+        "gear_ratio": gear_ratio,
+    }
+    data: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
+    if speed_averaged:
         data["speed_averaged"] = True
     cols: dict[str, str] = {}
-    for item in getattr(args, "column", None) or []:
+    for item in column or ():
         name, sep, header = item.partition("=")
         if not sep or not name.strip() or not header.strip():
-            msg = f"--column expects NAME=HEADER (e.g. speed=Speed_rpm), got {item!r}"
-            raise DataError(msg)
+            why = f"expects NAME=HEADER (e.g. speed=Speed_rpm), got {item!r}"
+            raise DataOptionError("column", item, why)
         cols[name.strip().lower()] = header.strip()
     if cols:
         data["columns"] = cols
-    return InputSpec.from_mapping(data, "command line")
+    return InputSpec.from_mapping(data, origin)
 
 
 # -- sidecar -----------------------------------------------------------------------
@@ -329,11 +362,11 @@ def _angle_factor(
     value = unit.value.split("/")[0]
     if value == "counts":
         if cpr is None:
-            msg = (
-                f"--{what}-unit {unit.value} needs --counts-per-rev N "
+            why = (
+                f"{unit.value} needs {opt('counts_per_rev')} N "
                 "(`pmdc-ident check` estimates N from the data when it can)"
             )
-            raise DataError(msg)
+            raise DataOptionError(f"{what}_unit", unit.value, why)
         return _TWO_PI / cpr, f"{unit.value} at {cpr:g} counts/rev"
     return _ANGLE_FACTOR[value], unit.value
 
@@ -351,8 +384,8 @@ def _factors(spec: InputSpec) -> tuple[dict[str, float], list[str]]:
         f["voltage"] = 1e-3
     elif spec.voltage_unit in (VoltageUnit.DUTY, VoltageUnit.DUTY_PERCENT):
         if spec.supply_v is None:
-            msg = f"--voltage-unit {spec.voltage_unit.value} needs --supply-v V"
-            raise DataError(msg)
+            why = f"{spec.voltage_unit.value} needs {opt('supply_v')} V"
+            raise DataOptionError("voltage_unit", spec.voltage_unit.value, why)
         scale = 1.0 if spec.voltage_unit is VoltageUnit.DUTY else 0.01
         f["voltage"] = spec.supply_v * scale
     f["speed"], speed_from = _angle_factor(spec.speed_unit, spec.counts_per_rev, "speed")
@@ -389,7 +422,7 @@ def scales(spec: InputSpec) -> tuple[dict[str, float], list[str]]:
     for name in sorted(flip):
         notes.append(f"{name} sign flipped (column {dict(spec.columns)[name].strip()})")
     for name in sorted(spec.dropped()):
-        notes.append(f"{name} column ignored (--column {name}=none)")
+        notes.append(f"{name} column ignored ({opt('column')} {name}=none)")
     f["terminal_voltage"] = f["voltage"] if spec.voltage_unit is VoltageUnit.MV else 1.0
     out = {name: factor * (-1.0 if name in flip else 1.0) for name, factor in f.items()}
     return out, notes
@@ -438,7 +471,7 @@ def _finish(run: Run, notes: list[str], spec: InputSpec) -> tuple[Run, tuple[str
 
 
 def _speed_as_counts(run: Run, notes: list[str]) -> Run:
-    """``--speed-averaged``: a speed that is the counts since the last sample (their mean
+    """Option ``speed_averaged``: a speed that is the counts since the last sample (their mean
     over the interval, half a sample late) becomes the position it sums to; where the
     file has the position too, the speed is dropped."""
     segs = []
@@ -451,8 +484,8 @@ def _speed_as_counts(run: Run, notes: list[str]) -> Run:
             pos = np.cumsum(s.speed * np.r_[0.0, np.diff(s.t)])
         segs.append(replace(s, speed=None, position=pos))
     notes.append(
-        "speed is the mean over each sample interval (--speed-averaged): its running sum "
-        "is the encoder's position, which the fit uses instead"
+        f"speed is the mean over each sample interval ({opt('speed_averaged')}): its running "
+        "sum is the encoder's position, which the fit uses instead"
     )
     return Run(tuple(segs), source=run.source)
 
@@ -475,8 +508,8 @@ def _unwrap(run: Run, notes: list[str]) -> tuple[Run, tuple[str, ...]]:
 
 def _drop(run: Run, names: frozenset[str]) -> Run:
     if "t" in names or "segment" in names:
-        msg = "--column t=none / segment=none: only signal columns can be ignored"
-        raise DataError(msg)
+        why = "t=none / segment=none: only signal columns can be ignored"
+        raise DataOptionError("column", sorted(names), why)
     changes: dict[str, Any] = dict.fromkeys(names)
     if "voltage" in names:
         changes["history_voltage"] = None
@@ -490,13 +523,14 @@ def _drop(run: Run, names: frozenset[str]) -> Run:
     return Run(segs, source=run.source)
 
 
+# signal -> (the option that states its unit, the units a logger likely wrote)
 _UNIT_HINT = {
-    "t": "--time-unit ms|us|ns",
-    "voltage": "--voltage-unit mV",
-    "current": "--current-unit mA",
-    "speed": "--speed-unit rpm|deg/s|counts/s",
-    "position": "--position-unit deg|counts",
-    "terminal_voltage": "--voltage-unit mV",
+    "t": ("time_unit", "ms|us|ns"),
+    "voltage": ("voltage_unit", "mV"),
+    "current": ("current_unit", "mA"),
+    "speed": ("speed_unit", "rpm|deg/s|counts/s"),
+    "position": ("position_unit", "deg|counts"),
+    "terminal_voltage": ("voltage_unit", "mV"),
 }
 
 
@@ -513,15 +547,15 @@ def load_input(path: str | Path, spec: InputSpec | None = None) -> LoadedInput:
     p = Path(path)
     if p.is_dir() or p.suffix.lower() == ".mcap":
         if full.columns and any(n not in full.dropped() for n, _ in full.columns):
-            msg = f"{p}: --column applies to CSV files only (a bag has fixed topics)"
+            msg = f"{p}: {opt('column')} applies to CSV files only (a bag has fixed topics)"
             raise DataError(msg)
         run, notes = convert_run(load_data(path), full)
     else:
         factors, note_list = scales(full)
         try:
             raw = load_data(path, columns=full.column_map() or None, scale=factors)
-        except DataError as exc:
-            raise DataError(_with_unit_hint(str(exc))) from None
+        except SignalRangeError as exc:
+            raise DataError(_with_unit_hint(exc)) from None
         run, notes = _finish(raw, note_list, full)
     if side is not None:
         notes = (f"units and columns from {sidecar_path(path)}", *notes)
@@ -543,26 +577,22 @@ def _check_declared(where: str, run: Run, spec: InputSpec) -> None:
     check_declared(where, run, spec, v_max)
 
 
-def _with_unit_hint(message: str) -> str:
-    """A 'beyond any motor test' refusal, with the option that states the column's unit."""
-    if "beyond any motor test" not in message:
+def _with_unit_hint(exc: SignalRangeError) -> str:
+    """A sample beyond any motor test, with the option that states the column's unit."""
+    message = str(exc)
+    if exc.signal not in _UNIT_HINT:
         return message
-    for name, hint in _UNIT_HINT.items():
-        if f": {name} = " in message:
-            epoch = _epoch_unit(message) if name == "t" else None
-            if epoch is not None:
-                return f"{message} (Unix time in {epoch}: --time-unit {epoch})"
-            return f"{message} (if the column is in other units, say which: {hint})"
-    return message
+    key, units = _UNIT_HINT[exc.signal]
+    epoch = _epoch_unit(exc.value) if exc.signal == "t" else None
+    if epoch is not None:
+        return f"{message} (Unix time in {epoch}: {opt(key)} {epoch})"
+    return f"{message} (if the column is in other units, say which: {opt(key)} {units})"
 
 
-def _epoch_unit(message: str) -> str | None:
-    """``ms``, ``us`` or ``ns`` when the refused time read in that unit is a date
-    between 2001 and 2096 in Unix seconds (a logger's epoch stamps), else None."""
-    m = re.search(r": t = ([-+0-9.eE]+) s", message)
-    if m is None:
-        return None
-    t = abs(float(m.group(1)))
+def _epoch_unit(t_s: float) -> str | None:
+    """``ms``, ``us`` or ``ns`` when a time ``t_s`` (read as seconds) read in that unit is
+    a date between 2001 and 2096 in Unix seconds (a logger's epoch stamps), else None."""
+    t = abs(float(f"{t_s:.6g}"))  # as the message shows it
     for unit, factor in (("ms", 1e3), ("us", 1e6), ("ns", 1e9)):
         if 1e9 <= t / factor <= 4e9:
             return unit

@@ -32,7 +32,7 @@ import numpy as np
 from pmdc_ident.app.options import CLI_NAMES
 from pmdc_ident.core.data import Run
 from pmdc_ident.core.enums import ExitCode
-from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.errors import PmdcError, wording
 from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.safe_write import write_text
@@ -71,11 +71,12 @@ class IdentifyOutput:
         return replace(self, json_text=json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
 
-# the node's words for the service's options: ``fix`` is its ROS parameter; the others it
-# does not have, so a hint names the command that re-identifies the bag with them
+# the node's words for the core's options (pmdc_ident.core.errors.wording): ``fix`` is its
+# ROS parameter; the others it does not have, so a hint names the command that
+# re-identifies the bag with them
 NODE_NAMES: dict[str, str] = {
     "data": "DATA",
-    "fix": "fix (ROS parameter)",
+    "fix": "parameter fix",
     **{
         key: f"`pmdc-ident identify BAG {flag}`"
         for key, flag in CLI_NAMES.items()
@@ -118,8 +119,9 @@ def identify_session_run(
         motor_name=name,
         drop_outliers=True,
     )
-    loaded = loaded_run(options, run, path, origin="the node's driver samples (SI units)")
-    docs = identify_inputs(options, loaded=loaded, extra=extra)
+    with wording(NODE_NAMES):
+        loaded = loaded_run(options, run, path, origin="the node's driver samples (SI units)")
+        docs = identify_inputs(options, loaded=loaded, extra=extra)
     return IdentifyOutput(
         json_text=docs.json_text,
         yaml_text=docs.yaml_text,
@@ -167,8 +169,14 @@ def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
     identification node runs once a session is over.
 
     Runs in a worker process (plain data in and out); never raises: a refusal of the
-    data is the outcome's ``error`` with exit code 2, a bug of ours exit code 1.
+    data is the outcome's ``error`` with exit code 2, a bug of ours exit code 1. Its
+    lines name options in the node's words (:data:`NODE_NAMES`: ``parameter fix``).
     """
+    with wording(NODE_NAMES):
+        return _identification_job(job)
+
+
+def _identification_job(job: IdentificationJob) -> IdentificationOutcome:
     notes: list[tuple[str, str]] = []
     try:
         run = assemble_run(job.samples, source=job.source, session=job.session)

@@ -14,7 +14,7 @@ from dataclasses import fields
 from typing import Any
 
 from pmdc_ident.core.enums import SafeMode
-from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.errors import OptionError, PmdcError, wording
 from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.fixed import parse_fix
 from pmdc_ident.core.motors import load_motor
@@ -23,6 +23,7 @@ from pmdc_ident.core.session.ports import ExportRequest
 from pmdc_ident.core.session.sequential import PlanSetting
 from pmdc_ident.core.session.startup import SessionSettings, StartRules
 from pmdc_ident.core.session.steady_state import SteadyStateConfig
+from pmdc_ident.process.identify_call import NODE_NAMES
 
 __all__ = ["FLUSH_TIMEOUT_S", "controller_config"]
 
@@ -52,7 +53,10 @@ def controller_config(
     except PmdcError as exc:
         raise PmdcError(f"parameter motor: {exc}") from None
     try:
-        fixed = parse_fix([s for s in values["fix"] if s])
+        with wording(NODE_NAMES):  # an error names the ROS parameter, not --fix
+            fixed = parse_fix([s for s in values["fix"] if s])
+    except OptionError as exc:
+        raise PmdcError(exc.render(NODE_NAMES)) from None
     except PmdcError as exc:
         raise PmdcError(f"parameter fix: {exc}") from None
     v = values

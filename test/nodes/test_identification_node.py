@@ -378,6 +378,7 @@ def test_offline_reidentification_of_the_bag_matches_the_online_result(short_ses
     assert set(by_cli) <= set(online), set(by_cli) - set(online)  # inputs, recording, ...
     assert set(online) - set(by_cli) <= {"driver_samples", "exports", "experiment_design"}
     node_doc, cli_doc = _without_session_fields(online), _without_session_fields(by_cli)
+    node_doc = _in_cli_words(node_doc)  # the node names its parameter where the CLI a flag
     assert node_doc.keys() == cli_doc.keys()
     differ = [k for k in node_doc if node_doc[k] != cli_doc[k]]
     assert differ == [], {k: (node_doc[k], cli_doc[k]) for k in differ}
@@ -387,6 +388,17 @@ def test_offline_reidentification_of_the_bag_matches_the_online_result(short_ses
 # or words otherwise (docs/reference.md): the session's own, and the input as read
 SESSION_FIELDS = ("driver_samples", "exports", "experiment_design", "inputs", "recording")
 TIMINGS = ("elapsed_s",)
+
+
+def _in_cli_words(doc: Any) -> Any:
+    """``doc`` with the node's words for an option (``parameter fix``) as the command's."""
+    from pmdc_ident.app.options import CLI_NAMES
+    from pmdc_ident.process.identify_call import NODE_NAMES
+
+    text = json.dumps(doc)
+    for key, flag in CLI_NAMES.items():
+        text = text.replace(json.dumps(NODE_NAMES[key])[1:-1], flag)
+    return json.loads(text)
 
 
 def _without_session_fields(doc: Any) -> Any:

@@ -84,9 +84,11 @@ def _timeless(doc):
 def test_the_worker_writes_the_document_of_pmdc_ident_identify_json(tmp_path):
     import json
 
+    from pmdc_ident.app.options import CLI_NAMES
     from pmdc_ident.cli import main
     from pmdc_ident.dataio.csvio import write_csv
     from pmdc_ident.dataio.units import load_input
+    from pmdc_ident.process.identify_call import NODE_NAMES
 
     path = str(write_csv(_session_like_run(), tmp_path / "session.csv"))
     assert main(["identify", path, "--json", str(tmp_path / "cli.json"), "--quiet"]) == 0
@@ -99,7 +101,12 @@ def test_the_worker_writes_the_document_of_pmdc_ident_identify_json(tmp_path):
     assert online["inputs"][path]["units"] == {"origin": "the node's driver samples (SI units)"}
     assert by_cli["inputs"][path]["units"] == {"origin": "command line"}
     online.pop("inputs"), by_cli.pop("inputs")
-    assert _timeless(online) == _timeless(by_cli)
+    # the same document but for the words naming an option: the node's (its ROS
+    # parameter, or the command that has the option) where the command names its flag
+    in_cli_words = json.dumps(_timeless(online))
+    for key, flag in CLI_NAMES.items():
+        in_cli_words = in_cli_words.replace(json.dumps(NODE_NAMES[key])[1:-1], flag)
+    assert in_cli_words == json.dumps(_timeless(by_cli))
     assert node.yaml_text.startswith("# Motor file written by `pmdc-ident identify`")
 
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass, replace
 
 from pmdc_ident.core.design.information import Noise
 from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.model import Model
 from pmdc_ident.core.motors import MotorSpec
 
@@ -38,12 +39,13 @@ def noise_from_sensors(
     if speed_noise_rad_s <= 0 and pos_sd <= 0:
         msg = (
             f"{source} gives neither a speed noise nor an encoder resolution: give "
-            "--speed-noise RAD_S (a measured speed) or --counts-per-rev N (an encoder)"
+            f"{opt('speed_noise')} RAD_S (a measured speed) or {opt('counts_per_rev')} N (an "
+            "encoder)"
         )
         raise ParameterError(msg)
     if current_noise_a <= 0:
         msg = (
-            f"{source} gives no current noise: give --current-noise A (the current "
+            f"{source} gives no current noise: give {opt('current_noise')} A (the current "
             "sensor's standard deviation per sample)"
         )
         raise ParameterError(msg)

@@ -45,7 +45,7 @@ from pmdc_ident.core.design.family import Candidate, Scales
 from pmdc_ident.core.design.limits import PlanLimits
 from pmdc_ident.core.design.prior import Prior
 from pmdc_ident.core.effects import EFFECT_NAMES
-from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.errors import OptionError
 from pmdc_ident.core.excitation import log_chirp
 
 __all__ = ["REVEALABLE", "reveal_segments"]
@@ -81,8 +81,8 @@ def reveal_segments(
     """The revealing segments for ``effects`` (vocabulary names), in plan order."""
     unknown = [e for e in effects if e not in REVEALABLE]
     if unknown:
-        msg = f"--reveal: unknown effect(s) {', '.join(unknown)}; known: {', '.join(REVEALABLE)}"
-        raise ParameterError(msg)
+        why = f"unknown effect(s) {', '.join(unknown)}; known: {', '.join(REVEALABLE)}"
+        raise OptionError("reveal", unknown, why, sep=": ")
     sc = Scales.of(prior, limits, dt_s)
     w_top = _top_speed(prior, sc)
     tau = sc.unit_s

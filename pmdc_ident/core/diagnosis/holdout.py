@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pmdc_ident.core.data import Segment, TestKind
-from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.errors import DataError, DataOptionError
 
 __all__ = ["HoldoutSplit", "split_segments", "swapped"]
 
@@ -96,16 +96,16 @@ def split_segments(
         known = {s.label for s in segs}
         unknown = [w for w in wanted if w not in known]
         if unknown:
-            msg = (
-                f"--holdout names unknown segment(s) {', '.join(unknown)}; "
+            why = (
+                f"names unknown segment(s) {', '.join(unknown)}; "
                 f"segments are: {', '.join(s.label for s in segs)}"
             )
-            raise DataError(msg)
+            raise DataOptionError("holdout", unknown, why)
         held = tuple(s for s in segs if s.label in wanted)
         fit = tuple(s for s in segs if s.label not in wanted)
         if not fit:
-            msg = "--holdout holds out every segment; at least one must remain to fit"
-            raise DataError(msg)
+            why = "holds out every segment; at least one must remain to fit"
+            raise DataOptionError("holdout", wanted, why)
         return HoldoutSplit(fit, held, "user", (f"held out by request: {', '.join(wanted)}",))
 
     fit: list[Segment] = []

@@ -336,7 +336,12 @@ def _estimates(fit: FitResult, user_fixed: Mapping[str, float]) -> tuple[Paramet
     for name in fit.values:
         est = estimate_from_fit(fit, name, "output_error")
         if name in fit.fixed and name not in user_fixed:
-            est = replace(est, reason="held by the diagnosis (see the assumptions)", method="held")
+            est = replace(
+                est,
+                reason="held by the diagnosis (see the assumptions)",
+                method="held",
+                notes=frozenset(),
+            )
         out.append(est)
     return tuple(out)
 

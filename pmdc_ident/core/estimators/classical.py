@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment, TestKind
 from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.estimators.solver import least_squares
 from pmdc_ident.core.estimators.student_t import t_quantile
 
@@ -385,7 +386,7 @@ def classical_chain(
         if stair.R_fitted:
             notes.append(
                 "classical: R regressed from the staircase (weakly determined: the no-load "
-                "current varies little); a multimeter value (--fix R=...) is better"
+                f"current varies little); a multimeter value ({opt('fix')} R=...) is better"
             )
         else:
             notes.append(

@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
 
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.identification.estimate import ParameterEstimate
 from pmdc_ident.core.quality.findings import Finding, Severity
 
@@ -54,7 +55,8 @@ def flag_biased(
                 identifiable=False,
                 ci95=None,
                 reason=f"{_WHAT[f.code]} (gate: {f.code}): the fit reads that lag as "
-                f"{name}{fix}, or --fix {name}=... from an LCR meter",
+                f"{name}{fix}, or {opt('fix')} {name}=... from an LCR meter",
+                notes=frozenset(),
             )
             said.append(f"{name} ({f.code})")
     if not said:

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from pmdc_ident.core.effects import parameter_unit
+from pmdc_ident.core.enums import ParameterNote
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.estimators.output_error import FitResult
 from pmdc_ident.core.params import NEEDED_PARAMETERS
 
@@ -42,11 +44,13 @@ class ParameterEstimate:
     stderr: float | None = None
     reason: str = ""
     method: str = ""
+    # what the reason says, by code (the reason's leading clause and an added gate note)
+    notes: frozenset[ParameterNote] = frozenset()
 
     @property
     def assumed(self) -> bool:
         """Set by an assumption (the Kt = Ke closure), not measured."""
-        return self.reason.startswith("assumed ")
+        return ParameterNote.ASSUMED in self.notes
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -73,6 +77,7 @@ def estimate_from_fit(fit: FitResult, name: str, method: str) -> ParameterEstima
         stderr=fit.stderr.get(name),
         reason=fit.reasons.get(name, ""),
         method=method,
+        notes=fit.notes.get(name, frozenset()),
     )
 
 
@@ -98,5 +103,6 @@ def unidentified_needed(
     return (
         f"{names} {verb} not identifiable from these data (relative standard "
         f"error above 50 % or no information), so a motor model would hold a guess; "
-        f"{'; '.join(tips)}; --fix {bad[0]}=... holds a value you know; nothing was written"
+        f"{'; '.join(tips)}; {opt('fix')} {bad[0]}=... holds a value you know; nothing was "
+        "written"
     )

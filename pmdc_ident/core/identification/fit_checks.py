@@ -23,6 +23,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from pmdc_ident.core.data import Segment
+from pmdc_ident.core.enums import ParameterNote
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.estimators.output_error import FitResult
 from pmdc_ident.core.identification.bias import flag_biased
 from pmdc_ident.core.identification.estimate import ParameterEstimate
@@ -46,8 +48,9 @@ class FitChecks:
     said: dict[str, str] = field(default_factory=dict)
 
 
-def _flag(p: ParameterEstimate, reason: str) -> ParameterEstimate:
-    return replace(p, identifiable=False, ci95=None, reason=reason)
+def _flag(p: ParameterEstimate, reason: str, *notes: ParameterNote) -> ParameterEstimate:
+    """``p`` not identifiable, for ``reason`` (whose codes are ``notes``)."""
+    return replace(p, identifiable=False, ci95=None, reason=reason, notes=frozenset(notes))
 
 
 def check_parameters(
@@ -102,8 +105,9 @@ def check_parameters(
         params["Kt"] = _flag(
             params["Kt"],
             "assumed equal to Ke (closure Kt = Ke in SI units): voltage, current and speed "
-            "cannot measure it; --fix Kt=... (a datasheet), or runs with a known added "
-            "inertia (--added-inertia) measure it",
+            f"cannot measure it; {opt('fix')} Kt=... (a datasheet), or runs with a known "
+            f"added inertia ({opt('added_inertia')}) measure it",
+            ParameterNote.ASSUMED,
         )
         out.said["kt-equals-ke"] = "Kt reported as assumed (Kt = Ke), not identified"
     _physical_range(out)
@@ -131,12 +135,16 @@ def _cover(out: FitChecks, cover: Mapping[str, list[tuple[float, float]]]) -> No
         if rel > NOT_IDENTIFIABLE:
             out.parameters[name] = _flag(p, f"not identifiable: relative sd {rel:.0%} once {note}")
         else:
-            if rel > WEAK and not p.reason.startswith("weakly"):
+            notes = p.notes
+            weakly = rel > WEAK and ParameterNote.WEAKLY_IDENTIFIABLE not in p.notes
+            if weakly:
                 note = f"weakly identifiable: relative sd {rel:.0%} once {note}"
-            reason = f"{p.reason}; {note}" if p.reason and not note.startswith("weakly") else note
-            if note.startswith("weakly") and p.reason:
+                gate = p.notes & {ParameterNote.GATE_EXPECTED}
+                notes = frozenset({ParameterNote.WEAKLY_IDENTIFIABLE, *gate})
+            reason = f"{p.reason}; {note}" if p.reason and not weakly else note
+            if weakly and p.reason:
                 reason = f"{note}; {p.reason}"
-            out.parameters[name] = replace(p, ci95=(lo, hi), reason=reason)
+            out.parameters[name] = replace(p, ci95=(lo, hi), reason=reason, notes=notes)
         names.append(name)
     if names:
         out.said["white-residuals"] = f"intervals widened over the refits: {', '.join(names)}"
@@ -171,17 +179,20 @@ def _timing_budget(
             p,
             f"L/R = {tau * 1e3:.3g} ms against a {dt * 1e3:.3g} ms sample: a timing offset of "
             f"{TIMING_SHARE:.0%} of a period alone moves L by {sys_rel:.0%}; fix L from an "
-            "LCR meter (--fix L=...)",
+            f"LCR meter ({opt('fix')} L=...)",
+            ParameterNote.FAST_ELECTRICAL,
         )
         return
     z = 1.96 * rel
     ci = (p.value * math.exp(-z), p.value * math.exp(z))
-    reason = p.reason
-    if rel > WEAK and not reason.startswith("weakly"):
+    reason, notes = p.reason, p.notes
+    if rel > WEAK and ParameterNote.WEAKLY_IDENTIFIABLE not in notes:
         reason = f"weakly identifiable: relative sd {rel:.0%} on these data; {note}"
+        notes = frozenset({ParameterNote.WEAKLY_IDENTIFIABLE})
     else:
         reason = f"{reason}; {note}" if reason else note
-    out.parameters["L"] = replace(p, ci95=ci, stderr=se, reason=reason)
+        notes = notes if p.reason else frozenset()
+    out.parameters["L"] = replace(p, ci95=ci, stderr=se, reason=reason, notes=notes)
 
 
 ONE_SPEED_SHARE = 0.8  # of the moving samples within 5 % of one speed: one steady speed
@@ -253,6 +264,7 @@ def _friction_split(
             p,
             what + f"{name} holds only under the chosen split, which these data cannot test; "
             "record steady speeds at several voltages (a staircase), both directions",
+            *([ParameterNote.GATE_EXPECTED] if gate else []),
         )
     said = ["B" if "B" in params else "", TC if has_tc else ""]
     if alt is not None:
@@ -296,7 +308,11 @@ def _one_message(out: FitChecks, fit: FitResult, expected: Mapping[str, float]) 
             f"the gate expected a relative sd of {g:.0%} before the fit (its quick "
             f"linearisation); the fit's own bound on these data is {rel:.2%} and decides"
         )
-        params[name] = replace(p, reason=f"{p.reason}; {note}" if p.reason else note)
+        params[name] = replace(
+            p,
+            reason=f"{p.reason}; {note}" if p.reason else note,
+            notes=(p.notes if p.reason else frozenset()) | {ParameterNote.GATE_EXPECTED},
+        )
 
 
 def _physical_range(out: FitChecks) -> None:

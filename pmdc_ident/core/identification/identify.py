@@ -33,7 +33,9 @@ import numpy as np
 from pmdc_ident.core.assumptions import register_json
 from pmdc_ident.core.data import Run, Segment, check_excitation, unique_labels
 from pmdc_ident.core.effects import CoulombFriction, parameter_unit
+from pmdc_ident.core.enums import ParameterNote
 from pmdc_ident.core.errors import DataError, ParameterError
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.estimators.classical import ClassicalResult
 from pmdc_ident.core.estimators.output_error import CLOSURE_KT_KE, FitResult, fit_output_error
 from pmdc_ident.core.estimators.start import COULOMB_TORQUE
@@ -80,6 +82,7 @@ __all__ = ["ModelChoice", "identify", "merge_runs", "minus_two_log_likelihood"]
 
 TABLE_MAX_ROWS = 20
 TC = COULOMB_TORQUE
+_FIXED_NOTE = frozenset({ParameterNote.FIXED})
 
 
 def merge_runs(runs: Sequence[Run]) -> list[Segment]:
@@ -310,8 +313,8 @@ def _closure(
             given = f"(Kt, B, Coulomb, load torque) given J = {fixed['J']:g} kg*m^2"
         else:
             msg = (
-                "current-driven data (no voltage column) show only Kt/J: --fix Kt=... (the "
-                "torque constant) or --fix J=... (a known rotor inertia)"
+                f"current-driven data (no voltage column) show only Kt/J: {opt('fix')} Kt=... "
+                f"(the torque constant) or {opt('fix')} J=... (a known rotor inertia)"
             )
             raise ParameterError(msg)
         assumptions.append(f"no voltage column: mechanical-only fit {given}")
@@ -325,7 +328,7 @@ def _closure(
     elif closure_used == CLOSURE_KT_KE:
         assumptions.append(
             "Kt = Ke (SI units, power balance): closes the scale ambiguity of (Kt, J, B); "
-            "replace with --fix Kt=... or --fix J=..."
+            f"replace with {opt('fix')} Kt=... or {opt('fix')} J=..."
         )
     elif "Kt" in fixed:
         assumptions.append(f"Kt fixed at {fixed['Kt']:g} N*m/A (replaces the Kt = Ke closure)")
@@ -406,13 +409,16 @@ def _estimates(
                     stderr=None if est.stderr is None else est.stderr * widen,
                 )
     for name in fit.fixed:
-        params[name] = replace(params[name], reason="fixed by the user", method="fixed")
+        params[name] = replace(
+            params[name], reason="fixed by the user", method="fixed", notes=_FIXED_NOTE
+        )
     if current_mode:
         for name in ("R", "L", "Ke"):
             params[name] = replace(
                 params[name],
                 identifiable=False,
                 reason="no voltage in the data (value is a placeholder)",
+                notes=frozenset(),
             )
     return params
 
@@ -435,6 +441,7 @@ def _one_direction_term(
             params[name],
             reason="one term: Coulomb friction + a constant load torque (the rotor turned one "
             "way only; a run in reverse separates them)",
+            notes=frozenset({ParameterNote.ONE_TERM}),
         )
 
 
@@ -473,7 +480,8 @@ def _classical_only(
     params: dict[str, ParameterEstimate] = {}
     placeholder = {
         "L": (
-            "no dynamic electrical data (tables only); fix it from an LCR meter (--fix L=...)",
+            f"no dynamic electrical data (tables only); fix it from an LCR meter ({opt('fix')} "
+            "L=...)",
             vals.get("R", 1.0) * 1e-4,
         ),
         "J": ("no coast-down in the data", 1e-3),
@@ -493,11 +501,14 @@ def _classical_only(
                 if name in fixed
                 else (
                     "assumed equal to Ke (closure Kt = Ke in SI units): not measured by these "
-                    "data; --fix Kt=... holds a value you know"
+                    f"data; {opt('fix')} Kt=... holds a value you know"
                     if name == "Kt"
                     else ""
                 ),
                 method="fixed" if name in fixed else "classical",
+                notes=_FIXED_NOTE
+                if name in fixed
+                else frozenset({ParameterNote.ASSUMED} if name == "Kt" else ()),
             )
         else:
             reason, value = placeholder.get(name, ("not in the data", 1.0))

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from pmdc_ident.core.enums import ParameterNote
 from pmdc_ident.core.estimators.output_error import FitResult
 from pmdc_ident.core.identification.estimate import ParameterEstimate, finite_or_none
 from pmdc_ident.core.model import Model
@@ -59,8 +60,8 @@ def format_polynomial(coeffs: list[float], var: str = "s") -> str:
     return out
 
 
-# reasons shown in the table's note column although the parameter is identifiable
-_SHOWN = ("fixed", "assumed", "weakly", "L/R", "one term")
+# notes shown in the table's note column although the parameter is identifiable
+_SHOWN = frozenset(ParameterNote) - {ParameterNote.ASSUMED}
 
 
 def transfer_function_dict(model: Model) -> dict[str, Any]:
@@ -107,13 +108,9 @@ class IdentificationResult:
             else:
                 ci = f"[{p.ci95[0]:.5g}, {p.ci95[1]:.5g}]"
             note = "" if p.identifiable else "NOT IDENTIFIABLE"
-            if p.reason.startswith("assumed"):  # a closure: said as what it is
+            if p.assumed:  # a closure: said as what it is
                 note = p.reason
-            elif p.reason and (
-                not p.identifiable
-                or p.reason.startswith(_SHOWN)
-                or "the gate expected" in p.reason
-            ):
+            elif p.reason and (not p.identifiable or p.notes & _SHOWN):
                 note = (note + " " + p.reason).strip() if not p.identifiable else p.reason
             lines.append(f"{p.name:<28} {p.value:>12.6g}  {ci:<26} {p.unit:<11} {note}")
         return "\n".join(lines)

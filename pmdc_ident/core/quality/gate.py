@@ -15,6 +15,7 @@ import numpy as np
 
 from pmdc_ident.core.assumptions import data_findings
 from pmdc_ident.core.data import Run, Segment, excitation_problem
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.quality.findings import Finding, QualityReport, Severity
 from pmdc_ident.core.quality.physics import (
     check_current_filter,
@@ -178,7 +179,8 @@ def _check_inputs(
                     "the voltage is empty in every row of every input: all of it is an "
                     "open-armature coast, which tells B/J and the friction over J but not "
                     "R, L, Ke or J itself",
-                    "record the voltage command (or --column voltage=HEADER for its column), "
+                    f"record the voltage command (or {opt('column')} voltage=HEADER for its "
+                    "column), "
                     "or add a driven run",
                 )
             )

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.params import NEEDED_PARAMETERS
 from pmdc_ident.core.quality.linsim import zoh, zoh_response
 from pmdc_ident.core.quality.noise import signal_noise
@@ -361,7 +362,7 @@ def rate_for_inductance_hz(rsd_now: float, tau_e_s: float, dt_s: float, target: 
 # What pins each parameter down, when the data do not.
 _ADVICE = {
     "R": "record a step from rest (the current's first peak is V/R) or a locked-rotor "
-    "test, or --fix R=... from a multimeter",
+    "test, or {fix} R=... from a multimeter",
     "Ke": "record steady speeds at several voltages (a staircase)",
     "J": "record a step from rest or a coast-down with the armature open, sampled well "
     "inside the mechanical time constant",
@@ -380,33 +381,34 @@ def _advice(name: str, info: Information) -> str:
             f"10x faster (>= {10 / info.dt_s:.4g} Hz), or add a known inertia to slow it"
         )
     if name != "L":
-        return _ADVICE.get(name, "")
+        return _ADVICE.get(name, "").format(fix=opt("fix"))
     tau = info.values["L"] / info.values["R"]
     if not info.tau_e_resolved:
         if 10 / info.dt_s > HARDWARE_MAX_HZ:
             return (
                 f"the current settles within a sample at {1 / info.dt_s:.4g} Hz: "
-                "--fix L=... from an LCR meter"
+                f"{opt('fix')} L=... from an LCR meter"
             )
         return (
             f"the current settles within a sample at {1 / info.dt_s:.4g} Hz: sample at least "
-            f"10x faster (>= {10 / info.dt_s:.4g} Hz) or --fix L=... from an LCR meter"
+            f"10x faster (>= {10 / info.dt_s:.4g} Hz) or {opt('fix')} L=... from an LCR meter"
         )
     rate = rate_for_inductance_hz(info.rsd["L"], tau, info.dt_s, WEAK)
     where = f"sample at >= {rate:.3g} Hz (the bound drops below 10 % there)"
     if not math.isfinite(rate):
         where = "record sharper voltage steps"
     elif rate > HARDWARE_MAX_HZ:
-        return "--fix L=... from an LCR meter (no drive samples its current fast enough)"
-    return f"{where}, or --fix L=... from an LCR meter"
+        return f"{opt('fix')} L=... from an LCR meter (no drive samples its current fast enough)"
+    return f"{where}, or {opt('fix')} L=... from an LCR meter"
 
 
 def advice_for(name: str, rsd: float, *, tau_e: float, dt_s: float) -> str:
     """What would pin ``name`` down, given its relative sd now (the fit's or the gate's)."""
     if name != "L":
-        return _ADVICE.get(name.split(".")[0].replace("coulomb_friction", "Tc"), "")
+        key = name.split(".")[0].replace("coulomb_friction", "Tc")
+        return _ADVICE.get(key, "").format(fix=opt("fix"))
     if not (math.isfinite(tau_e) and tau_e > 0):
-        return "fix L from an LCR meter (--fix L=...)"
+        return f"fix L from an LCR meter ({opt('fix')} L=...)"
     rate = math.inf
     if math.isfinite(rsd) and math.exp(-1.96 * rsd) > 0.0:  # else as unbounded as inf
         # The rate must pin down every L the data allow, down to the low end of its 95 %
@@ -424,8 +426,11 @@ def advice_for(name: str, rsd: float, *, tau_e: float, dt_s: float) -> str:
         rate = 10.0 / tau_e
         where = f"sample at >= {_hz(rate)} (10 samples per L/R)"
     if rate > HARDWARE_MAX_HZ:  # no drive samples that fast: only the meter is advice
-        return "fix L from an LCR meter (--fix L=...): no drive samples its current fast enough"
-    return f"{where}, or fix L from an LCR meter (--fix L=...)"
+        return (
+            f"fix L from an LCR meter ({opt('fix')} L=...): no drive samples its current fast "
+            "enough"
+        )
+    return f"{where}, or fix L from an LCR meter ({opt('fix')} L=...)"
 
 
 def _hz(rate: float) -> str:

@@ -36,6 +36,7 @@ import numpy as np
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.estimators.output_error import FitResult
 from pmdc_ident.core.model import Model
 
@@ -190,7 +191,7 @@ def _start_flags(
                 f"rests on a start the first samples contradict (estimated {where}); {name} "
                 f"{what}: the record's first response is not this model's (a drive that "
                 "ramps its voltage, a sensor's filter or delay); "
-                f"{_RECORD.get(name, _RECORD['*'])}",
+                f"{_record(name)}",
             )
         )
     return out
@@ -290,7 +291,7 @@ def _signals_flags(
             f"the current and the {mech} tell different motors: {name} = {a:.4g} led by "
             f"the current, {b:.4g} led by the {mech} ({z:.1f} combined standard errors "
             "apart; a sensor's filter or lag, or a drive that shapes its voltage); "
-            f"{_RECORD.get(name, _RECORD['*'])}"
+            f"{_record(name)}"
         )
 
     return _pair_flags(fit, (fi, wi), (fw, ww), why, cover)
@@ -312,9 +313,10 @@ def _electrical_flags(
         return []
     need = 10.0 / tau
     rate = (
-        f"sample at >= {_hz(need)} (10 samples per L/R) or fix L from an LCR meter (--fix L=...)"
+        f"sample at >= {_hz(need)} (10 samples per L/R) or fix L from an LCR meter "
+        f"({opt('fix')} L=...)"
         if need <= HARDWARE_MAX_HZ
-        else "fix L from an LCR meter (--fix L=...): resolving it needs a rate beyond a "
+        else f"fix L from an LCR meter ({opt('fix')} L=...): resolving it needs a rate beyond a "
         "drive's current sensing"
     )
     return [
@@ -331,13 +333,19 @@ def _electrical_flags(
 
 _RECORD = {
     "L": "record the current before any filter and the voltage the drive applies (terminal "
-    "voltage), or fix L from an LCR meter (--fix L=...)",
-    "R": "record a locked-rotor step or measure R with a multimeter (--fix R=...)",
+    "voltage), or fix L from an LCR meter ({fix} L=...)",
+    "R": "record a locked-rotor step or measure R with a multimeter ({fix} R=...)",
     "Ke": "record steady speeds at several voltages (a staircase)",
-    "J": "record a coast-down with the armature open, or add a known inertia (--added-inertia)",
+    "J": "record a coast-down with the armature open, or add a known inertia ({added_inertia})",
     "B": "record steady speeds at several voltages in both directions",
     "*": "run `pmdc-ident diagnose` for the effect the model misses",
 }
+
+
+def _record(name: str) -> str:
+    """What to record for ``name``, the options in the caller's words."""
+    text = _RECORD.get(name, _RECORD["*"])
+    return text.format(fix=opt("fix"), added_inertia=opt("added_inertia"))
 
 
 def _collect(cover: Cover, fit: FitResult, other: FitResult, widen: float) -> None:

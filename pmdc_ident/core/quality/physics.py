@@ -10,6 +10,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from pmdc_ident.core.data import Segment
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.quality.findings import Finding, Severity
 from pmdc_ident.core.quality.regress import (
     dynamic,
@@ -78,7 +79,7 @@ def check_power_balance(where: str, segments: Sequence[Segment]) -> list[Finding
                     if k in neg or k in pos
                 ).replace(" a ", " Kt/J ")
                 + " from the record (a motor has R, Ke, Kt/J > 0): wires or sensor reversed",
-                f"--column {head}=-HEADER (flips its sign)",
+                f"{opt('column')} {head}=-HEADER (flips its sign)",
             )
         )
         return out
@@ -284,6 +285,7 @@ def check_no_current(where: str, segments: Sequence[Segment]) -> list[Finding]:
             f"no current column: voltage -> speed alone{what} two combinations of R, Ke, J, "
             "B (with Kt = Ke: Ke/(R B + Ke^2) and R J/(R B + Ke^2)), not the parameters",
             "record the armature current (a shunt or the driver's current sense), or "
-            "--fix R=... (multimeter) and --fix B=... to read Ke and J from the two",
+            f"{opt('fix')} R=... (multimeter) and {opt('fix')} B=... to read Ke and J from the "
+            "two",
         )
     ]

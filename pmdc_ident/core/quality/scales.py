@@ -17,6 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from pmdc_ident.core.data import Segment
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.quality.findings import Finding, Severity
 from pmdc_ident.core.quality.regress import dynamic
 from pmdc_ident.core.quality.signals import find_wrap
@@ -62,19 +63,19 @@ def _explanations(ratio: float) -> list[str]:
                 miss = abs(ratio / predicted - 1.0)
                 if miss < _TOL and (tu, su, pu) != ("s", "rad/s", "rad"):
                     slips = (
-                        [f"--time-unit {tu}"] * (tu != "s")
-                        + [f"--speed-unit {su}"] * (su != "rad/s")
-                        + [f"--position-unit {pu}"] * (pu != "rad")
+                        [f"{opt('time_unit')} {tu}"] * (tu != "s")
+                        + [f"{opt('speed_unit')} {su}"] * (su != "rad/s")
+                        + [f"{opt('position_unit')} {pu}"] * (pu != "rad")
                     )
                     out.append((len(slips), miss, " ".join(slips)))
     # encoder counts: speed in counts/s (ratio = cpr / 2 pi) or position in counts (2 pi / cpr)
     counts = (
-        (ratio * _TWO_PI, "--speed-unit counts/s --counts-per-rev {}"),
-        (_TWO_PI / ratio, "--position-unit counts --counts-per-rev {}"),
+        (ratio * _TWO_PI, f"{opt('speed_unit')} counts/s"),
+        (_TWO_PI / ratio, f"{opt('position_unit')} counts"),
     )
     for cpr, fix in () if out else counts:
         if cpr >= 16 and abs(cpr - round(cpr)) < 0.01 * cpr:
-            out.append((1, 0.5, fix.format(round(cpr))))
+            out.append((1, 0.5, f"{fix} {opt('counts_per_rev')} {round(cpr)}"))
     out.sort()
     return [text for k, _, text in out[:2] if k == out[0][0]]
 
@@ -109,7 +110,9 @@ def check_speed_position(
             sev,
             where,
             f"speed = {ratio:.5g} x d(position)/dt: {why}",
-            " or ".join(fixes) if fixes else "--gear-ratio N or the right --speed-unit",
+            " or ".join(fixes)
+            if fixes
+            else f"{opt('gear_ratio')} N or the right {opt('speed_unit')}",
             value=ratio,
         )
     ]
@@ -196,8 +199,8 @@ def check_magnitudes(
                 Severity.ERROR,
                 where,
                 f"voltage reaches {v_max:.5g} V: millivolts? (in mV that is {v_max / 1e3:.4g} V; "
-                "pass --voltage-unit V if it really is volts)",
-                "--voltage-unit mV",
+                f"pass {opt('voltage_unit')} V if it really is volts)",
+                f"{opt('voltage_unit')} mV",
                 value=v_max,
                 unit="V",
             )
@@ -209,7 +212,8 @@ def check_magnitudes(
                 Severity.WARNING,
                 where,
                 f"voltage never exceeds {v_max:.3g} V while the rotor turns: a duty cycle?",
-                "--voltage-unit duty --supply-v V (or --voltage-unit V to keep volts)",
+                f"{opt('voltage_unit')} duty {opt('supply_v')} V (or {opt('voltage_unit')} V to "
+                "keep volts)",
                 value=v_max,
                 unit="V",
             )
@@ -236,9 +240,9 @@ def check_magnitudes(
                     Severity.ERROR,
                     where,
                     f"current reaches {p95:.5g} A (95th percentile){hint} at no more than "
-                    f"{v_max:.3g} V{why}: milliamps? (pass --current-unit A if it really is "
-                    "amperes)",
-                    "--current-unit mA",
+                    f"{v_max:.3g} V{why}: milliamps? (pass {opt('current_unit')} A if it really "
+                    "is amperes)",
+                    f"{opt('current_unit')} mA",
                     value=p95,
                     unit="A",
                 )
@@ -255,8 +259,9 @@ def check_magnitudes(
                 where,
                 f"speed reaches {w_max:.5g} rad/s ({w_max * 30 / math.pi:.3g} rpm): beyond "
                 "any motor in rad/s; without a position column the data cannot tell rpm "
-                "from deg/s (pass --speed-unit rad/s if it really is rad/s)",
-                "--speed-unit rpm or --speed-unit deg/s (whichever the logger wrote)",
+                f"from deg/s (pass {opt('speed_unit')} rad/s if it really is rad/s)",
+                f"{opt('speed_unit')} rpm or {opt('speed_unit')} deg/s (whichever the logger "
+                "wrote)",
                 value=w_max,
                 unit="rad/s",
             )

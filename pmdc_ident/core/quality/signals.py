@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.quality.findings import Finding, Severity
 from pmdc_ident.core.quality.regress import dynamic
 from pmdc_ident.core.quantisation import quantum, record_steps
@@ -27,7 +28,7 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 _TWO_PI = 2.0 * math.pi
 # position wrap periods: what they mean when the column was read as radians
-_WRAP_UNITS = ((_TWO_PI, "rad", ""), (360.0, "deg", "--position-unit deg"), (1.0, "rev", ""))
+_WRAP_UNITS = ((_TWO_PI, "rad"), (360.0, "deg"), (1.0, "rev"))
 
 
 def find_wrap(position: FloatArray) -> tuple[float, int] | None:
@@ -58,16 +59,16 @@ def check_wrap(where: str, seg: Segment, *, position_declared: bool = False) -> 
     if found is None:
         return []
     period, count = found
-    unit = next((u for p, u, _ in _WRAP_UNITS if abs(period / p - 1.0) < 0.02), None)
+    unit = next((u for p, u in _WRAP_UNITS if abs(period / p - 1.0) < 0.02), None)
     cpr = round(period)
     if unit is None and period > 8 and abs(period - cpr) < 0.02 * period:
         unit = "counts"
     if unit == "rad":
         return []  # the reader unwraps 2 pi wraps itself (a note says so)
     fixes = {
-        "deg": "--position-unit deg",
-        "rev": "--position-unit rev",
-        "counts": f"--position-unit counts --counts-per-rev {cpr}",
+        "deg": f"{opt('position_unit')} deg",
+        "rev": f"{opt('position_unit')} rev",
+        "counts": f"{opt('position_unit')} counts {opt('counts_per_rev')} {cpr}",
     }
     sev = Severity.WARNING if position_declared else Severity.ERROR
     text = f"position wraps {count} time(s) with a period of {period:.6g}"
@@ -133,8 +134,9 @@ def _speed_counts(where: str, segments: Sequence[Segment], step: float) -> list[
             f"one count of a {n}-count encoder): a speed made of the counts since the last "
             "sample is their mean over the interval, half a sample behind the speed the fit "
             "compares it with (a 50 Hz PRBS read so: R +55 %, L x50, J -12 %)",
-            "--speed-averaged (the fit then takes the counts' running sum as the "
-            "encoder's position), or --ignore speed-counts if the sensor samples the speed",
+            f"{opt('speed_averaged')} (the fit then takes the counts' running sum as the "
+            f"encoder's position), or {opt('ignore')} speed-counts if the sensor samples the "
+            "speed",
             value=float(n),
             unit="counts/rev",
         )
@@ -146,11 +148,11 @@ def _position_quantum(where: str, step: float, declared: bool) -> list[Finding]:
     whole = abs(cpr - round(cpr)) <= 1e-3 * cpr
     alternatives = []
     if abs(step - 1.0) < 1e-6:
-        alternatives.append("--position-unit counts --counts-per-rev N")
+        alternatives.append(f"{opt('position_unit')} counts {opt('counts_per_rev')} N")
     for scale, unit in ((360.0, "deg"), (1.0, "rev")):
         c = scale / step
         if c >= 4 and abs(c - round(c)) <= 1e-3 * c:
-            alternatives.append(f"--position-unit {unit} (then {round(c)} counts/rev)")
+            alternatives.append(f"{opt('position_unit')} {unit} (then {round(c)} counts/rev)")
     if whole or declared or not alternatives:
         odd = "" if whole else " (not a whole number: a gear between encoder and shaft?)"
         return [
@@ -170,7 +172,8 @@ def _position_quantum(where: str, step: float, declared: bool) -> list[Finding]:
             Severity.ERROR,
             where,
             f"position moves in steps of {step:.6g}: as radians that is {cpr:.5g} counts per "
-            "turn, which no encoder has (pass --position-unit rad if it really is radians)",
+            f"turn, which no encoder has (pass {opt('position_unit')} rad if it really is "
+            "radians)",
             " or ".join(alternatives),
             value=step,
         )
@@ -255,7 +258,7 @@ def check_columns(where: str, segments: Sequence[Segment]) -> list[Finding]:
                 f"current is 0 in every driven row while the voltage reaches "
                 f"{float(np.max(np.abs(v))):.4g} V and the rotor turns: the current sensor "
                 "was not recorded",
-                "record the current, or drop the column: --column current=none",
+                f"record the current, or drop the column: {opt('column')} current=none",
             )
         )
     if v.size and float(np.max(np.abs(v))) == 0.0 and moving and i is not None and i.any():
@@ -266,7 +269,7 @@ def check_columns(where: str, segments: Sequence[Segment]) -> list[Finding]:
                 where,
                 "voltage is 0 in every driven row while current flows and the rotor turns: "
                 "the command was not recorded",
-                "record the voltage command (or --column voltage=HEADER for its column)",
+                f"record the voltage command (or {opt('column')} voltage=HEADER for its column)",
             )
         )
     return out

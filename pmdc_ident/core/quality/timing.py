@@ -16,6 +16,7 @@ from dataclasses import replace
 import numpy as np
 
 from pmdc_ident.core.data import Segment
+from pmdc_ident.core.errors import option_name as opt
 from pmdc_ident.core.quality.findings import Finding, Severity
 from pmdc_ident.core.quality.regress import MIN_DYNAMIC, arx_pole, dynamic, memoised
 
@@ -206,14 +207,15 @@ def check_time_unit(
     epoch = ""
     if t0 > 1e11:
         epoch = f" (t starts at {t0:.3g}: epoch {unit or 'sub-second units'}?)"
-    fix = f"--time-unit {unit}" if unit else "--time-unit ms|us|ns (the unit of the t column)"
+    flag = opt("time_unit")
+    fix = f"{flag} {unit}" if unit else f"{flag} ms|us|ns (the unit of the t column)"
     finding = Finding(
         "time-unit",
         Severity.ERROR,
         where,
         f"t does not look like seconds: {'; '.join(reasons)}{epoch}"
         + (f"; in {unit} the period is {_fmt_period(dt * dict(_UNITS)[unit])}" if unit else "")
-        + " (pass --time-unit s if it really is seconds)",
+        + f" (pass {flag} s if it really is seconds)",
         fix,
         value=dt,
         unit="s",

@@ -28,7 +28,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from pmdc_ident.core.enums import AbortReason, ExitCode, SafeMode
+from pmdc_ident.core.enums import AbortReason, ExitCode, SafeMode, SessionStatus
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.schema import SCHEMA_VERSION
 from pmdc_ident.core.session.link import CommandPolicy, Latency, SafeConfirmation
@@ -87,6 +87,21 @@ class Phase(enum.Enum):
     FLUSHING = "flushing"  # session over: waiting for the last samples
     IDENTIFYING = "identifying"
     FINISHED = "finished"
+
+    @property
+    def status(self) -> SessionStatus | None:
+        """The ``status`` topic's state in this phase (flushing: still the running
+        session's); None when finished: the outcome says it (done, aborted, ...)."""
+        return _PHASE_STATUS.get(self)
+
+
+_PHASE_STATUS = {
+    Phase.IDLE: SessionStatus.IDLE,
+    Phase.PREPARING: SessionStatus.PREPARING,
+    Phase.RUNNING: SessionStatus.RUNNING,
+    Phase.FLUSHING: SessionStatus.RUNNING,
+    Phase.IDENTIFYING: SessionStatus.IDENTIFYING,
+}
 
 
 @dataclass(frozen=True)
@@ -165,7 +180,7 @@ class SessionController:
     def start(self, autostart: bool, now_s: float) -> None:
         """The node is up: say so, and request a session when ``autostart``."""
         self._last_tick_s = now_s
-        self._publish_status("idle")
+        self._publish_phase()
         fixed = dict(self.config.fixed) or "none"
         self.ports.log(
             "info",
@@ -182,7 +197,7 @@ class SessionController:
         self.phase = Phase.PREPARING
         self._prep_deadline_s = now_s + self.config.start.driver_wait_s
         self.peers.reset()
-        self._publish_status("preparing")
+        self._publish_phase()
         return True, "session requested"
 
     def abort_session(self, now_s: float) -> tuple[bool, str]:
@@ -294,7 +309,7 @@ class SessionController:
             self.ports.log(level, text)
         if outcome.error:
             self.ports.log("error", f"session {name}: identification failed: {outcome.error}")
-            self._publish_status("failed", detail=outcome.error)
+            self._publish_status(SessionStatus.FAILED, detail=outcome.error)
             self.exit_code = outcome.exit_code or ExitCode.FAILED
         else:
             self.result_json = outcome.json_text
@@ -304,7 +319,9 @@ class SessionController:
                 f"session {name}: identified from {outcome.n_samples} samples\n{outcome.table}",
             )
             self._publish_status(
-                "done", detail=f"{outcome.n_samples} samples", results=outcome.output_dir
+                SessionStatus.DONE,
+                detail=f"{outcome.n_samples} samples",
+                results=outcome.output_dir,
             )
         self.phase = Phase.FINISHED
 
@@ -412,7 +429,7 @@ class SessionController:
             f"{session.plan.duration_s:.1f} s ({', '.join(session.plan_labels)}); start-up "
             f"waited for {self.peers.waits_line()}",
         )
-        self._publish_status("running")
+        self._publish_phase()
 
     def _next_name(self) -> str:
         self._session_count += 1
@@ -422,7 +439,7 @@ class SessionController:
     def _fail(self, text: str) -> None:
         self.ports.log("error", text)
         self.exit_code = ExitCode.USER_ERROR
-        self._publish_status("refused", detail=text)
+        self._publish_status(SessionStatus.REFUSED, detail=text)
         if self.config.exit_when_done:
             self.phase = Phase.FINISHED
             self.finished = True
@@ -497,7 +514,7 @@ class SessionController:
                 f"stopped by signal while {self.phase.value}: no session running, 0 V / open sent",
             )
             self._stopped_idle = not cut_short
-            self._publish_status("stopped", reason=reason.value)
+            self._publish_status(SessionStatus.STOPPED, reason=reason.value)
             self.confirmation.start(self.peers.stamps_ns.get("encoder", 0), now_s)
         self.finished = True
         if cut_short:
@@ -519,7 +536,9 @@ class SessionController:
             + (f"; {remedy}" if remedy else ""),
         )
         self.ports.publish_progress(s.progress().to_json())
-        self._publish_status("aborted", reason=reason, detail=s.abort_detail, remedy=remedy)
+        self._publish_status(
+            SessionStatus.ABORTED, reason=reason, detail=s.abort_detail, remedy=remedy
+        )
         self.exit_code = ExitCode.ABORTED
         self.phase = Phase.FINISHED
         self.confirmation.start(round(s.markers[-1].t_s * 1e9), now_s)
@@ -552,7 +571,7 @@ class SessionController:
         self.ports.log(
             "info", f"session {s.name}: last samples in after {waited:.2f} s; identifying"
         )
-        self._publish_status("identifying")
+        self._publish_phase()
         self.ports.start_identification(
             IdentificationJob(
                 samples=self.recording.samples(s.markers),
@@ -658,10 +677,16 @@ class SessionController:
             return Path(path)
         return Path(self.config.output_dir).expanduser().absolute() / session
 
-    def _publish_status(self, state: str, **extra: str) -> None:
+    def _publish_phase(self) -> None:
+        """The status of the phase just entered (idle, preparing, running, identifying)."""
+        status = self.phase.status
+        assert status is not None, self.phase  # a finished phase publishes its outcome
+        self._publish_status(status)
+
+    def _publish_status(self, state: SessionStatus, **extra: str) -> None:
         d: dict[str, Any] = {
             "schema_version": SCHEMA_VERSION,
-            "state": state,
+            "state": state.value,
             "session": self.session.name if self.session else "",
         }
         d.update(extra)

@@ -191,7 +191,7 @@ def _from_csv(path: str, dt: float) -> TestPlan:
     if abs(plan.dt_s - dt) > 1e-6 * dt:
         msg = (
             f"parameter plan: {p} is planned at {1 / plan.dt_s:.6g} Hz but the driver "
-            f"samples at {1 / dt:.6g} Hz (re-plan with --rate-hz {1 / dt:.6g})"
+            f"samples at {1 / dt:.6g} Hz (re-plan with `pmdc-ident plan --rate-hz {1 / dt:.6g}`)"
         )
         raise PmdcError(msg)
     return plan

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment
+from pmdc_ident.core.enums import ParameterNote
 from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.estimators.output_error.parameters import (
     at_limit,
@@ -220,7 +221,8 @@ def _flag_scale_ambiguity(result: FitResult) -> FitResult:
         "scale ambiguity: voltage, current and speed fix (Kt, J, B) only up to a common "
         "factor; use the Kt = Ke closure, fix Kt or J, or add a known inertia"
     )
-    return replace(result, reasons={**result.reasons, **dict.fromkeys(scale, why)})
+    notes = {k: v for k, v in result.notes.items() if k not in scale}
+    return replace(result, reasons={**result.reasons, **dict.fromkeys(scale, why)}, notes=notes)
 
 
 def _flag_from_bound(res: FitResult, segs: Sequence[PreparedSegment], t_start: float) -> FitResult:
@@ -235,6 +237,7 @@ def _flag_from_bound(res: FitResult, segs: Sequence[PreparedSegment], t_start: f
     tau_e = res.values["L"] / res.values["R"] if "L" in res.values else math.inf
     reasons, identifiable = dict(res.reasons), dict(res.identifiable)
     ci95, stderr, warnings = dict(res.ci95), dict(res.stderr), list(res.warnings)
+    notes = dict(res.notes)
     for name in res.free:
         se = res.stderr.get(name)
         value = abs(res.values.get(name, math.nan))
@@ -247,7 +250,9 @@ def _flag_from_bound(res: FitResult, segs: Sequence[PreparedSegment], t_start: f
                 warnings.append(f"L: {reasons[name]}")
         elif rel > WEAK:
             reasons[name] = f"weakly identifiable: relative sd {rel:.0%} on these data; {hint}"
+            notes[name] = frozenset({ParameterNote.WEAKLY_IDENTIFIABLE})
         elif name == "L" and tau_e < dt_min:
+            notes[name] = frozenset({ParameterNote.FAST_ELECTRICAL})
             reasons[name] = (
                 f"L/R ~ {tau_e * 1e3:.2g} ms is below the sample period {dt_min * 1e3:.3g} ms: "
                 "L shows only in the current's first sample after a step and its lag behind "
@@ -258,6 +263,7 @@ def _flag_from_bound(res: FitResult, segs: Sequence[PreparedSegment], t_start: f
     return replace(
         res,
         reasons=reasons,
+        notes=notes,
         identifiable=identifiable,
         ci95=ci95,
         stderr=stderr,

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from pmdc_ident.core.data import Segment
 from pmdc_ident.core.effects import parameter_unit
+from pmdc_ident.core.enums import ParameterNote
 from pmdc_ident.core.estimators.output_error.problem import Problem
 from pmdc_ident.core.estimators.output_error.segments import x0_from_data
 from pmdc_ident.core.estimators.output_error.simulators import predict
@@ -73,6 +74,8 @@ class FitResult:
     added_inertia: dict[str, float] = field(default_factory=dict)
     # step of each quantised signal over the record (its first noise level >= step/sqrt(12))
     quantisation_steps: dict[str, float] = field(default_factory=dict)
+    # what each reason says, by code (core.enums.ParameterNote)
+    notes: dict[str, frozenset[ParameterNote]] = field(default_factory=dict)
     _fitted_segments: dict[str, int] = field(default_factory=dict, repr=False)
 
     def simulate_segments(
@@ -147,6 +150,10 @@ def build_result(
     assert A is not None
     unc = _uncertainty(prob, z, r, A, reasons)
     vals = prob.values_at(z)
+    notes = {n: frozenset({ParameterNote.FIXED}) for n in vals if n in fixed}
+    notes = {n: v for n, v in notes.items() if n not in unc.reasons}  # said otherwise
+    if closure:
+        notes["Kt"] = frozenset({ParameterNote.ASSUMED})
     _complete(unc, vals, fixed, closure)
     x0s: dict[str, tuple[float, float, float]] = {}
     nseg: dict[str, int] = {}
@@ -165,6 +172,7 @@ def build_result(
         covariance_names=tuple(prob.free),
         identifiable=unc.identifiable,
         reasons=unc.reasons,
+        notes=notes,
         cost=0.5 * float(r @ r),
         n_samples=int(sum(ps.seg.n for ps in prob.segs)),
         rms=rms,
