@@ -14,6 +14,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
 import pytest
 import yaml
 from helpers.plans import SHORT_SEQUENCE
@@ -535,3 +536,25 @@ def test_a_staircase_level_is_not_judged_settled_while_the_driver_has_not_applie
         c.tick(now)
     assert c.session.abort_reason is None
     assert not [m for m in ports.markers if m["event"] == "end"], ports.markers
+
+
+def test_current_and_voltage_handed_over_before_the_session_runs_are_its_own():
+    # a host draining its queues one topic after another hands over current and voltage
+    # samples stamped after the last encoder sample it has seen before the session runs:
+    # the session starts at the next encoder sample, so they are the session's first
+    ports = Ports()
+    c = SessionController(_config(settle_s=0.0), ports)
+    c.start(autostart=True, now_s=0.0)
+    _ready(c, 0.0)  # one sample of each topic at stamp 0
+    ahead = [k * 1_000_000 for k in range(1, 301)]
+    for ns in ahead:
+        c.on_current(ns, 1.0)
+        c.on_voltage(ns, 0.0, math.nan)
+    c.tick(0.02)
+    assert c.phase is Phase.RUNNING
+    for ns in ahead:
+        c.on_encoder(ns, 0.0, 0.0, 0.05, ns)
+    rec = c.recording
+    assert rec.current.n == rec.voltage.n == rec.encoder.n == len(ahead)
+    assert np.array_equal(rec.current.stamps(), rec.encoder.stamps())
+    assert np.array_equal(rec.voltage.stamps(), rec.encoder.stamps())

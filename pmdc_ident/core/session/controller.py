@@ -74,6 +74,7 @@ LATE_TICK_S = 0.1  # a timer this late means the node itself was held up
 # A driver sample waits this long (host clock) for its current: the node's executor
 # can drain a backlog of encoder samples before the current samples of the same stamps
 CURRENT_WAIT_S = 0.1
+EARLY_SAMPLES = 16384  # current/voltage samples kept before a session runs (~16 s at 1 kHz)
 LATE_TICK_GRACE_S = 0.05
 # plan: auto starts its pre-test once the driver has applied this session's 0 V this long
 RELEASE_AFTER_NS = 100_000_000
@@ -140,6 +141,10 @@ class SessionController:
         self._prep_deadline_s = 0.0
         self._last_current_a = 0.0
         self._currents = HeldStream()  # the current, held at each encoder stamp
+        # current and voltage samples that came before the session ran but stamped after
+        # the last encoder sample seen: they belong to the session (see _start_recording)
+        self._early_current: deque[tuple[int, float]] = deque(maxlen=EARLY_SAMPLES)
+        self._early_voltage: deque[tuple[int, float, float]] = deque(maxlen=EARLY_SAMPLES)
         self._applied = HeldStream()  # the driver's applied voltage, likewise
         self._held: deque[tuple[int, float, float, float]] = (
             deque()
@@ -216,12 +221,16 @@ class SessionController:
         self.peers.on_stamp("current", stamp_ns)
         if self.recording_samples:
             self.recording.current.append(stamp_ns, current_a)
+        else:
+            self._early_current.append((stamp_ns, current_a))
         self._currents.add(stamp_ns, current_a)
         self._release(None)
 
     def on_voltage(self, stamp_ns: int, voltage_v: float, terminal_v: float) -> None:
         self.peers.on_stamp("voltage_applied", stamp_ns)
         self._applied.add(stamp_ns, voltage_v)
+        if not self.recording_samples:
+            self._early_voltage.append((stamp_ns, voltage_v, terminal_v))
         if self.recording_samples:
             self.recording.voltage.append(stamp_ns, voltage_v, terminal_v)
             s = self.session
@@ -413,7 +422,7 @@ class SessionController:
         except PmdcError as exc:
             self._fail(str(exc))
             return
-        self.recording.clear()
+        self._start_recording()
         self.session = session
         self.commands.armature_open = False
         session.start()
@@ -430,6 +439,23 @@ class SessionController:
             f"waited for {self.peers.waits_line()}",
         )
         self._publish_phase()
+
+    def _start_recording(self) -> None:
+        """Record from now on, with the current and voltage samples already here that are
+        stamped after the last encoder sample seen: the session starts at the next encoder
+        sample, and a host that drains its queues one topic after another hands those
+        over first (the first 0.34 s of current and voltage were missing from a session's
+        own record at load 6, though every sample was in the bag)."""
+        self.recording.clear()
+        after = self.peers.stamps_ns.get("encoder", -1)
+        for ns, a in self._early_current:
+            if ns > after:
+                self.recording.current.append(ns, a)
+        for ns, v, term in self._early_voltage:
+            if ns > after:
+                self.recording.voltage.append(ns, v, term)
+        self._early_current.clear()
+        self._early_voltage.clear()
 
     def _next_name(self) -> str:
         self._session_count += 1
