@@ -208,3 +208,39 @@ def _default_csv() -> Path:
     path = Path(tempfile.mkdtemp()) / "default.csv"
     path.write_text(plan_csv_text(plan_for_motor(MOTOR, DT)))
     return path
+
+
+def test_the_pretest_waits_until_the_node_has_caught_up_with_the_driver():
+    # making the session (the pre-test's planning) holds the node up: the samples it then
+    # drains arrive late, and a square wave started on them would reach the driver late
+    c = SessionController(_config(plan="auto"), Ports())
+    ports = c.ports
+    c.start(autostart=True, now_s=0.0)
+    c.on_driver_parameters(DRIVER)
+    c.on_recorder_status(json.dumps({"receiving": {"a": 1, "b": 1, "c": 1}}), 0.0)
+
+    def sample(k: int, lag_s: float) -> None:
+        ns = k * 1_000_000
+        now = k * DT + lag_s
+        c.on_current(ns, 0.0)
+        c.on_voltage(ns, 0.0, math.nan)
+        c.on_encoder(ns, 0.0, 0.0, now, ns + round(lag_s * 1e9))
+        if k % 20 == 0:
+            c.tick(now)
+            c.on_recorder_status(json.dumps({"receiving": {"a": ns, "b": ns, "c": ns}}), now)
+
+    k = 0
+    while c.phase is not Phase.RUNNING and k < 5000:
+        sample(k, 0.0)
+        k += 1
+    assert c.phase is Phase.RUNNING and c.session.awaiting_release
+    for _ in range(500):  # a backlog: half a second behind the driver
+        sample(k, 0.5)
+        k += 1
+    assert c.session.awaiting_release, "the pre-test started on samples 0.5 s late"
+    assert not [m for m in ports.markers if m["event"] == "start"]
+    for _ in range(300):  # caught up
+        sample(k, 0.0)
+        k += 1
+    assert not c.session.awaiting_release
+    assert [m["label"] for m in ports.markers if m["event"] == "start"][0] == "pretest_up"

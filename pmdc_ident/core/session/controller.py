@@ -236,9 +236,14 @@ class SessionController:
             s = self.session
             if s is not None and s.awaiting_release and voltage_v == voltage_v:
                 # plan: auto: the driver applies this session's command (not NaN: the
-                # armature closed on it): the pre-test may start
+                # armature closed on it): the pre-test may start - once this node is
+                # caught up with the driver again. Making the session (the pre-test's
+                # planning) held it up: it started a joint's square wave 0.56 s behind
+                # the driver, and the driver held its first level for those 0.56 s
+                # (out_of_travel on a CI machine at load 3)
                 self._applied_since = self._applied_since or stamp_ns
-                if stamp_ns - self._applied_since >= RELEASE_AFTER_NS:
+                caught_up = self.latency.last_ns <= self.config.start.max_start_latency_s * 1e9
+                if stamp_ns - self._applied_since >= RELEASE_AFTER_NS and caught_up:
                     self._apply(s.release(), self._last_tick_s or 0.0)
         elif self.confirmation.pending:
             state = self.confirmation.on_voltage(stamp_ns, voltage_v)
@@ -631,9 +636,15 @@ class SessionController:
             return
         if s.awaiting_release:
             if now_s - self._running_since_s > RELEASE_TIMEOUT_S:
+                late = self.latency.last_ns * 1e-9
+                why = (
+                    f"driver samples still arrive {late:.2f} s late: commands would be too"
+                    if late > self.config.start.max_start_latency_s
+                    else "voltage_cmd not reaching it?"
+                )
                 detail = (
                     f"the driver did not apply this session's commands within "
-                    f"{RELEASE_TIMEOUT_S:g} s (voltage_cmd not reaching it?)"
+                    f"{RELEASE_TIMEOUT_S:g} s ({why})"
                 )
                 self._apply(s.abort(AbortReason.DRIVER_FAULT, None, detail), now_s)
             return
