@@ -229,26 +229,26 @@ class SessionController:
     def on_voltage(self, stamp_ns: int, voltage_v: float, terminal_v: float) -> None:
         self.peers.on_stamp("voltage_applied", stamp_ns)
         self._applied.add(stamp_ns, voltage_v)
-        if not self.recording_samples:
-            self._early_voltage.append((stamp_ns, voltage_v, terminal_v))
         if self.recording_samples:
             self.recording.voltage.append(stamp_ns, voltage_v, terminal_v)
             s = self.session
             if s is not None and s.awaiting_release and voltage_v == voltage_v:
                 # plan: auto: the driver applies this session's command (not NaN: the
                 # armature closed on it): the pre-test may start - once this node is
-                # caught up with the driver again. Making the session (the pre-test's
-                # planning) held it up: it started a joint's square wave 0.56 s behind
-                # the driver, and the driver held its first level for those 0.56 s
-                # (out_of_travel on a CI machine at load 3)
+                # caught up with the driver again. Making the session held it up once:
+                # it started a joint's square wave 0.56 s behind the driver, and the
+                # driver held its first level for those 0.56 s (out_of_travel on a CI
+                # machine at load 3)
                 self._applied_since = self._applied_since or stamp_ns
                 caught_up = self.latency.last_ns <= self.config.start.max_start_latency_s * 1e9
                 if stamp_ns - self._applied_since >= RELEASE_AFTER_NS and caught_up:
                     self._apply(s.release(), self._last_tick_s or 0.0)
-        elif self.confirmation.pending:
-            state = self.confirmation.on_voltage(stamp_ns, voltage_v)
-            if state:
-                self.ports.log("info", f"motor confirmed safe by the driver: {state}")
+        else:
+            self._early_voltage.append((stamp_ns, voltage_v, terminal_v))
+            if self.confirmation.pending:
+                state = self.confirmation.on_voltage(stamp_ns, voltage_v)
+                if state:
+                    self.ports.log("info", f"motor confirmed safe by the driver: {state}")
         self._release(None)
 
     def on_encoder(
