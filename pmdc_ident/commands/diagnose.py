@@ -78,13 +78,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_batch_arguments(parser)
 
 
-def run(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
+def diagnose_options(args: argparse.Namespace, **extra: Any) -> Any:
+    """The service's ``DiagnoseOptions`` from the diagnosis arguments (``--holdout``,
+    ``--effects``, the unit and gate options; ``extra`` the caller's own), checked.
+    ``roundtrip`` diagnoses with the same arguments."""
     from pmdc_ident.app import DiagnoseOptions
-    from pmdc_ident.app.service import check_diagnose_options, diagnose_inputs
-    from pmdc_ident.core.fixed import parse_fix
-    from pmdc_ident.core.params import PARAMETER_NAMES
+    from pmdc_ident.app.service import check_diagnose_options
 
     options = input_options(
         DiagnoseOptions,
@@ -92,9 +91,20 @@ def run(args: argparse.Namespace) -> int:
         {},
         holdout=tuple(args.holdout),
         effects=tuple(e.strip() for e in args.effects.split(",") if e.strip()),
-        max_effects=args.max_effects,
+        **extra,
     )
     check_diagnose_options(options)
+    return options
+
+
+def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from pmdc_ident.app.service import diagnose_inputs
+    from pmdc_ident.core.fixed import parse_fix
+    from pmdc_ident.core.params import PARAMETER_NAMES
+
+    options = diagnose_options(args, max_effects=args.max_effects)
     if args.batch is not None:
         from pmdc_ident.commands.batch import run_batch
 

@@ -17,7 +17,6 @@ from pathlib import Path
 from pmdc_ident.commands._inputs import (
     add_gate_arguments,
     add_unit_arguments,
-    input_options,
     make_progress,
 )
 from pmdc_ident.commands.outputs import (
@@ -76,19 +75,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from pmdc_ident.app import DiagnoseOptions
-    from pmdc_ident.app.service import check_diagnose_options, diagnose_inputs
+    from pmdc_ident.app.service import diagnose_inputs
+    from pmdc_ident.commands.diagnose import diagnose_options
     from pmdc_ident.core.fixed import parse_fix
     from pmdc_ident.core.params import PARAMETER_NAMES
 
-    options = input_options(
-        DiagnoseOptions,
-        args,
-        {},
-        holdout=tuple(args.holdout),
-        effects=tuple(e.strip() for e in args.effects.split(",") if e.strip()),
-    )
-    check_diagnose_options(options)
+    options = diagnose_options(args)
     if not 1 <= args.substeps <= 2000:
         msg = f"--substeps must lie in [1, 2000] MuJoCo steps per sample, got {args.substeps}"
         raise ParameterError(msg)
