@@ -66,6 +66,7 @@ from pmdc_ident.core.errors import PmdcError  # noqa: E402
 from pmdc_ident.core.excitation import PlannedSegment, TestPlan, apply_sensors  # noqa: E402
 from pmdc_ident.core.model import Model, simulate  # noqa: E402
 from pmdc_ident.core.motors import Limits  # noqa: E402
+from pmdc_ident.core.safe_write import write_text
 
 RATES = {
     "coreless_6v": 5000.0,
@@ -455,7 +456,7 @@ def main() -> int:
         )
     summary(rows)
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1, default=float))
+        write_text(args.json, json.dumps(rows, indent=1, default=float))
     return 0
 
 
@@ -699,7 +700,7 @@ def reveal_case(args: argparse.Namespace) -> int:
             n = sum(r_["named"] for r_ in got)
             print(f"  {name} at {pct:g} % rated torque, {which}: {n}/{len(got)}")
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+        write_text(args.json, json.dumps(rows, indent=1))
     return 0
 
 

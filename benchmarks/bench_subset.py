@@ -57,8 +57,9 @@ def main() -> int:
              "status": o.status, "effects": list(o.effects)}
             for o in outs
         ]  # fmt: skip
-        with open(a.json, "w", encoding="utf-8") as f:
-            json.dump(rows, f)
+        from pmdc_ident.core.safe_write import write_text
+
+        write_text(a.json, json.dumps(rows))  # atomically: never half a file under its name
     return 0
 
 
