@@ -333,3 +333,42 @@ def test_a_coast_is_one_segment_and_no_level_is_held_longer_than_the_target_need
     kinds = [p.candidate.kind for p in designed.pieces]
     assert not any(a == b == "decay" for a, b in zip(kinds[:-1], kinds[1:], strict=True)), kinds
     assert designed.met and designed.duration_s <= 0.85
+
+
+def test_an_extension_starts_where_the_hold_brings_a_moving_joint_to_rest():
+    """The plan ran out with the joint at speed; the session holds 0 V while the worker
+    designs, and the rotor brakes on. The next part is designed from where it comes to
+    rest under the fit so far, not from where it was (on this joint: 0.3 rad of
+    its 0.4 rad margin from 20 rad/s; farther still when the hold reaches the driver
+    late)."""
+    from pmdc_ident.core.data import Segment
+    from pmdc_ident.core.design.sequential import SequentialDesign, SequentialSettings
+
+    prior, driver = _joint_prior()
+    seq = SequentialDesign(
+        prior, driver, DT, SequentialSettings(travel_rad=(-2.0, 2.0), heat_a2s=1.0, budget_s=10.0)
+    )
+    rng = np.random.default_rng(3)
+    segments, x0 = [], None
+    for s in seq.start(0.0).segments:
+        r = simulate(prior.model, s.voltage, DT, x0=x0)
+        x0 = [r.current[-1], r.speed[-1], r.position[-1]]
+        n = s.voltage.size
+        segments.append(
+            Segment(
+                s.label,
+                r.t + (segments[-1].t[-1] + DT if segments else 0.0),
+                s.voltage,
+                current=r.current + rng.normal(0, 0.008, n),
+                position=r.position,
+                speed=r.speed + rng.normal(0, 0.02, n),
+            )
+        )
+    state = (-0.5, -20.0, 0.3)  # i, w, theta when the plan ran out
+    d = seq.decide(segments, plan_done=True, position_rad=0.3, speed_rad_s=-20.0, current_a=-0.5)
+    assert d.action == "extend", d.message
+    rest = float(simulate(prior.model, np.zeros(3000), DT, x0=state).position[-1])
+    assert rest < 0.3 - 0.1  # it brakes a long way on
+    assert seq.start_rad == pytest.approx(rest, abs=0.1 * (0.3 - rest))
+    assert d.designed is not None
+    assert float(d.designed.trajectory["position"][0]) == pytest.approx(seq.start_rad, abs=1e-3)

@@ -244,3 +244,63 @@ def test_the_pretest_waits_until_the_node_has_caught_up_with_the_driver():
         k += 1
     assert not c.session.awaiting_release
     assert [m["label"] for m in ports.markers if m["event"] == "start"][0] == "pretest_up"
+
+
+def _holding_joint() -> tuple[SessionController, Ports]:
+    """A ``plan: auto`` session on a joint, its pre-test run out: the session holds."""
+    c = SessionController(_config(plan="auto", **{"plan_travel_rad": [-2.0, 2.0]}), Ports())
+    c.start(autostart=True, now_s=0.0)
+    c.on_driver_parameters(DRIVER)
+    c.on_recorder_status(json.dumps({"receiving": {"a": 1, "b": 1, "c": 1}}), 0.0)
+    k = 0
+    while not (c.session is not None and c.session.holding and c.design_pending) and k < 20_000:
+        ns = k * 1_000_000
+        c.on_current(ns, 0.0)
+        c.on_voltage(ns, c.ports.sent[-1] if c.ports.sent else 0.0, math.nan)
+        c.on_encoder(ns, 0.25, 0.0, k * DT, ns)
+        if k % 20 == 0:
+            c.tick(k * DT)
+            c.on_recorder_status(json.dumps({"receiving": {"a": ns, "b": ns, "c": ns}}), k * DT)
+        k += 1
+    assert c.session is not None and c.session.holding and c.design_pending
+    return c, c.ports  # type: ignore[return-value]
+
+
+def test_an_extension_designed_for_another_start_is_re_designed_then_refused():
+    """A joint's extension is designed from where the worker predicted the rotor would
+    rest under the hold; one that finds the joint elsewhere would carry the offset into
+    its travel margin: it is dropped and designed again from the measured position, and
+    after three such the session ends without it (never an extension from a wrong
+    start)."""
+    from pmdc_ident.core.design.sequential import start_tolerance_rad
+    from pmdc_ident.core.excitation import PlannedSegment
+    from pmdc_ident.core.session.sequential import DesignOutcome
+
+    c, ports = _holding_joint()
+    tol = start_tolerance_rad((-2.0, 2.0))
+    seg = (PlannedSegment("level_03", np.full(200, 1.0)),)
+    design = c.design
+    # within the tolerance: extended
+    c.on_design(DesignOutcome("extend", seg, design, "ok", start_rad=0.25 + 0.9 * tol), 1.0)
+    assert not c.session.holding and c.session.plan_labels[-1] == "level_03"
+
+    c, ports = _holding_joint()
+    for k in range(100):  # still braking: 1 rad/s
+        ns = (20_000 + k) * 1_000_000
+        c.on_encoder(ns, 0.25 + 1e-3 * k, 1.0, ns * 1e-9, ns)
+    c.on_design(DesignOutcome("extend", seg, object(), "x", start_rad=0.3), 1.0)
+    assert c.session.holding and "still moving" in ports.logs[-1][1], ports.logs[-1]
+
+    c, ports = _holding_joint()
+    before = c.design
+    for n in range(3):
+        c.on_design(DesignOutcome("extend", seg, object(), "x", start_rad=0.25 + 2 * tol), 1.0)
+        assert c.session.holding and c.session.active
+        assert c.design is before  # the dropped design's state is not kept
+        assert "re-designing from there" in ports.logs[-1][1]
+        c.tick(1.0 + n)  # the hold is re-fitted: a new job from the joint's position
+        assert c.design_pending
+    c.on_design(DesignOutcome("extend", seg, object(), "x", start_rad=0.25 + 2 * tol), 5.0)
+    assert not c.session.active or c.session.state.name != "RUNNING"
+    assert "level_03" not in c.session.plan_labels
+    assert any("plan not extended" in t and "0.25 rad" in t for _, t in ports.logs), ports.logs

@@ -99,7 +99,7 @@ class PlanLimits:
             return 0.0
         if self.travel_margin_rad is not None:
             return float(self.travel_margin_rad)
-        return 0.1 * (self.travel_rad[1] - self.travel_rad[0])
+        return default_margin_rad(self.travel_rad)
 
     @property
     def current_use_a(self) -> float:
@@ -165,6 +165,11 @@ class PlanLimits:
             if stop is not None and (float(stop.min()) < a or float(stop.max()) > b):
                 return Violation("travel", f"stopping {stop.min():.3g}..{stop.max():.3g} rad")
         return None
+
+
+def default_margin_rad(travel_rad: tuple[float, float]) -> float:
+    """The travel margin a plan keeps on each side unless told: 10 % of the range."""
+    return 0.1 * (float(travel_rad[1]) - float(travel_rad[0]))
 
 
 def stop_distance(

@@ -79,6 +79,8 @@ LATE_TICK_GRACE_S = 0.05
 # plan: auto starts its pre-test once the driver has applied this session's 0 V this long
 RELEASE_AFTER_NS = 100_000_000
 RELEASE_TIMEOUT_S = 10.0
+START_RETRIES = 3  # plan: auto on a joint: re-designs for one extension before it ends
+RECENT_NS = 100_000_000  # a joint that moved farther than its tolerance in this is moving
 
 
 class Phase(enum.Enum):
@@ -163,6 +165,9 @@ class SessionController:
         self._applied_since = 0  # plan: auto: the driver applies our command since (stamp)
         self._running_since_s = 0.0
         self._last_position = 0.0
+        self._last_speed = 0.0
+        self._start_retries = 0  # extensions re-designed in a row: the joint rested elsewhere
+        self._recent_positions: deque[tuple[int, float]] = deque()  # the last RECENT_NS
 
     # -- state ---------------------------------------------------------------------------
     @property
@@ -257,7 +262,11 @@ class SessionController:
         """A driver sample; ``now_ns`` is the host's wall clock (the latency's)."""
         self.peers.last_sample_s = now_s
         self.peers.on_stamp("encoder", stamp_ns)
-        self._last_position = position_rad
+        self._last_position, self._last_speed = position_rad, speed_rad_s
+        recent = self._recent_positions
+        recent.append((stamp_ns, position_rad))
+        while recent and stamp_ns - recent[0][0] > RECENT_NS:
+            recent.popleft()
         lag_ns = self.latency.update(stamp_ns, now_ns)
         if not self.recording_samples:
             return
@@ -671,19 +680,35 @@ class SessionController:
                 design=self.design,
                 plan_done=s.holding,
                 position_rad=self._last_position,
+                speed_rad_s=self._last_speed,
+                current_a=self._last_current_a,
             )
         )
 
     def on_design(self, outcome: DesignOutcome, now_s: float) -> None:
         """The worker's decision for a ``plan: auto`` session."""
         self._design_pending = False
-        if outcome.design is not None:
-            self.design = outcome.design
         for level, text in outcome.notes:
             self.ports.log(level, text)
         s = self.session
-        if s is None or not s.active or self.phase is not Phase.RUNNING:
+        live = s is not None and s.active and self.phase is Phase.RUNNING
+        off = self._start_off(outcome) if live else ""
+        if off and self._start_retries < START_RETRIES:
+            # dropped, its design state with it: the hold is re-fitted at the next tick,
+            # from where the joint is then
+            self._start_retries += 1
+            self.ports.log("info", f"session {s.name}: plan auto: {off}: re-designing from there")
             return
+        if outcome.design is not None:
+            self.design = outcome.design
+        if not live:
+            return
+        if off:
+            why = f"plan not extended: {off}, after {START_RETRIES} re-designs"
+            self.ports.log("warning", f"session {s.name}: plan auto: {why}")
+            self._apply(s.finish(why), now_s)
+            return
+        self._start_retries = 0
         self.ports.log("info", f"session {s.name}: plan auto: {outcome.action}: {outcome.message}")
         if outcome.action == "extend":
             try:
@@ -693,6 +718,33 @@ class SessionController:
         elif outcome.action == "stop":
             self._apply(s.finish(outcome.message), now_s)
         # continue: the plan runs on; a hold is re-fitted at the next tick
+
+    def _start_off(self, outcome: DesignOutcome) -> str:
+        """Why an extension may not start here ('' when it may): a joint's plan is
+        designed from the rest position its worker predicted; one that rests farther
+        from it than :func:`~pmdc_ident.core.design.sequential.start_tolerance_rad`
+        would carry that offset through the whole plan, into its travel margin."""
+        start = outcome.start_rad
+        travel = self.config.plan.travel_rad
+        if outcome.action != "extend" or start is None or travel is None:
+            return ""
+        from pmdc_ident.core.design.sequential import start_tolerance_rad
+
+        tol = start_tolerance_rad(travel)
+        off = self._last_position - start
+        seen = [p for _, p in self._recent_positions]
+        moved = max(seen) - min(seen) if seen else 0.0
+        if moved > tol:
+            return (
+                f"the joint is still moving ({moved:.3g} rad in the last "
+                f"{RECENT_NS * 1e-9:g} s, tolerance {tol:.3g} rad)"
+            )
+        if abs(off) <= tol:
+            return ""
+        return (
+            f"the joint is at {self._last_position:.4g} rad, {off:+.3g} rad from the "
+            f"{start:.4g} rad its extension was designed from (tolerance {tol:.3g} rad)"
+        )
 
     def _exports(self, s: Session) -> ExportRequest | None:
         """The configured exports at the session's sample rate (the gains' rate)."""

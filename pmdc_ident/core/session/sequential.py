@@ -111,6 +111,8 @@ class DesignJob:
     design: Any  # pmdc_ident.core.design.sequential.SequentialDesign
     plan_done: bool
     position_rad: float
+    speed_rad_s: float = 0.0  # the joint's state with the position: where it still goes
+    current_a: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -123,6 +125,7 @@ class DesignOutcome:
     design: Any = None
     message: str = ""
     error: str = ""
+    start_rad: float | None = None  # an extension: the position it was designed from
     notes: tuple[tuple[str, str], ...] = field(default=())
 
 
@@ -244,10 +247,16 @@ def run_design_job(job: DesignJob, run: Any) -> DesignOutcome:
                 driven = np.isfinite(s.voltage)
                 heat += float(np.sum(s.current[driven] ** 2) * s.dt_s)
         d = seq.decide(
-            run.segments, plan_done=job.plan_done, position_rad=job.position_rad, heat_a2s=heat
+            run.segments,
+            plan_done=job.plan_done,
+            position_rad=job.position_rad,
+            heat_a2s=heat,
+            speed_rad_s=job.speed_rad_s,
+            current_a=job.current_a,
         )
     except PmdcError as exc:
         return DesignOutcome("stop", design=seq, message=f"design failed: {exc}", error=str(exc))
     if not math.isfinite(seq.run_s):
         return DesignOutcome("stop", design=seq, message="no motor time left")
-    return DesignOutcome(d.action, tuple(d.segments), seq, d.message)
+    start = seq.start_rad if d.action == "extend" else None
+    return DesignOutcome(d.action, tuple(d.segments), seq, d.message, start_rad=start)
