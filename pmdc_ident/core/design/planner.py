@@ -39,7 +39,7 @@ from pmdc_ident.core.design.information import (
 from pmdc_ident.core.design.limits import PlanLimits, Violation, late_stop
 from pmdc_ident.core.design.prior import Prior
 from pmdc_ident.core.design.target import DEFAULT_TARGET, describe_target, public_name
-from pmdc_ident.core.errors import ParameterError
+from pmdc_ident.core.errors import ParameterError, option_name
 from pmdc_ident.core.excitation import PlannedSegment, TestPlan
 from pmdc_ident.core.model import simulate
 
@@ -475,7 +475,7 @@ def design_plan(
                 f"a current reading up to {lag * 1e6:.3g} us late (an anti-alias filter, the "
                 f"ADC's timing: the model has no lag) biases {n} by up to {196 * f:.2g} %, "
                 "whatever the plan: fix L from an LCR meter, or give the signal chain's lag "
-                "(--current-lag-us)"
+                f"({option_name('current_lag_us')})"
             )
             if user_target:
                 notes.append(f"{n}: {why}")
