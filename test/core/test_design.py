@@ -442,7 +442,7 @@ def test_after_a_pretest_a_coastdown_plan_is_kept_where_it_is_shorter():
     for a tenth of a second and always rates above the coast that ends the plan; a
     coast-down's information on B grows much faster than its length, which the greedy's
     gain per second where it stands does not see. The industrial motor's plan was 3.87 s
-    of levels and coasts; a plan from one spin-up and its coast is 3.03 s."""
+    of levels and coasts; a plan from one spin-up and its coast is 3.12 s."""
     import pmdc_ident.core.design.family as family
     from pmdc_ident.benchmark.motors import MOTORS
     from pmdc_ident.core.design import Noise
