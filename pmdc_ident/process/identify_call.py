@@ -87,6 +87,8 @@ NODE_NAMES: dict[str, str] = {
     # reason to throw the session away; the command refuses it unless told otherwise
     "drop_outliers": "an unattended session fits around them; `pmdc-ident identify BAG` "
     "refuses them",
+    # plan: auto's designs (plan --current-lag-us)
+    "current_lag_us": "parameter plan_current_lag_s",
 }
 
 
@@ -219,7 +221,8 @@ def run_design_job(job: DesignJob) -> DesignOutcome:
 
     try:
         run = assemble_run(job.samples, source=job.source, session=job.session)
-        return decide(job, run)
+        with wording(NODE_NAMES):  # a design's advice names the node's parameters
+            return decide(job, run)
     except PmdcError as exc:
         return DesignOutcome(
             "stop", design=job.design, message=f"re-fit failed: {exc}", error=str(exc)

@@ -267,6 +267,9 @@ IDENTIFICATION = ParameterTable(
         P("plan_command_delay_s", 0.15, "travel: plans keep the joint inside when a command "
           "(a stop, a switch) reaches the driver this late, s (a host held up longer may "
           "carry it farther: the session then aborts)", 0.0, 5.0),
+        P("plan_current_lag_s", -1.0, "auto: how late the current reading may be (anti-alias "
+          "filter, ADC timing), s: it biases L by up to lag / (L/R), counted in L's predicted "
+          "sd (negative = not known: 1/(2 pi) of a sample; 0 = none)", -1.0, 1.0),
         P("plan_budget_s", 0.0, "auto: most motor time, s (0 = the default sequence's length)",
           0.0, 1e5),
         P("plan_heat_a2s", 0.0, "auto: winding heat budget int i^2 dt, A^2*s (0 = the default "

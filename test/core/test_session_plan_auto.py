@@ -304,3 +304,49 @@ def test_an_extension_designed_for_another_start_is_re_designed_then_refused():
     assert not c.session.active or c.session.state.name != "RUNNING"
     assert "level_03" not in c.session.plan_labels
     assert any("plan not extended" in t and "0.25 rad" in t for _, t in ports.logs), ports.logs
+
+
+def _pretest_job(cfg: ControllerConfig) -> DesignJob:
+    """The worker's first job of a ``plan: auto`` session: its pre-test, run on the
+    simulated motor (noise of its motor file) and recorded as the node would."""
+    from pmdc_ident.core.excitation import apply_sensors
+    from pmdc_ident.core.model import simulate
+    from pmdc_ident.core.samples import DriverSamples
+    from pmdc_ident.core.session.markers import Marker, MarkerEvent
+    from pmdc_ident.core.session.sequential import build_planned_session
+
+    _, design = build_planned_session(cfg.session, cfg.plan, DRIVER, "lag", 0.0)
+    plan = design.pretest
+    v = np.concatenate([s.voltage for s in plan.segments])
+    sim = simulate(MOTOR.model, v, DT)
+    i, w, th = apply_sensors(
+        sim.current, sim.speed, sim.position, MOTOR.sensors, np.random.default_rng(3)
+    )
+    ns = (np.arange(v.size) + 1000) * 1_000_000
+    markers, t = [Marker(MarkerEvent.SESSION_START, "", 1.0, "lag")], 1.0
+    for s in plan.segments:
+        markers.append(Marker(MarkerEvent.START, s.label, t, "lag"))
+        t += s.voltage.size * DT
+        markers.append(Marker(MarkerEvent.END, s.label, t, "lag"))
+    samples = DriverSamples(ns, i, ns, th, w, ns, v, None, markers=tuple(markers))
+    return DesignJob(samples, "lag", "lag", design, plan_done=True, position_rad=float(th[-1]))
+
+
+def test_the_current_lag_parameter_reaches_the_design():
+    """``plan_current_lag_s`` is the rig's lag every design of the session counts: the
+    1 ms lag of a slow anti-alias filter biases this motor's L (L/R 34 ms) by up to 3 %,
+    beyond its 1 % target, so the design drops L and says which parameter to give; on the
+    same pre-test a chain known to have no lag (0) meets the target, L included. Negative
+    (the default): not known."""
+    assert PlanSetting.from_values(IDENTIFICATION.defaults()).current_lag_s is None
+    with pytest.raises(PmdcError, match="plan_current_lag_s"):
+        PlanSetting.from_values({"plan_current_lag_s": math.nan})
+    lagged = run_design_job(_pretest_job(_config(plan="auto", plan_current_lag_s=1e-3)))
+    assert not lagged.error, lagged.message
+    assert lagged.design.nominal.noise.current_lag_s == 1e-3
+    why = lagged.design.dropped.get("L", "")
+    assert "1e+03 us late" in why and "parameter plan_current_lag_s" in why, why
+    known = run_design_job(_pretest_job(_config(plan="auto", plan_current_lag_s=0.0)))
+    # the same pre-test, a chain without lag: its L (known to 0.04 %) meets the target
+    assert known.message.startswith("target met") and "L " in known.message, known.message
+    assert "L" not in known.design.dropped, known.design.dropped

@@ -49,6 +49,9 @@ class PlanSetting:
     reveal: tuple[str, ...] = ()
     criterion: str = "A"
     command_delay_s: float = COMMAND_DELAY_S  # travel: plans hold for commands this late
+    # how late the current reading may be (anti-alias filter, ADC timing), s; None: not
+    # known, up to 1/(2 pi) of a sample (information.CURRENT_LAG_SAMPLES)
+    current_lag_s: float | None = None
 
     @property
     def auto(self) -> bool:
@@ -75,9 +78,19 @@ class PlanSetting:
             heat_a2s=float(v.get("plan_heat_a2s", 0.0)),
             reveal=reveal,
             command_delay_s=float(v.get("plan_command_delay_s", COMMAND_DELAY_S)),
+            current_lag_s=cls._lag(v.get("plan_current_lag_s", -1.0)),
         )
         setting.check()
         return setting
+
+    @staticmethod
+    def _lag(value: Any) -> float | None:
+        """``plan_current_lag_s``: a negative value means not known (``None``)."""
+        lag = float(value)
+        if not math.isfinite(lag):
+            msg = f"plan_current_lag_s must be a lag in s (negative: not known), got {value!r}"
+            raise ParameterError(msg)
+        return None if lag < 0 else lag
 
     def check(self) -> None:
         from pmdc_ident.core.design.target import parse_target
@@ -213,6 +226,9 @@ def _auto(
     except ParameterError:
         # the nominal motor sizes the pre-test only: its noise matters not
         prior = Prior(nominal.model, Noise(1e-3, 1e-3), f"nominal motor {nominal.name}")
+    # the rig's current lag: every design and re-fit of the session counts L's bias from
+    # it (SequentialDesign takes it from the nominal prior's noise)
+    prior = replace(prior, noise=replace(prior.noise, current_lag_s=setting.current_lag_s))
     seq = SequentialDesign(
         prior,
         limits,
