@@ -213,6 +213,20 @@ class DriverClient(Node):
             timeout = max(0.0, min(end, next_action if action else end) - time.monotonic())
             self.spin_once(min(timeout, 0.05))
 
+    def spin_until(
+        self,
+        done: Callable[[], bool],
+        timeout_s: float,
+        every_s: float = 0.0,
+        action: Callable[[], None] | None = None,
+    ) -> bool:
+        """Spin until ``done()`` (checked every 0.05 s) or ``timeout_s``; ``action`` as
+        in :meth:`spin_for`. A busy host slows the processes, not what they must do."""
+        end = time.monotonic() + timeout_s
+        while not done() and time.monotonic() < end:
+            self.spin_for(0.05, every_s, action)
+        return done()
+
     def wait_for_driver(
         self, timeout_s: float = 15.0, alive: Callable[[], bool] | None = None
     ) -> None:

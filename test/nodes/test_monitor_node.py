@@ -95,15 +95,19 @@ def session(tmp_path_factory, module_ros_domain):
             # Hard steps heat the winding for 5 s, then gentle ones (little current,
             # so R nearly stops rising) keep the motor excited while the monitor catches up.
             hard, gentle = [14.0, -18.0, 18.0, -14.0], [2.0, 5.0, -3.0, 4.0, -5.0]
-            start = time.monotonic()
+            stamps = client.encoder.stamps_ns
+            start = stamps[-1]
 
             def step() -> None:
-                t = time.monotonic() - start
+                # the motor's time, not the wall's: on a busy host the simulated driver
+                # runs slower than real time, and 5 s of wall time heated it too little
+                # to reach ERROR once (load 15)
+                t = (stamps[-1] - start) * 1e-9
                 levels = hard if t < 5.0 else gentle
                 client.send(levels[int(t / 0.7) % len(levels)])
 
             # until the monitor has reported for 12 s of samples (it may start late)
-            end = time.monotonic() + 60.0
+            end = time.monotonic() + 120.0
             while time.monotonic() < end and (
                 len(got["drift"]) < 2 or got["drift"][-1]["t_s"] - got["drift"][0]["t_s"] < 12.0
             ):
@@ -238,7 +242,10 @@ def test_diagnostics_go_stale_when_the_driver_stops(session):
         client.spin_once(0.05)
     stale = [st for st in got["diag"][n:] if st.level == b"\x03"]
     assert stale, [st.message for st in got["diag"][n:]]
-    # the last report is named (OK: the reset before started the estimates over)
-    assert re.match(r"no driver samples for \d+\.\d s; last report OK", stale[-1].message)
+    # the last report is named: OK where the suggestion's reset ran before in this
+    # process and started the estimates over, ERROR where the test ran first or alone
+    # (pytest-xdist's worksteal may give a module's tests to two processes)
+    last = re.match(r"no driver samples for \d+\.\d s; last report (OK|ERROR)", stale[-1].message)
+    assert last, stale[-1].message
     assert monitor.stop() == 0
-    assert "motor drift: OK -> STALE: no driver samples for" in monitor.stderr
+    assert f"motor drift: {last[1]} -> STALE: no driver samples for" in monitor.stderr

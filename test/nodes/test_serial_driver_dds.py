@@ -71,7 +71,14 @@ def test_driver_over_serial_streams_then_survives_the_port_closing(
     try:
         client.wait_for_driver(timeout_s=20.0)
         client.clear()
-        client.spin_for(1.0, 0.05, lambda: client.send(6.0))
+        # 1 s of the board's samples (more wall time on a busy host: 249 in 1 s once)
+        client.spin_until(
+            lambda: len(client.encoder.stamps_ns) > 0.7 * RATE_HZ,
+            20.0,
+            0.05,
+            lambda: client.send(6.0),
+        )
+        client.spin_for(0.3, 0.05, lambda: client.send(6.0))
         stamps = np.array(client.encoder.stamps_ns, dtype=np.int64)
         volts = np.array([v[0] for v in client.voltage.values])
         speeds = client.encoder.array()[:, 1]
