@@ -22,7 +22,7 @@ from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedE
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from pmdc_ident.core.enums import ExitCode
+from pmdc_ident.core.enums import ExitCode, LogLevel
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.process.priority import raise_own_priority
 
@@ -45,16 +45,19 @@ class ManagedNode(Protocol):
         """Release everything (the motor safe first); lines to print on stderr."""
 
 
-def log(node: Node, level: str, text: str) -> None:
-    """``text`` on the node's logger at ``level`` ('info', 'warning' or 'error'): one
-    call site per severity, as rclpy refuses two severities from one line."""
+def log(node: Node, level: LogLevel, text: str) -> None:
+    """``text`` on the node's logger at ``level``: one call site per severity, as rclpy
+    refuses two severities from one line. Anything but a :class:`LogLevel` is refused
+    (a string such as ``"eror"`` would otherwise be logged at some level silently)."""
     logger = node.get_logger()
-    if level == "error":
+    if level is LogLevel.ERROR:
         logger.error(text)
-    elif level == "warning":
+    elif level is LogLevel.WARNING:
         logger.warning(text)
-    else:
+    elif level is LogLevel.INFO:
         logger.info(text)
+    else:
+        raise TypeError(f"log level {level!r} is not a LogLevel")
 
 
 def events_executor() -> Executor:
