@@ -43,13 +43,18 @@ $(STAMP): requirements-dev.txt constraints.txt setup.py setup.cfg
 demo: $(STAMP)
 	$(VPY) -m pmdc_ident.demo
 
-# Two test processes (pytest-xdist): the node tests mostly wait on DDS and the clock,
-# the numerics take a core each; each process holds its own DDS domains (test/conftest.py).
-# `make test TEST_WORKERS=0` runs them in one process.
-TEST_WORKERS ?= 2
+# Three test processes (pytest-xdist) on a 2-core machine: the node tests mostly wait on
+# DDS and the clock, so two processes left a core idle for much of the run; each process
+# holds its own DDS domains (test/conftest.py). `make test TEST_WORKERS=0` runs them in
+# one process.
+TEST_WORKERS ?= 3
 
+# Bytecode is written even where PYTHONDONTWRITEBYTECODE is set: the suite starts
+# hundreds of Python processes (nodes, CLI runs, import probes), and without .pyc files
+# each compiled every module of the package it imported again.
 test: $(STAMP)
-	$(VPY) -m pytest -q test --timeout=600 -n $(TEST_WORKERS) --dist worksteal --durations=15
+	env -u PYTHONDONTWRITEBYTECODE \
+		$(VPY) -m pytest -q test --timeout=600 -n $(TEST_WORKERS) --dist worksteal --durations=15
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check $(LINT_PATHS)
