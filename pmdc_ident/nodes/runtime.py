@@ -47,8 +47,10 @@ class ManagedNode(Protocol):
 
 def log(node: Node, level: LogLevel, text: str) -> None:
     """``text`` on the node's logger at ``level``: one call site per severity, as rclpy
-    refuses two severities from one line. Anything but a :class:`LogLevel` is refused
-    (a string such as ``"eror"`` would otherwise be logged at some level silently)."""
+    refuses two severities from one line. Anything but a :class:`LogLevel` (a string
+    such as ``"eror"``, once logged at info silently) is logged at error, saying so: a
+    log line never ends a node (``test/core/test_log_levels.py`` keeps the package's
+    levels typed)."""
     logger = node.get_logger()
     if level is LogLevel.ERROR:
         logger.error(text)
@@ -57,7 +59,7 @@ def log(node: Node, level: LogLevel, text: str) -> None:
     elif level is LogLevel.INFO:
         logger.info(text)
     else:
-        raise TypeError(f"log level {level!r} is not a LogLevel")
+        logger.error(f"{text} [log level {level!r} is not a LogLevel]")
 
 
 def events_executor() -> Executor:
