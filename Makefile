@@ -43,11 +43,12 @@ $(STAMP): requirements-dev.txt constraints.txt setup.py setup.cfg
 demo: $(STAMP)
 	$(VPY) -m pmdc_ident.demo
 
-# Three test processes (pytest-xdist) on a 2-core machine: the node tests mostly wait on
-# DDS and the clock (test_identification_node: 166 s of wall for 107 s of CPU, its nodes'
-# included), and a third process uses the core they leave idle; each process holds its
-# own DDS domains (test/conftest.py). `make test TEST_WORKERS=0` runs them in one process.
-TEST_WORKERS ?= 3
+# Two test processes (pytest-xdist): the node tests mostly wait on DDS and the clock,
+# the numerics take a core each; each process holds its own DDS domains (test/conftest.py).
+# A third cost 83 s more CPU on a fresh clone (549 -> 632 s: one more collection, more
+# kernels compiled at once by several processes) for no shorter wall on the busy
+# 2-core machine. `make test TEST_WORKERS=0` runs them in one process.
+TEST_WORKERS ?= 2
 
 # Bytecode is written even where PYTHONDONTWRITEBYTECODE is set: the suite starts
 # hundreds of Python processes (nodes, CLI runs, import probes), and without .pyc files
