@@ -12,6 +12,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from pmdc_ident.core.errors import option_name
+
 __all__ = [
     "CLI_NAMES",
     "CheckOptions",
@@ -73,8 +75,9 @@ class InputOptions:
     names: Mapping[str, str] = field(default_factory=lambda: CLI_NAMES)
 
     def name(self, key: str) -> str:
-        """Option ``key`` in the caller's words (the key itself when it has none)."""
-        return self.names.get(key, key)
+        """Option ``key`` in the caller's words: :func:`pmdc_ident.core.errors.option_name`
+        with :attr:`names` (a key they lack is named as the command line spells it)."""
+        return option_name(key, self.names)
 
 
 @dataclass(frozen=True)

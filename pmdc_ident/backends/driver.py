@@ -34,14 +34,14 @@ from typing import Any
 from pmdc_ident.backends.base import Backend, BackendError, Telemetry
 from pmdc_ident.backends.factory import BackendConfigError, make_backend
 from pmdc_ident.backends.status import DriverStatus, armature_text, fault_names
-from pmdc_ident.core.enums import Fault, SafeMode
+from pmdc_ident.core.enums import Fault, LogLevel, SafeMode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.motors import Limits, MotorSpec, load_motor
 from pmdc_ident.core.safety import SafetyConfig, SafetyMonitor
 
 __all__ = ["Driver", "Log"]
 
-Log = Callable[[str, str], None]  # (level 'info'/'warning'/'error', text)
+Log = Callable[[LogLevel, str], None]  # (level, text)
 THROTTLE_S = 1.0
 _TRIP_BITS = Fault.OVER_CURRENT | Fault.OVER_SPEED
 # limit parameters capped at the motor file's: name -> (cap, unit) of the motor's limits
@@ -98,7 +98,7 @@ class Driver:
             speed_max_rad_s=self.safety.config.speed_max_rad_s,
         )
         self.backend: Backend = make_backend(
-            cfg, self.spec, backend_limits, lambda text: log("warning", text)
+            cfg, self.spec, backend_limits, lambda text: log(LogLevel.WARNING, text)
         )
         try:
             self.backend.start()
@@ -151,9 +151,9 @@ class Driver:
             self.safety.update(speed_max_rad_s=value or limits.speed_max_rad_s)
         elif name == "watchdog_s":
             self.safety.update(watchdog_s=value)
-        self.log("info", f"parameter {name} set to {value!r}")
+        self.log(LogLevel.INFO, f"parameter {name} set to {value!r}")
 
-    def _say(self, kind: str, level: str, text: str) -> None:
+    def _say(self, kind: str, level: LogLevel, text: str) -> None:
         """``text`` at most once every THROTTLE_S per ``kind`` (commands come at 1 kHz)."""
         now = self.clock_s()
         if now - self._said.get(kind, -math.inf) >= THROTTLE_S:
@@ -166,27 +166,29 @@ class Driver:
         if not math.isfinite(v):
             self.make_safe()
             self._say(
-                "nonfinite", "warning", f"voltage_cmd {v} refused (not finite): motor made safe"
+                "nonfinite",
+                LogLevel.WARNING,
+                f"voltage_cmd {v} refused (not finite): motor made safe",
             )
             return
         if self.safety.tripped:
             text = f"voltage_cmd refused: {self.safety.message()}; call reset_faults"
-            self._say("refused", "warning", text)
+            self._say("refused", LogLevel.WARNING, text)
             return
         if self.stopping and v != 0.0:
             text = f"voltage_cmd {v:g} V refused: the driver is stopping (0 V, then open)"
-            self._say("stopping", "warning", text)
+            self._say("stopping", LogLevel.WARNING, text)
             return
         limit = self.voltage_limit_v
         self.clamped = abs(v) > limit
         if self.clamped:
-            self._say("clamped", "warning", f"voltage_cmd {v:g} V clamped to +-{limit:g} V")
+            self._say("clamped", LogLevel.WARNING, f"voltage_cmd {v:g} V clamped to +-{limit:g} V")
             v = math.copysign(limit, v)
         try:
             self.backend.command_voltage(v)
         except BackendError as exc:
             self.make_safe()
-            self._say("command", "error", f"{exc}; motor made safe")
+            self._say("command", LogLevel.ERROR, f"{exc}; motor made safe")
             return
         self.driving = True
         self.safety.command_received(self.clock_s())
@@ -196,17 +198,17 @@ class Driver:
             self.backend.open_armature()
         except BackendError as exc:
             self.make_safe()
-            self.log("error", f"{exc}; motor made safe")
+            self.log(LogLevel.ERROR, f"{exc}; motor made safe")
             return False, f"{exc}; motor made safe"
         self.driving = False
         text = "armature open (coasting); the next voltage_cmd closes it"
-        self.log("info", text)
+        self.log(LogLevel.INFO, text)
         return True, text
 
     def reset_faults(self) -> tuple[bool, str]:
         was = self.safety.message() or "no latched fault"
         self.safety.reset()
-        self.log("info", f"cleared: {was}")
+        self.log(LogLevel.INFO, f"cleared: {was}")
         return True, f"cleared: {was}"
 
     def make_safe(self) -> None:
@@ -252,7 +254,7 @@ class Driver:
         except BackendError as exc:  # link lost (serial): safe, report, keep running
             self.make_safe()
             self.link_error = str(exc)
-            self.log("error", f"backend: {exc}")
+            self.log(LogLevel.ERROR, f"backend: {exc}")
             return None
         self._report_unpublished()
         for s in samples:
@@ -268,10 +270,12 @@ class Driver:
                 # 0 V was the last command (a session's end, a controller that parked the
                 # motor): opening it is the normal way to idle, not a fault to report
                 self.safety.watchdog_tripped = False
-                self.log("info", f"no voltage_cmd for {timeout:g} s at 0 V: armature opened")
+                self.log(
+                    LogLevel.INFO, f"no voltage_cmd for {timeout:g} s at 0 V: armature opened"
+                )
             else:
                 self.log(
-                    "warning",
+                    LogLevel.WARNING,
                     f"watchdog: no voltage_cmd for {timeout:g} s, armature opened (raise "
                     "watchdog_s if the commanding node is only slow on a busy machine)",
                 )
@@ -286,7 +290,7 @@ class Driver:
             trip = self.safety.report(new, s.time_s)
         if trip is not None:
             self.make_safe()
-            self.log("error", f"{self.safety.latched[trip]}: motor made safe")
+            self.log(LogLevel.ERROR, f"{self.safety.latched[trip]}: motor made safe")
 
     def _report_unpublished(self, final: bool = False) -> None:
         """One warning line (at most once a second, with the totals) whenever samples
@@ -320,7 +324,7 @@ class Driver:
                 f"counter; {dropped} so far)"
             )
         self.log(
-            "warning",
+            LogLevel.WARNING,
             "driver samples not published: " + "; ".join(parts) + "; their stamps stay "
             "holes on the sample grid",
         )

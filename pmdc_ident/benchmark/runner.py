@@ -7,6 +7,7 @@ then, so the full benchmark uses the machine's cores without oversubscribing.
 
 from __future__ import annotations
 
+import enum
 import os
 import resource
 import tempfile
@@ -20,9 +21,25 @@ import numpy as np
 from pmdc_ident.benchmark.cases import Case, Recording, record
 from pmdc_ident.core.workers import WorkerError, WorkerPool
 
-__all__ = ["GENERATOR_FAILED", "Outcome", "run_cases", "write_recording"]
+__all__ = [
+    "GENERATOR_FAILED",
+    "Failure",
+    "Outcome",
+    "generator_failures",
+    "run_cases",
+    "write_recording",
+]
 
+#: how a case the generator could not make is worded (its message's start, the summary)
 GENERATOR_FAILED = "the generator could not simulate this run"
+
+
+class Failure(enum.Enum):
+    """Why a case has no verdict (its status is ``error``): matched by this code, never
+    by the message's words (an error of the diagnosis may say anything)."""
+
+    GENERATOR = "generator"  # the run could not be simulated: scored as a miss
+    DIAGNOSIS = "diagnosis"  # the diagnosis refused or failed on the written file
 
 
 @dataclass(frozen=True)
@@ -37,6 +54,7 @@ class Outcome:
     seconds: float = 0.0
     message: str = ""
     extra: dict[str, object] = field(default_factory=dict)
+    failure: Failure | None = None  # set when status is "error"
 
     @property
     def top1(self) -> str:
@@ -87,7 +105,9 @@ def run_one(case: Case, directory: str, workers: int = 1) -> Outcome:
         # the generator's failure, not the diagnosis': reported and scored as a miss
         # (its visibility unmeasured, NaN, counts as visible; named nothing) rather
         # than ending the whole benchmark
-        return Outcome(case, "error", (), message=f"{GENERATOR_FAILED}: {exc}")
+        return Outcome(
+            case, "error", (), message=f"{GENERATOR_FAILED}: {exc}", failure=Failure.GENERATOR
+        )
     gen_cpu = _cpu_s() - g0
     if vis is not None:
         case = replace(case, visibility=vis.residual, visibility_raw=vis.raw)
@@ -96,7 +116,8 @@ def run_one(case: Case, directory: str, workers: int = 1) -> Outcome:
     try:
         res = diagnose(load_data(path), config=DiagnosisConfig(workers=workers)).to_json()
     except (PmdcError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-        return Outcome(case, "error", (), message=f"{type(exc).__name__}: {exc}")
+        msg = f"{type(exc).__name__}: {exc}"
+        return Outcome(case, "error", (), message=msg, failure=Failure.DIAGNOSIS)
     v = res["verdict"]
     ties = tuple((tuple(t["effects"]), str(t["separating_test"])) for t in v["ties"])
     shrink = res["holdout"]["shrink"]
@@ -145,6 +166,11 @@ def run_cases(
                     if progress:
                         progress(done, len(cases), out[k])  # type: ignore[arg-type]
     return [o for o in out if o is not None]
+
+
+def generator_failures(outcomes: Sequence[Outcome]) -> list[str]:
+    """The names of the cases the generator could not make (scored as misses)."""
+    return [o.case.name for o in outcomes if o.failure is Failure.GENERATOR]
 
 
 def _cost(case: Case) -> float:

@@ -95,7 +95,12 @@ def run(args: argparse.Namespace) -> int:
         truth_table_text,
         write_figures,
     )
-    from pmdc_ident.benchmark.runner import GENERATOR_FAILED, Outcome, run_cases
+    from pmdc_ident.benchmark.runner import (
+        GENERATOR_FAILED,
+        Outcome,
+        generator_failures,
+        run_cases,
+    )
     from pmdc_ident.benchmark.scoring import score
     from pmdc_ident.commands.outputs import check_file_output, check_folder_output
     from pmdc_ident.core.safe_write import write_text
@@ -143,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         f"\n{len(outcomes)} runs in {wall:.0f} s wall with --jobs {args.jobs} (seed "
         f"{args.seed}; plant {args.plant}); {_cpu_line(outcomes)}"
     )
-    unmade = [o.case.name for o in outcomes if o.message.startswith(GENERATOR_FAILED)]
+    unmade = generator_failures(outcomes)
     if unmade:
         print(f"{GENERATOR_FAILED}, scored as misses: {', '.join(unmade)}")
     if args.report:

@@ -6,14 +6,23 @@ layer above it: the serial protocol (:mod:`pmdc_ident.protocol`) and every backe
 make the motor safe the :class:`SafeMode` way, a session that stops early says
 why with an :class:`AbortReason`, the identification node publishes its state as a
 :class:`SessionStatus`, and every program of the package (``pmdc-ident``, the nodes,
-the bring-up, the demo) ends with an :class:`ExitCode`.
+the bring-up, the demo) ends with an :class:`ExitCode`. A line the core or a backend
+hands to a node's logger carries its :class:`LogLevel`.
 """
 
 from __future__ import annotations
 
 import enum
 
-__all__ = ["AbortReason", "ExitCode", "Fault", "ParameterNote", "SafeMode", "SessionStatus"]
+__all__ = [
+    "AbortReason",
+    "ExitCode",
+    "Fault",
+    "LogLevel",
+    "ParameterNote",
+    "SafeMode",
+    "SessionStatus",
+]
 
 
 class SafeMode(enum.Enum):
@@ -99,3 +108,15 @@ class ExitCode(enum.IntEnum):
     USER_ERROR = 2  # one line: bad option, input or parameter; refused before anything moved
     ABORTED = 3  # a session stopped by an abort (a tripped limit, a lost peer)
     INTERRUPTED = 130  # Ctrl-C or a signal cut the job short (128 + SIGINT)
+
+
+class LogLevel(enum.Enum):
+    """The severity of a line the ROS-free code hands to a node's logger (the session
+    controller's ports, the driver, a status's level change, the worker's notes): the
+    node calls rclpy's ``info``, ``warning`` or ``error`` for it
+    (:func:`pmdc_ident.nodes.runtime.log`). A plain ``Enum``: a misspelt string is an
+    error where it is written, not a line silently logged at info."""
+
+    INFO = "info"
+    WARNING = "warning"
+    ERROR = "error"

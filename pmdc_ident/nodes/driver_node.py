@@ -59,7 +59,7 @@ from std_srvs.srv import Trigger
 from pmdc_ident.backends.base import Telemetry
 from pmdc_ident.backends.driver import Driver
 from pmdc_ident.backends.status import Level
-from pmdc_ident.core.enums import ExitCode
+from pmdc_ident.core.enums import ExitCode, LogLevel
 from pmdc_ident.nodes.parameters import declare
 from pmdc_ident.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, sample_qos
 from pmdc_ident.nodes.runtime import log as node_log
@@ -126,7 +126,7 @@ class DriverNode(Node):
         assert self._driver is not None
         return self._driver
 
-    def _log(self, level: str, text: str) -> None:
+    def _log(self, level: LogLevel, text: str) -> None:
         node_log(self, level, text)
 
     # -- ManagedNode (pmdc_ident.nodes.runtime) ---------------------------------------------
@@ -140,12 +140,12 @@ class DriverNode(Node):
         if self._driver is None:
             return
         commanders = self._cmd_sub.get_publisher_count()
-        self._log("info", self.driver.begin_stop(self._clock_s(), commanders))
+        self._log(LogLevel.INFO, self.driver.begin_stop(self._clock_s(), commanders))
         while not self.driver.stop_complete(self._clock_s(), self._cmd_sub.get_publisher_count()):
             spin_once(0.02)
         if self._cmd_sub.get_publisher_count() > 0:
             self._log(
-                "warning",
+                LogLevel.WARNING,
                 f"a node still commands this driver after {self.driver.stop_wait_s:g} s "
                 "(stop_wait_s): stopping anyway",
             )

@@ -51,7 +51,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
-from pmdc_ident.core.enums import ExitCode
+from pmdc_ident.core.enums import ExitCode, LogLevel
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.session.controller import SessionController
 from pmdc_ident.core.session.ports import IdentificationJob
@@ -266,7 +266,7 @@ class IdentificationNode(Node):
             self._worker = IdentificationWorker()
         self._worker.submit(job)
 
-    def log(self, level: str, text: str) -> None:
+    def log(self, level: LogLevel, text: str) -> None:
         node_log(self, level, text)
 
 

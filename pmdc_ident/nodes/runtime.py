@@ -22,7 +22,7 @@ from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedE
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from pmdc_ident.core.enums import ExitCode
+from pmdc_ident.core.enums import ExitCode, LogLevel
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.process.priority import raise_own_priority
 
@@ -45,16 +45,21 @@ class ManagedNode(Protocol):
         """Release everything (the motor safe first); lines to print on stderr."""
 
 
-def log(node: Node, level: str, text: str) -> None:
-    """``text`` on the node's logger at ``level`` ('info', 'warning' or 'error'): one
-    call site per severity, as rclpy refuses two severities from one line."""
+def log(node: Node, level: LogLevel, text: str) -> None:
+    """``text`` on the node's logger at ``level``: one call site per severity, as rclpy
+    refuses two severities from one line. Anything but a :class:`LogLevel` (a string
+    such as ``"eror"``, once logged at info silently) is logged at error, saying so: a
+    log line never ends a node (``test/core/test_log_levels.py`` keeps the package's
+    levels typed)."""
     logger = node.get_logger()
-    if level == "error":
+    if level is LogLevel.ERROR:
         logger.error(text)
-    elif level == "warning":
+    elif level is LogLevel.WARNING:
         logger.warning(text)
-    else:
+    elif level is LogLevel.INFO:
         logger.info(text)
+    else:
+        logger.error(f"{text} [log level {level!r} is not a LogLevel]")
 
 
 def events_executor() -> Executor:

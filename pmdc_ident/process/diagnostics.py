@@ -12,6 +12,8 @@ status's level changes into one log line each.
 
 from __future__ import annotations
 
+from pmdc_ident.core.enums import LogLevel
+
 __all__ = ["LEVEL_NAMES", "LevelLog", "hardware_id", "status_name"]
 
 # diagnostic_msgs/DiagnosticStatus levels
@@ -41,7 +43,7 @@ class LevelLog:
         self.causes_logged = causes_logged
         self.level: int | None = None
 
-    def update(self, level: int, message: str) -> tuple[str, str] | None:
+    def update(self, level: int, message: str) -> tuple[LogLevel, str] | None:
         """(log level, line) when ``level`` differs from the last one, else ``None``."""
         old, self.level = self.level, level
         if old == level or (old is None and level == 0):
@@ -49,7 +51,11 @@ class LevelLog:
         was = "start" if old is None else LEVEL_NAMES.get(old, str(old))
         now = LEVEL_NAMES.get(level, str(level))
         if self.causes_logged:
-            return "info", f"{self.what}: {was} -> {now}"
+            return LogLevel.INFO, f"{self.what}: {was} -> {now}"
         # the first status is not a change (a monitor started before its driver is STALE)
-        severity = "info" if level == 0 or old is None else ("error" if level == 2 else "warning")
+        severity = (
+            LogLevel.INFO
+            if level == 0 or old is None
+            else (LogLevel.ERROR if level == 2 else LogLevel.WARNING)
+        )
         return severity, f"{self.what}: {was} -> {now}: {message}"

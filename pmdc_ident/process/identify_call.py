@@ -31,7 +31,7 @@ import numpy as np
 
 from pmdc_ident.app.options import CLI_NAMES
 from pmdc_ident.core.data import Run
-from pmdc_ident.core.enums import ExitCode
+from pmdc_ident.core.enums import ExitCode, LogLevel
 from pmdc_ident.core.errors import PmdcError, wording
 from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.motors import MotorSpec
@@ -134,7 +134,7 @@ def identify_session_run(
 
 
 def write_session_exports(
-    spec: MotorSpec, folder: Path, request: ExportRequest, notes: list[tuple[str, str]]
+    spec: MotorSpec, folder: Path, request: ExportRequest, notes: list[tuple[LogLevel, str]]
 ) -> dict[str, Any]:
     """The identified motor's MJCF, URDF, ros2_control and gains files in ``folder``
     (:func:`pmdc_ident.exports.write_exports`, stem ``identified``).
@@ -158,10 +158,10 @@ def write_session_exports(
         )
     except Exception as exc:  # noqa: BLE001 - the identification stands without them
         why = str(exc) if isinstance(exc, PmdcError | OSError) else repr(exc)
-        notes.append(("warning", f"exports not written: {why}"))
+        notes.append((LogLevel.WARNING, f"exports not written: {why}"))
         return {"files": [], "error": why}
     names = [p.name for p in paths]
-    notes.append(("info", f"exports written to {folder}: {', '.join(names)}"))
+    notes.append((LogLevel.INFO, f"exports written to {folder}: {', '.join(names)}"))
     return {"files": names, "error": None}
 
 
@@ -179,13 +179,16 @@ def run_identification_job(job: IdentificationJob) -> IdentificationOutcome:
 
 
 def _identification_job(job: IdentificationJob) -> IdentificationOutcome:
-    notes: list[tuple[str, str]] = []
+    notes: list[tuple[LogLevel, str]] = []
     try:
         run = assemble_run(job.samples, source=job.source, session=job.session)
         n = sum(seg.n for seg in run.segments)
         found = _completeness(job.samples)
         notes.append(
-            ("warning" if found.missing else "info", f"session {job.session}: {found.line()}")
+            (
+                LogLevel.WARNING if found.missing else LogLevel.INFO,
+                f"session {job.session}: {found.line()}",
+            )
         )
         extra = {"driver_samples": found.to_dict(), **dict(job.extra or {})}
         result = identify_session_run(
@@ -276,7 +279,7 @@ class IdentificationWorker:
             _set_policy(self._process.pid, os.SCHED_OTHER, 0)
         child.close()
         self._busy = False
-        self._notes: list[tuple[str, str]] = []
+        self._notes: list[tuple[LogLevel, str]] = []
 
     @property
     def alive(self) -> bool:
@@ -383,13 +386,15 @@ def _serve(conn: Any, nominal: MotorSpec | None) -> None:
             wall = warm_up(nominal)
             conn.send(
                 (
-                    "info",
+                    LogLevel.INFO,
                     f"identification worker warmed up during the session in {wall:.2f} s "
                     f"({time.process_time() - cpu0:.2f} s CPU)",
                 )
             )
         except Exception as exc:  # noqa: BLE001 - the session's own fit still runs
-            conn.send(("warning", f"identification warm-up failed (the fit still runs): {exc!r}"))
+            conn.send(
+                (LogLevel.WARNING, f"identification warm-up failed (the fit still runs): {exc!r}")
+            )
         finally:
             _set_nice(fit_nice)
     while True:
@@ -403,7 +408,7 @@ def _serve(conn: Any, nominal: MotorSpec | None) -> None:
             continue
         outcome = run_identification_job(job)
         took = (
-            "info",
+            LogLevel.INFO,
             f"session {job.session}: identification took {time.monotonic() - t0:.2f} s "
             f"({time.process_time() - cpu0:.2f} s CPU) in the worker",
         )

@@ -15,9 +15,15 @@ from pmdc_ident.app import (
     identify_inputs,
 )
 from pmdc_ident.app.service import check_diagnose_options, check_identify_options
-from pmdc_ident.core.errors import DataError, ParameterError
+from pmdc_ident.core.errors import DataError, ParameterError, option_name
 
-NAMES = {"ignore": "ignore_codes", "closure": "closure", "fix": "fixed", "effects": "tried"}
+NAMES = {
+    "ignore": "ignore_codes",
+    "closure": "closure",
+    "fix": "fixed",
+    "added_inertia": "inertia_added",
+    "effects": "tried",
+}
 
 
 @pytest.mark.parametrize(
@@ -80,3 +86,17 @@ def test_check_returns_its_lines_and_json_and_refuses_only_when_asked(tmp_path):
 
 def test_the_command_line_names_every_option_it_has():
     assert all(v.startswith("--") for k, v in CLI_NAMES.items() if k != "data")
+
+
+def test_options_name_an_option_by_the_one_wording_rule():
+    """``InputOptions.name`` is :func:`option_name` with the options' table (issue 26: one
+    source of the wording): a key the table lacks is named as the command line spells
+    it, as everywhere else in the core, not by its bare key."""
+    partial = IdentifyOptions(("a.csv",), names={"fix": "parameter fix"})
+    assert partial.name("fix") == option_name("fix", partial.names) == "parameter fix"
+    assert partial.name("added_inertia") == option_name("added_inertia", partial.names)
+    assert partial.name("added_inertia") == "--added-inertia"  # was "added_inertia"
+    for key, words in CLI_NAMES.items():
+        assert IdentifyOptions(("a.csv",)).name(key) == words
+        if key != "data":  # the command line's words are the rule's own
+            assert words == option_name(key, {})

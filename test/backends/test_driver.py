@@ -12,6 +12,7 @@ import pytest
 from pmdc_ident.backends.driver import Driver
 from pmdc_ident.backends.factory import BackendConfigError
 from pmdc_ident.backends.status import Level
+from pmdc_ident.core.enums import LogLevel
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.process.parameter_tables import DRIVER
 
@@ -26,9 +27,14 @@ class Clock:
         return self.t
 
 
-def _driver(**cfg: Any) -> tuple[Driver, Clock, list[tuple[str, str]]]:
+def _driver(**cfg: Any) -> tuple[Driver, Clock, list[tuple[LogLevel, str]]]:
     clock, logs = Clock(), []
-    d = Driver({**DRIVER.defaults(), **cfg}, lambda lvl, text: logs.append((lvl, text)), clock)
+
+    def log(level: LogLevel, text: str) -> None:
+        assert isinstance(level, LogLevel), (level, text)  # the node's logger needs one
+        logs.append((level, text))
+
+    d = Driver({**DRIVER.defaults(), **cfg}, log, clock)
     return d, clock, logs
 
 
@@ -107,13 +113,13 @@ def test_the_watchdog_after_a_session_ended_at_zero_volts_is_no_fault():
         assert math.isnan(d.backend.command_v)  # opened
         status = d.status(d.rate_hz, 10)
         assert status.level is Level.OK and status.values["watchdog"] == "ok", status
-        assert ("info", "no voltage_cmd for 0.5 s at 0 V: armature opened") in logs
+        assert (LogLevel.INFO, "no voltage_cmd for 0.5 s at 0 V: armature opened") in logs
         d.command(6.0)
         clock.t = 1.2
         d.poll()
         status = d.status(d.rate_hz, 10)
         assert status.level is Level.WARN and status.values["watchdog"] == "tripped"
-        assert any("raise watchdog_s" in t for lvl, t in logs if lvl == "warning")
+        assert any("raise watchdog_s" in t for lvl, t in logs if lvl == LogLevel.WARNING)
     finally:
         d.shutdown_safe()
 
@@ -151,7 +157,7 @@ def test_samples_the_backend_did_not_publish_are_said_at_once_then_once_a_second
             "driver samples not published: 300 skipped after a host stall (the driver polled "
             "too late to publish them; 300 so far); their stamps stay holes on the sample grid"
         ]
-        assert logs[-1][0] == "warning"
+        assert logs[-1][0] == LogLevel.WARNING
         lossy.dropped, lossy.skipped_samples = 5, 350
         d.poll()  # within the second: held back, not lost
         assert len(said()) == 1

@@ -19,7 +19,14 @@ from pmdc_ident.benchmark.cases import (
     sensor_vector,
 )
 from pmdc_ident.benchmark.motors import MOTORS
-from pmdc_ident.benchmark.runner import GENERATOR_FAILED, Outcome, run_one, write_recording
+from pmdc_ident.benchmark.runner import (
+    GENERATOR_FAILED,
+    Failure,
+    Outcome,
+    generator_failures,
+    run_one,
+    write_recording,
+)
 from pmdc_ident.benchmark.scoring import right_tie_honest, score
 from pmdc_ident.benchmark.sensors import SensorSetup
 from pmdc_ident.benchmark.truth import EQUATIONS, VOCABULARY, TrueEffect, draw_effect
@@ -174,10 +181,30 @@ def test_a_run_the_generator_cannot_simulate_is_reported_and_scored_as_a_miss(
     out = [run_one(c, str(tmp_path)) for c in cases]
     assert [o.status for o in out] == ["error", "error"]
     assert all(o.message.startswith(GENERATOR_FAILED) for o in out)
+    assert all(o.failure is Failure.GENERATOR for o in out)
+    assert generator_failures(out) == [c.name for c in cases]
     assert "sub-steps per sample" in out[0].message
     sc = score(out)
     assert len(sc.visible) == 1 and sc.tie_honest() == 0.0  # not dropped: a miss
     assert sc.false_attribution == (0, 1)  # a clean run it could not make names nothing
+
+
+def test_a_generator_failure_is_told_by_its_code_not_by_its_message(tmp_path, monkeypatch):
+    """Which side failed is a code on the outcome (the summary lists the runs the
+    generator could not make by it), not a prefix of the message: a diagnosis error
+    may say anything."""
+    import pmdc_ident.core.diagnosis as diagnosis
+
+    case = build_cases(1, 0, 0, 0, seed=2, effects=("load_torque",), max_samples=4000)[0]
+
+    def refuse(*args, **kwargs):  # type: ignore[no-untyped-def]
+        raise ArithmeticError(f"{GENERATOR_FAILED}? no: the fit diverged")
+
+    monkeypatch.setattr(diagnosis, "diagnose", refuse)
+    out = run_one(case, str(tmp_path))
+    assert out.status == "error" and out.failure is Failure.DIAGNOSIS
+    assert out.message == f"ArithmeticError: {GENERATOR_FAILED}? no: the fit diverged"
+    assert generator_failures([out]) == []
 
 
 def _outcome(truth, effects, ties=(), kind="effect", vis=5.0, level=0):  # type: ignore[no-untyped-def]

@@ -14,6 +14,7 @@ the reader's code. The default profile keeps the file to a few seconds; set
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import os
@@ -133,7 +134,14 @@ def _base_signals(n: int = 60, dt: float = 1e-3) -> dict[str, np.ndarray]:
     }
 
 
-BASE = _base_signals()
+@functools.cache
+def _base() -> dict[str, np.ndarray]:
+    """:func:`_base_signals`, simulated at the first draw, not when the module is imported
+    (every test process collects this module; on a fresh clone the simulation compiled
+    the model's kernels in each of them)."""
+    return _base_signals()
+
+
 COLUMN_CHOICES = ("t", "voltage", "current", "position", "speed", "terminal_voltage", "segment")
 ODD_CELLS = ("nan", "NaN", "inf", "-inf", "", " ", "1e300", "-1e300", "1e-300", "abc", "0x1p3")
 
@@ -162,7 +170,7 @@ def csv_texts(draw) -> str:
     t = draw(st.sampled_from([0.0, -5.0, 1.7e9])) + dt * np.arange(n)
     if _sometimes(draw, 6):
         t = _bad_time(draw, t)
-    signals = {name: BASE[name][:n].copy() for name in BASE}
+    signals = {name: _base()[name][:n].copy() for name in _base()}
     if _sometimes(draw, 6):  # one column in other units, or garbage magnitude
         name = draw(st.sampled_from(sorted(signals)))
         signals[name] = signals[name] * draw(st.sampled_from([1e300, 1e-300, 1e6, -1.0, 0.0]))

@@ -19,7 +19,7 @@ import pytest
 import yaml
 from helpers.plans import SHORT_SEQUENCE
 
-from pmdc_ident.core.enums import AbortReason, SafeMode
+from pmdc_ident.core.enums import AbortReason, LogLevel, SafeMode
 from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.model import Plant
 from pmdc_ident.core.motors import MotorSpec, load_motor
@@ -60,7 +60,7 @@ class Ports:
         self.progress: list[dict] = []
         self.status: list[dict] = []
         self.results: list[str] = []
-        self.logs: list[tuple[str, str]] = []
+        self.logs: list[tuple[LogLevel, str]] = []
         self.asked: list[tuple[str, ...]] = []
         self.jobs: list[IdentificationJob] = []
         self.prepared: list[str] = []
@@ -94,7 +94,8 @@ class Ports:
     def start_identification(self, job: IdentificationJob) -> None:
         self.jobs.append(job)
 
-    def log(self, level: str, text: str) -> None:
+    def log(self, level: LogLevel, text: str) -> None:
+        assert isinstance(level, LogLevel), (level, text)  # the ROS logger's severity, typed
         self.logs.append((level, text))
 
 
@@ -256,7 +257,7 @@ def test_confirm_safe_repeats_the_safe_command_until_the_driver_shows_it():
     assert c.confirming
     c.on_voltage(end_ns, 0.0, math.nan)
     assert not c.confirming and c.safe_confirmed
-    assert ("info", "motor confirmed safe by the driver: 0 V applied") in ports.logs
+    assert (LogLevel.INFO, "motor confirmed safe by the driver: 0 V applied") in ports.logs
 
 
 def test_an_unconfirmed_safe_state_is_an_error_after_the_timeout():
@@ -269,7 +270,7 @@ def test_an_unconfirmed_safe_state_is_an_error_after_the_timeout():
     # no open_armature service: 0 V is the other safe state
     assert (
         ports.sent == [0.0]
-        and ("warning", "open_armature service not available: sent 0 V") in ports.logs
+        and (LogLevel.WARNING, "open_armature service not available: sent 0 V") in ports.logs
     )
     c.confirm_tick(0.7)
     assert not c.confirming and "could NOT confirm the safe state" in ports.logs[-1][1]
@@ -307,17 +308,17 @@ def test_a_stop_while_idle_with_the_driver_stopping_too_ends_without_an_error():
     c.on_encoder(1_000_000, 0.0, 0.0, 1.0, 1_000_000)  # the driver publishes...
     c.request_stop()
     c.tick(1.1)
-    assert c.confirming and ports.logs[-1][0] == "info"
+    assert c.confirming and ports.logs[-1][0] == LogLevel.INFO
     c.confirm_tick(1.3)  # ... and stops: not yet quiet for long
     assert c.confirming
     c.confirm_tick(1.6)
     assert not c.confirming and not c.safe_confirmed
     assert ports.logs[-1] == (
-        "info",
+        LogLevel.INFO,
         "the driver stopped too (it makes the motor safe when it stops)",
     )
     assert c.finished and c.exit_code == 0
-    assert not [t for level, t in ports.logs if level == "error"]
+    assert not [t for level, t in ports.logs if level == LogLevel.ERROR]
     # a driver still publishing is waited for (and confirms) as before
     ports = Ports()
     c = SessionController(_config(safe_mode="zero", confirm_timeout_s=3.0), ports)
@@ -455,14 +456,17 @@ def test_exports_are_written_beside_the_results_and_a_failed_one_is_one_line(
         in yaml.safe_load(control)["left_wheel_joint_speed_pid"]["ros__parameters"]["dof_names"]
     )
     assert yaml.safe_load(control) and yaml.safe_load(gains)["verification"]
-    assert ("info", f"exports written to {tmp_path / 'ok'}: {', '.join(names)}") in out.notes
+    assert (
+        LogLevel.INFO,
+        f"exports written to {tmp_path / 'ok'}: {', '.join(names)}",
+    ) in out.notes
     # a speed loop the 1 kHz current loop cannot carry: no files, one warning, no raise
-    notes: list[tuple[str, str]] = []
+    notes: list[tuple[LogLevel, str]] = []
     spec = load_motor(str(tmp_path / "ok" / "parameters.yaml"))
     bad = replace(job.exports, speed_bandwidth_hz=400.0)
     said = write_session_exports(spec, tmp_path / "bad", bad, notes)
     assert said["files"] == [] and "speed bandwidth 400 Hz" in said["error"], said
-    assert notes == [("warning", f"exports not written: {said['error']}")]
+    assert notes == [(LogLevel.WARNING, f"exports not written: {said['error']}")]
     assert not (tmp_path / "bad").exists()
 
 

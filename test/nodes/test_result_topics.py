@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from pmdc_ident.core.drift_monitor import DriftMonitor
+from pmdc_ident.core.enums import LogLevel
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.nodes.result_topics import (
     DRIFT_FIELDS,
@@ -94,16 +95,44 @@ def test_level_changes_are_said_once():
     assert log.update(0, "fine") is None  # starting OK is not news
     assert log.update(0, "fine") is None
     assert log.update(1, "resistance WARN") == (
-        "warning",
+        LogLevel.WARNING,
         "motor drift: OK -> WARN: resistance WARN",
     )
     assert log.update(1, "resistance WARN") is None
-    assert log.update(3, "no samples") == ("warning", "motor drift: WARN -> STALE: no samples")
-    assert log.update(0, "back") == ("info", "motor drift: STALE -> OK: back")
+    assert log.update(3, "no samples") == (
+        LogLevel.WARNING,
+        "motor drift: WARN -> STALE: no samples",
+    )
+    assert log.update(0, "back") == (LogLevel.INFO, "motor drift: STALE -> OK: back")
     assert LevelLog("x").update(3, "no samples yet") == (
-        "info",
+        LogLevel.INFO,
         "x: start -> STALE: no samples yet",
     )
     driver = LevelLog("driver status", causes_logged=True)  # each cause has its own line
     assert driver.update(0, "running") is None
-    assert driver.update(2, "over-current: ...") == ("info", "driver status: OK -> ERROR")
+    assert driver.update(2, "over-current: ...") == (LogLevel.INFO, "driver status: OK -> ERROR")
+
+
+def test_a_node_logs_each_level_at_its_own_severity_and_a_plain_string_as_an_error():
+    from pmdc_ident.nodes.runtime import log
+
+    said: list[tuple[str, str]] = []
+
+    class Logger:
+        def __getattr__(self, severity: str):  # type: ignore[no-untyped-def]
+            return lambda text: said.append((severity, text))
+
+    class Node:
+        def get_logger(self) -> Logger:
+            return Logger()
+
+    for level in LogLevel:
+        log(Node(), level, f"a {level.value} line")  # type: ignore[arg-type]
+    assert said == [
+        ("info", "a info line"),
+        ("warning", "a warning line"),
+        ("error", "a error line"),
+    ]
+    said.clear()
+    log(Node(), "info", "a string is not a level")  # type: ignore[arg-type]
+    assert said == [("error", "a string is not a level [log level 'info' is not a LogLevel]")]

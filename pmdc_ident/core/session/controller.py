@@ -28,7 +28,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from pmdc_ident.core.enums import AbortReason, ExitCode, SafeMode, SessionStatus
+from pmdc_ident.core.enums import AbortReason, ExitCode, LogLevel, SafeMode, SessionStatus
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.schema import SCHEMA_VERSION
 from pmdc_ident.core.session.link import CommandPolicy, Latency, SafeConfirmation
@@ -193,7 +193,7 @@ class SessionController:
         self._publish_phase()
         fixed = dict(self.config.fixed) or "none"
         self.ports.log(
-            "info",
+            LogLevel.INFO,
             f"identification ready: nominal motor {self.config.session.nominal.name}, "
             f"safe mode {self.safe_mode.value}, fixed {fixed}",
         )
@@ -253,7 +253,7 @@ class SessionController:
             if self.confirmation.pending:
                 state = self.confirmation.on_voltage(stamp_ns, voltage_v)
                 if state:
-                    self.ports.log("info", f"motor confirmed safe by the driver: {state}")
+                    self.ports.log(LogLevel.INFO, f"motor confirmed safe by the driver: {state}")
         self._release(None)
 
     def on_encoder(
@@ -331,14 +331,16 @@ class SessionController:
         for level, text in outcome.notes:
             self.ports.log(level, text)
         if outcome.error:
-            self.ports.log("error", f"session {name}: identification failed: {outcome.error}")
+            self.ports.log(
+                LogLevel.ERROR, f"session {name}: identification failed: {outcome.error}"
+            )
             self._publish_status(SessionStatus.FAILED, detail=outcome.error)
             self.exit_code = outcome.exit_code or ExitCode.FAILED
         else:
             self.result_json = outcome.json_text
             self.ports.publish_result(outcome.json_text)
             self.ports.log(
-                "info",
+                LogLevel.INFO,
                 f"session {name}: identified from {outcome.n_samples} samples\n{outcome.table}",
             )
             self._publish_status(
@@ -383,13 +385,13 @@ class SessionController:
             # safe itself, and a stop while idle left nothing applied to confirm away
             self.confirmation.cancel()
             self.ports.log(
-                "info", "the driver stopped too (it makes the motor safe when it stops)"
+                LogLevel.INFO, "the driver stopped too (it makes the motor safe when it stops)"
             )
             return
         what = self.confirmation.tick(now_s)
         if what == "timeout":
             self.ports.log(
-                "error",
+                LogLevel.ERROR,
                 "could NOT confirm the safe state: the driver did not report 0 V or an open "
                 f"armature within {self.config.confirm_timeout_s:g} s (its watchdog opens it)",
             )
@@ -447,7 +449,7 @@ class SessionController:
             None if self.design is not None else self.config.session.nominal
         )
         self.ports.log(
-            "info",
+            LogLevel.INFO,
             f"session {session.name}: {len(session.plan.segments)} segments, nominal "
             f"{session.plan.duration_s:.1f} s ({', '.join(session.plan_labels)}); start-up "
             f"waited for {self.peers.waits_line()}",
@@ -477,7 +479,7 @@ class SessionController:
         return f"{name}_{self._session_count}" if self._session_count > 1 else name
 
     def _fail(self, text: str) -> None:
-        self.ports.log("error", text)
+        self.ports.log(LogLevel.ERROR, text)
         self.exit_code = ExitCode.USER_ERROR
         self._publish_status(SessionStatus.REFUSED, detail=text)
         if self.config.exit_when_done:
@@ -527,7 +529,7 @@ class SessionController:
         if not self.ports.open_armature():
             # No service: 0 V is the other safe state (the driver's watchdog opens later).
             self._send(0.0, now_s)
-            self.ports.log("warning", "open_armature service not available: sent 0 V")
+            self.ports.log(LogLevel.WARNING, "open_armature service not available: sent 0 V")
 
     def _make_safe(self, now_s: float) -> None:
         if self.safe_mode is SafeMode.OPEN:
@@ -550,7 +552,7 @@ class SessionController:
         else:
             self._make_safe(now_s)
             self.ports.log(
-                "warning" if cut_short else "info",
+                LogLevel.WARNING if cut_short else LogLevel.INFO,
                 f"stopped by signal while {self.phase.value}: no session running, 0 V / open sent",
             )
             self._stopped_idle = not cut_short
@@ -571,7 +573,7 @@ class SessionController:
             self.config.start.peer_timeout_s,
         )
         self.ports.log(
-            "error",
+            LogLevel.ERROR,
             f"session {s.name} ABORTED ({reason}): {s.abort_detail}; safe command sent"
             + (f"; {remedy}" if remedy else ""),
         )
@@ -593,7 +595,7 @@ class SessionController:
         # every sample up to the end is on its way (reliable, buffered): wait for it
         self._flush_deadline_s = now_s + self.config.flush_timeout_s
         self.ports.log(
-            "info",
+            LogLevel.INFO,
             f"session {s.name} complete: {s.progress().samples} samples; driver-to-node "
             f"latency {self.recording.latency_summary()}",
         )
@@ -609,7 +611,7 @@ class SessionController:
         self.phase = Phase.IDENTIFYING
         waited = now_s - (self._flush_deadline_s - self.config.flush_timeout_s)
         self.ports.log(
-            "info", f"session {s.name}: last samples in after {waited:.2f} s; identifying"
+            LogLevel.INFO, f"session {s.name}: last samples in after {waited:.2f} s; identifying"
         )
         self._publish_phase()
         self.ports.start_identification(
@@ -697,7 +699,9 @@ class SessionController:
             # dropped, its design state with it: the hold is re-fitted at the next tick,
             # from where the joint is then
             self._start_retries += 1
-            self.ports.log("info", f"session {s.name}: plan auto: {off}: re-designing from there")
+            self.ports.log(
+                LogLevel.INFO, f"session {s.name}: plan auto: {off}: re-designing from there"
+            )
             return
         if outcome.design is not None:
             self.design = outcome.design
@@ -705,11 +709,13 @@ class SessionController:
             return
         if off:
             why = f"plan not extended: {off}, after {START_RETRIES} re-designs"
-            self.ports.log("warning", f"session {s.name}: plan auto: {why}")
+            self.ports.log(LogLevel.WARNING, f"session {s.name}: plan auto: {why}")
             self._apply(s.finish(why), now_s)
             return
         self._start_retries = 0
-        self.ports.log("info", f"session {s.name}: plan auto: {outcome.action}: {outcome.message}")
+        self.ports.log(
+            LogLevel.INFO, f"session {s.name}: plan auto: {outcome.action}: {outcome.message}"
+        )
         if outcome.action == "extend":
             try:
                 self._apply(s.extend(outcome.segments), now_s)

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
+from pmdc_ident.core.enums import LogLevel
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.samples import DriverSamples
 
@@ -49,7 +50,7 @@ class IdentificationOutcome:
     output_dir: str = ""
     error: str = ""
     exit_code: int = 0  # an ExitCode: USER_ERROR the data were refused (one line), FAILED a bug
-    notes: tuple[tuple[str, str], ...] = ()  # (level, text) lines for the node's log
+    notes: tuple[tuple[LogLevel, str], ...] = ()  # (level, text) lines for the node's log
 
 
 class ControllerPorts(Protocol):
@@ -87,5 +88,5 @@ class ControllerPorts(Protocol):
         """Run the job off the I/O callbacks; its outcome comes back through
         :meth:`SessionController.on_identified`."""
 
-    def log(self, level: str, text: str) -> None:
-        """``level``: 'info', 'warning' or 'error'."""
+    def log(self, level: LogLevel, text: str) -> None:
+        """A line for the node's logger at ``level``."""

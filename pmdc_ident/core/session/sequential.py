@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from pmdc_ident.core.enums import LogLevel
 from pmdc_ident.core.errors import ParameterError, PmdcError
 from pmdc_ident.core.excitation import PlannedSegment, TestPlan
 from pmdc_ident.core.motors import MotorSpec
@@ -139,7 +140,7 @@ class DesignOutcome:
     message: str = ""
     error: str = ""
     start_rad: float | None = None  # an extension: the position it was designed from
-    notes: tuple[tuple[str, str], ...] = field(default=())
+    notes: tuple[tuple[LogLevel, str], ...] = field(default=())
 
 
 def _travel_safety(safety: SafetyConfig, setting: PlanSetting) -> SafetyConfig:
