@@ -108,9 +108,16 @@ def mujoco_xml(
     joint: str = "motor_joint",
     flavour: str | None = None,
     timestep_s: float = 2.5e-4,
+    thermal_reference_k: float = 0.0,
 ) -> MujocoExport:
     """MJCF of the motor ``spec`` behind a gear of ratio ``reduction`` (motor turns per
-    joint turn); ``flavour`` None picks :func:`installed_mujoco_flavour`."""
+    joint turn); ``flavour`` None picks :func:`installed_mujoco_flavour`.
+    ``thermal_reference_k``: with winding heating, the rise above ambient (K) at which
+    MuJoCo's inductance is the model's (MuJoCo keeps L/R as R heats; see
+    :func:`_dcmotor_terms`); 0, ambient, by default."""
+    if not (math.isfinite(thermal_reference_k) and thermal_reference_k >= 0.0):
+        msg = f"thermal reference must be a finite rise >= 0 K, got {thermal_reference_k!r}"
+        raise ParameterError(msg)
     flavour = flavour or installed_mujoco_flavour()
     _check_arguments(flavour, reduction, timestep_s)
     p, n = spec.model.params, float(reduction)
@@ -151,7 +158,7 @@ def mujoco_xml(
     act = ET.SubElement(root, "actuator")
     notes.append(_actuator(act, flavour, common, p))
     if flavour == "dcmotor":
-        notes += _dcmotor_terms(act[0], spec, terms, plan, timestep_s)
+        notes += _dcmotor_terms(act[0], spec, terms, plan, timestep_s, thermal_reference_k)
         if terms.constant_nm:
             ET.SubElement(
                 act,
@@ -300,19 +307,39 @@ class _Terms:
 
 
 def _dcmotor_terms(
-    el: ET.Element, spec: MotorSpec, terms: _Terms, plan: _Friction, timestep_s: float
+    el: ET.Element,
+    spec: MotorSpec,
+    terms: _Terms,
+    plan: _Friction,
+    timestep_s: float,
+    reference_k: float = 0.0,
 ) -> list[str]:
-    """The ``<dcmotor>`` attributes of the effects and the limits; the notes they need."""
+    """The ``<dcmotor>`` attributes of the effects and the limits; the notes they need.
+
+    Heating: MuJoCo's winding is R(T) = R_ref (1 + alpha' (T - reftemp)) with its
+    electrical time constant fixed at L/R_ref, so its inductance rises with R (L(T) =
+    L R(T)/R_ref); the model's L is the winding's at every temperature. The two agree
+    at reftemp only: with a reference rise D, resistance R (1 + alpha D), alpha' =
+    alpha / (1 + alpha D) and reftemp 25 + D give the same R(T) = R (1 + alpha T) and
+    MuJoCo's L = the model's at T = D (ambient 25 C, T the rise above it)."""
     notes = []
     p = spec.model.params
     if any(terms.cogging):
         el.set("cogging", " ".join(_f(x) for x in terms.cogging))
     if any(terms.thermal):
         rth, c, alpha = terms.thermal
-        el.set("thermal", f"{_f(rth)} {_f(c)} 0 {_f(alpha)} 25 25")
+        grow = 1.0 + alpha * reference_k
+        el.set("resistance", _f(float(el.get("resistance", "0")) * grow))
+        el.set(
+            "thermal",
+            f"{_f(rth)} {_f(c)} 0 {_f(alpha / grow)} {_f(25.0 + reference_k)} 25",
+        )
         notes.append(
-            "thermal: the winding's rise T above 25 C ambient (= reference) in the "
-            "actuator's temperature activation; R(T) = R (1 + alpha T)"
+            "thermal: the winding's rise T above 25 C ambient in the actuator's temperature "
+            f"activation; R(T) = R (1 + alpha T), written at the reference {reference_k:.4g} K "
+            "above ambient (resistance R (1 + alpha D), tempcoef alpha / (1 + alpha D)); "
+            "MuJoCo keeps L/R as R heats, so its inductance is the winding's at the reference "
+            "rise only, (1 + alpha T) / (1 + alpha D) times it elsewhere"
         )
     if plan.lugre is not None:
         el.set("lugre", " ".join(_f(x) for x in plan.lugre))

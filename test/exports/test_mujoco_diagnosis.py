@@ -20,6 +20,8 @@ from pmdc_ident.core.effects import (
     ResistanceDrift,
     StribeckFriction,
 )
+from pmdc_ident.core.effects.resistance_drift import ALPHA_COPPER
+from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.model import Model, simulate
 from pmdc_ident.core.motors import Limits, MotorSpec, load_motor
 from pmdc_ident.core.params import MotorParams
@@ -27,6 +29,7 @@ from pmdc_ident.exports import write_exports
 from pmdc_ident.exports.diagnosis import motor_with_diagnosis
 from pmdc_ident.exports.mujoco_replay import SegmentStart, replay_segments
 from pmdc_ident.exports.mujoco_xml import mapping_table, mujoco_xml
+from pmdc_ident.exports.roundtrip import thermal_reference
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -79,6 +82,35 @@ def test_each_carried_effect_replays_in_mujoco_as_in_the_project_s_model(effect,
     err, size = _errors(effect)
     assert size > 0.001  # the effect shows on this record ...
     assert err < share * size  # ... and MuJoCo carries it
+
+
+def test_a_heated_winding_replays_with_mujoco_s_inductance_exact_at_the_thermal_reference():
+    # MuJoCo keeps L/R as its winding heats (its L rises with R); the model's L does
+    # not. Written at the rise where the record's inductive voltage is spent, MuJoCo's
+    # L is the winding's there: a fast sine on a warm winding replays close to the
+    # project's model; written at ambient, MuJoCo's L is (1 + alpha T) too large
+    rate, k = 2000.0, np.arange(4000)
+    v = np.concatenate([np.full(2000, 8.0), 8.0 + 3.0 * np.sin(2 * np.pi * 150 * k[:2000] / rate)])
+    model = Model(P, (ResistanceDrift(0.25, 3.0, 0.0),))
+    ref = simulate(model, v, 1 / rate, substeps=64)
+    lin = simulate(Model(P), v, 1 / rate)
+    seg = Segment(label="x", t=k / rate, voltage=v, current=ref.current, position=ref.position,
+                  speed=ref.speed)  # fmt: skip
+    rise = thermal_reference([seg], model)
+    assert 0.05 < ALPHA_COPPER * rise < 0.15  # the winding warms 5-15 % over the sine
+
+    def current_error(reference_k: float) -> float:
+        ex = mujoco_xml(MotorSpec("t", model, limits=LIMITS), flavour="dcmotor",
+                        timestep_s=2.5e-5, thermal_reference_k=reference_k)  # fmt: skip
+        r = replay_segments(ex.xml, [seg], [SegmentStart(0.0, 0.0, 0.0)])[0]
+        return float(np.sqrt(np.mean((r.current - ref.current)[2000:] ** 2)))
+
+    size = float(np.sqrt(np.mean((lin.current - ref.current)[2000:] ** 2)))
+    at_reference, at_ambient = current_error(rise), current_error(0.0)
+    assert at_reference < 0.45 * size  # carried (34 % of the effect's size left)
+    assert at_ambient > 0.7 * size  # ... where L at ambient leaves most of it (85 %)
+    with pytest.raises(ParameterError):
+        mujoco_xml(MotorSpec("t", model, limits=LIMITS), thermal_reference_k=-1.0)
 
 
 def test_what_mujoco_cannot_carry_is_listed_with_the_part_left_out():
