@@ -58,7 +58,12 @@ __all__ = [
 MUJOCO_FLAVOURS: tuple[str, ...] = ("dcmotor", "general")
 
 LUGRE_Z_RAD = 1e-4  # the LuGre bristles' deflection at the static friction level
-LUGRE_FLOOR = 0.02  # LuGre's Coulomb level at least this share of the Stribeck torque
+# LuGre's Coulomb level at least this share of the Stribeck torque: MuJoCo divides by
+# g(v), which a Gaussian fall alone takes to 0 (underflow) at high speed; its bristle
+# state is integrated exactly, so a floor far under any measurable torque is stable at
+# any step (checked at 2e-5 to 1e-3 s). A floor of 2 % of Ts was a Coulomb friction
+# the model does not have (the 48 V scooter's fitted fall: -31 % shrink in MuJoCo)
+LUGRE_FLOOR = 1e-6
 
 _ALWAYS_NOTED = (
     "open armature (coast-down): MuJoCo's motor has no open circuit; ctrl = 0 V shorts "
@@ -159,6 +164,23 @@ def mujoco_xml(
     notes.append(_actuator(act, flavour, common, p))
     if flavour == "dcmotor":
         notes += _dcmotor_terms(act[0], spec, terms, plan, timestep_s, thermal_reference_k)
+        for k, lugre in enumerate(plan.more, start=2):
+            ET.SubElement(
+                act,
+                "dcmotor",
+                name=f"{joint}_stribeck{k}",
+                joint=joint,
+                gear=_f(n),
+                input="none",
+                resistance="1",
+                motorconst="0 0",
+                lugre=" ".join(_f(x) for x in lugre),
+            )
+        if plan.more:
+            notes.append(
+                f"actuators '{joint}_stribeck2'... are Gaussian Stribeck falls beside the motor's "
+                "own: passive dcmotors whose LuGre friction sums with it to the exponential fall"
+            )
         if terms.constant_nm:
             ET.SubElement(
                 act,
@@ -225,6 +247,7 @@ class _Friction:
     frictionloss_nm: float = 0.0
     lugre: tuple[float, float, float, float, float] | None = None
     floor_note: str = ""
+    more: tuple[tuple[float, float, float, float, float], ...] = ()  # passive elements' lugre
 
 
 @dataclass
@@ -234,6 +257,7 @@ class _Terms:
     coulomb_nm: float = 0.0
     damping2: float = 0.0
     stribeck: tuple[float, float] = (0.0, 0.0)
+    stribeck_more: tuple[tuple[float, float], ...] = ()
     cogging: tuple[float, float, float] = (0.0, 0.0, 0.0)
     thermal: tuple[float, float, float] = (0.0, 0.0, 0.0)
     delay_s: float = 0.0
@@ -263,6 +287,7 @@ class _Terms:
             out.damping2 += t.joint_damping2
             if t.stribeck[0]:
                 out.stribeck = t.stribeck
+                out.stribeck_more = t.stribeck_more
             if any(t.cogging):
                 out.cogging = t.cogging
             if any(t.thermal):
@@ -291,19 +316,24 @@ class _Terms:
         note = ""
         if fc > self.coulomb_nm:
             note = (
-                f"LuGre's Coulomb level is {fc:.4g} N*m, {LUGRE_FLOOR:.0%} of the Stribeck torque "
+                f"LuGre's Coulomb level is {fc:.4g} N*m, {LUGRE_FLOOR:g} of the Stribeck torque "
                 "(MuJoCo's bristle equation needs g(v) > 0 at every speed)"
             )
-        fs = fc + ts
-        # bristles deflecting LUGRE_Z_RAD at the static level, their resonance resolved by
-        # the step (explicit: omega h <= 0.3); no bristle damping: MuJoCo's damping force
-        # sigma1 dz/dt takes dz/dt at the step's start while it integrates z exactly, so
-        # with it the friction depends on the step (a 6 V step and a sine through zero on
-        # a 2 ohm motor: 4.7 rad/s RMS off the candidate at 50 steps per sample, 1.2 at
-        # 200; without it 0.48 at any step)
-        sig0 = min(fs / LUGRE_Z_RAD, inertia_motor * (0.3 / timestep_s) ** 2)
-        sig1 = 0.0
-        return _Friction(lugre=(sig0, sig1, fc, fs, vs), floor_note=note)
+        # (static level, Coulomb level, Stribeck speed) of each LuGre element: the motor's
+        # own, then the passive ones of further Gaussian falls (floors of their own)
+        levels = [(fc + ts, fc, vs)] + [
+            ((1.0 + LUGRE_FLOOR) * t, LUGRE_FLOOR * t, v) for t, v in self.stribeck_more
+        ]
+        # bristles deflecting LUGRE_Z_RAD at the static level, their resonance (all
+        # elements' stiffness together) resolved by the step (explicit: omega h <= 0.3);
+        # no bristle damping: MuJoCo's damping force sigma1 dz/dt takes dz/dt at the
+        # step's start while it integrates z exactly, so with it the friction depends on
+        # the step (a 6 V step and a sine through zero on a 2 ohm motor: 4.7 rad/s RMS off
+        # the candidate at 50 steps per sample, 1.2 at 200; without it 0.48 at any step)
+        stiff = sum(fs / LUGRE_Z_RAD for fs, _, _ in levels)
+        share = min(1.0, inertia_motor * (0.3 / timestep_s) ** 2 / stiff)
+        lugre = [(share * fs / LUGRE_Z_RAD, 0.0, c, fs, v) for fs, c, v in levels]
+        return _Friction(lugre=lugre[0], floor_note=note, more=tuple(lugre[1:]))
 
 
 def _dcmotor_terms(

@@ -69,8 +69,8 @@ def _errors(effect) -> tuple[float, float]:  # type: ignore[no-untyped-def]
     ("effect", "share"),
     [
         (CoulombFriction(0.1 * T), 0.01),  # joint frictionloss
-        (StribeckFriction(0.2 * T, 20.0, 2.0), 0.06),  # LuGre, Gaussian fall
-        (StribeckFriction(0.2 * T, 20.0, 1.0), 0.12),  # ... the exponential one's equal area
+        (StribeckFriction(0.2 * T, 20.0, 2.0), 0.02),  # LuGre, Gaussian fall, no floor
+        (StribeckFriction(0.2 * T, 20.0, 1.0), 0.03),  # ... the exponential one: 3 Gaussians
         (QuadraticDrag(0.1 * T / 1e4), 0.01),  # joint damping's quadratic term
         (LoadTorque(0.1 * T), 0.01),  # a passive dcmotor's zero-pole cogging
         (Cogging(0.1 * T, 7.0, 0.4), 0.03),  # dcmotor cogging, its sign as a phase
@@ -128,6 +128,13 @@ def test_what_mujoco_cannot_carry_is_listed_with_the_part_left_out():
     ex1 = mujoco_xml(MotorSpec("t", expo, limits=LIMITS), flavour="dcmotor")
     assert [c.split(":")[0] for c in ex1.carried] == ["stribeck_friction"]
     assert any(line.startswith("stribeck_friction: the exponential") for line in ex1.not_carried)
+    # ... as three Gaussian falls on three LuGre elements whose static levels add up to
+    # the breakaway torque, with no Coulomb level the model does not have (a floor only)
+    m1 = mujoco.MjModel.from_xml_string(ex1.xml)
+    assert m1.nu == 1 and m1.nu + 2 == m1.actuator_biasprm.shape[0]
+    static = m1.actuator_biasprm[:, 4].sum()  # lugre's static level per element
+    assert static == pytest.approx(0.2 * T, rel=1e-5)
+    assert m1.actuator_biasprm[:, 3].sum() < 1e-5 * T  # Coulomb levels: floors only
     gauss = Model(P, (StribeckFriction(0.2 * T, 20.0, 2.0),))
     ex2 = mujoco_xml(MotorSpec("t", gauss, limits=LIMITS), flavour="dcmotor")
     assert not any(line.startswith("stribeck_friction") for line in ex2.not_carried)
