@@ -351,7 +351,10 @@ def _dcmotor_terms(
     L R(T)/R_ref); the model's L is the winding's at every temperature. The two agree
     at reftemp only: with a reference rise D, resistance R (1 + alpha D), alpha' =
     alpha / (1 + alpha D) and reftemp 25 + D give the same R(T) = R (1 + alpha T) and
-    MuJoCo's L = the model's at T = D (ambient 25 C, T the rise above it)."""
+    MuJoCo's L = the model's at T = D (ambient 25 C, T the rise above it). MuJoCo heats
+    by R(T) i^2 where the model heats by R i^2: capacitance C (1 + alpha D) and thermal
+    resistance R_th / (1 + alpha D) make its heating rate the model's at T = D too, with
+    the same time constant."""
     notes = []
     p = spec.model.params
     if any(terms.cogging):
@@ -362,12 +365,13 @@ def _dcmotor_terms(
         el.set("resistance", _f(float(el.get("resistance", "0")) * grow))
         el.set(
             "thermal",
-            f"{_f(rth)} {_f(c)} 0 {_f(alpha / grow)} {_f(25.0 + reference_k)} 25",
+            f"{_f(rth / grow)} {_f(c * grow)} 0 {_f(alpha / grow)} {_f(25.0 + reference_k)} 25",
         )
         notes.append(
             "thermal: the winding's rise T above 25 C ambient in the actuator's temperature "
             f"activation; R(T) = R (1 + alpha T), written at the reference {reference_k:.4g} K "
-            "above ambient (resistance R (1 + alpha D), tempcoef alpha / (1 + alpha D)); "
+            "above ambient (resistance R (1 + alpha D), tempcoef alpha / (1 + alpha D), "
+            "capacitance C (1 + alpha D): heated at R(T) i^2, the model's rate at D); "
             "MuJoCo keeps L/R as R heats, so its inductance is the winding's at the reference "
             "rise only, (1 + alpha T) / (1 + alpha D) times it elsewhere"
         )

@@ -183,7 +183,8 @@ def thermal_reference(segments: Sequence[Segment], model: Model) -> float:
     the model's heating (``alpha T = k q``, ``dq/dt = i^2 - q/tau`` from each segment's
     start heat, the measured current held over each sample) averaged with the weight
     ``(di/dt)^2`` of the model's own simulated current (the inductive voltage L di/dt,
-    squared); 0 without heating. MuJoCo keeps L/R as R heats, so the export is written
+    squared: to first order, the rise whose inductance error costs the current's least
+    squared error); 0 without heating. MuJoCo keeps L/R as R heats, so the export is written
     with its inductance exact at this rise (see
     :func:`~pmdc_ident.exports.mujoco_xml.mujoco_xml`)."""
     drift = model.effect("resistance_drift")

@@ -107,7 +107,7 @@ def test_a_heated_winding_replays_with_mujoco_s_inductance_exact_at_the_thermal_
 
     size = float(np.sqrt(np.mean((lin.current - ref.current)[2000:] ** 2)))
     at_reference, at_ambient = current_error(rise), current_error(0.0)
-    assert at_reference < 0.45 * size  # carried (34 % of the effect's size left)
+    assert at_reference < 0.4 * size  # carried (31 % of the effect's size left)
     assert at_ambient > 0.7 * size  # ... where L at ambient leaves most of it (85 %)
     with pytest.raises(ParameterError):
         mujoco_xml(MotorSpec("t", model, limits=LIMITS), thermal_reference_k=-1.0)

@@ -81,9 +81,11 @@ class ResistanceDrift(Effect):
         "C = alpha R / k, R_th = tau / C (no cooling: tau 1e6 s), so alpha T = k q to first "
         "order (MuJoCo heats by R(T) i^2 where the candidate heats by R i^2); MuJoCo keeps "
         "L/R as R heats, so its L is the winding's at one reference rise D only: resistance "
-        "R (1 + alpha D) and alpha' = alpha / (1 + alpha D) keep R(T), D = 0 (ambient) by "
-        "default, `roundtrip` the rise where the record's L di/dt is spent; the magnets' "
-        "flux loss r is not carried"
+        "R (1 + alpha D) and alpha' = alpha / (1 + alpha D) keep R(T), C (1 + alpha D) and "
+        "R_th / (1 + alpha D) make the heating rate the candidate's at D; D = 0 (ambient) "
+        "by default, `roundtrip` the rise where the record's L di/dt is spent (weights "
+        "(di/dt)^2: the least-squares choice for the current's error to first order); the "
+        "magnets' flux loss r is not carried"
     )
 
     coeff_per_a2s: float
