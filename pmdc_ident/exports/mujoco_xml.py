@@ -165,34 +165,15 @@ def mujoco_xml(
     if flavour == "dcmotor":
         notes += _dcmotor_terms(act[0], spec, terms, plan, timestep_s, thermal_reference_k)
         for k, lugre in enumerate(plan.more, start=2):
-            ET.SubElement(
-                act,
-                "dcmotor",
-                name=f"{joint}_stribeck{k}",
-                joint=joint,
-                gear=_f(n),
-                input="none",
-                resistance="1",
-                motorconst="0 0",
-                lugre=" ".join(_f(x) for x in lugre),
-            )
+            _passive(act, f"{joint}_stribeck{k}", joint, n, lugre=" ".join(_f(x) for x in lugre))
         if plan.more:
             notes.append(
                 f"actuators '{joint}_stribeck2'... are Gaussian Stribeck falls beside the motor's "
                 "own: passive dcmotors whose LuGre friction sums with it to the exponential fall"
             )
         if terms.constant_nm:
-            ET.SubElement(
-                act,
-                "dcmotor",
-                name=f"{joint}_load",
-                joint=joint,
-                gear=_f(n),
-                input="none",
-                resistance="1",
-                motorconst="0 0",
-                cogging=f"{_f(terms.constant_nm)} 0 {_f(-math.pi / 2)}",
-            )
+            cogging = f"{_f(terms.constant_nm)} 0 {_f(-math.pi / 2)}"
+            _passive(act, f"{joint}_load", joint, n, cogging=cogging)
             notes.append(
                 f"actuator '{joint}_load' is the load torque ({terms.constant_nm:.4g} N*m at the "
                 "motor, against +w): a passive dcmotor whose zero-pole cogging is constant; "
@@ -210,6 +191,22 @@ def mujoco_xml(
         not_carried=terms.not_carried,
         notes=tuple(notes),
         carried=terms.carried,
+    )
+
+
+def _passive(act: ET.Element, name: str, joint: str, n: float, **terms: str) -> None:
+    """A passive ``<dcmotor>`` on the joint (no input, no motor constant): its friction
+    or cogging ``terms`` act on the joint and nothing else."""
+    ET.SubElement(
+        act,
+        "dcmotor",
+        name=name,
+        joint=joint,
+        gear=_f(n),
+        input="none",
+        resistance="1",
+        motorconst="0 0",
+        **terms,
     )
 
 
