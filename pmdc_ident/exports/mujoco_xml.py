@@ -58,7 +58,12 @@ __all__ = [
 MUJOCO_FLAVOURS: tuple[str, ...] = ("dcmotor", "general")
 
 LUGRE_Z_RAD = 1e-4  # the LuGre bristles' deflection at the static friction level
-LUGRE_FLOOR = 0.02  # LuGre's Coulomb level at least this share of the Stribeck torque
+# LuGre's Coulomb level at least this share of the Stribeck torque: MuJoCo divides by
+# g(v), which a Gaussian fall alone takes to 0 (underflow) at high speed; its bristle
+# state is integrated exactly, so a floor far under any measurable torque is stable at
+# any step (checked at 2e-5 to 1e-3 s). A floor of 2 % of Ts was a Coulomb friction
+# the model does not have (the 48 V scooter's fitted fall: -31 % shrink in MuJoCo)
+LUGRE_FLOOR = 1e-6
 
 _ALWAYS_NOTED = (
     "open armature (coast-down): MuJoCo's motor has no open circuit; ctrl = 0 V shorts "
@@ -108,9 +113,16 @@ def mujoco_xml(
     joint: str = "motor_joint",
     flavour: str | None = None,
     timestep_s: float = 2.5e-4,
+    thermal_reference_k: float = 0.0,
 ) -> MujocoExport:
     """MJCF of the motor ``spec`` behind a gear of ratio ``reduction`` (motor turns per
-    joint turn); ``flavour`` None picks :func:`installed_mujoco_flavour`."""
+    joint turn); ``flavour`` None picks :func:`installed_mujoco_flavour`.
+    ``thermal_reference_k``: with winding heating, the rise above ambient (K) at which
+    MuJoCo's inductance is the model's (MuJoCo keeps L/R as R heats; see
+    :func:`_dcmotor_terms`); 0, ambient, by default."""
+    if not (math.isfinite(thermal_reference_k) and thermal_reference_k >= 0.0):
+        msg = f"thermal reference must be a finite rise >= 0 K, got {thermal_reference_k!r}"
+        raise ParameterError(msg)
     flavour = flavour or installed_mujoco_flavour()
     _check_arguments(flavour, reduction, timestep_s)
     p, n = spec.model.params, float(reduction)
@@ -151,19 +163,17 @@ def mujoco_xml(
     act = ET.SubElement(root, "actuator")
     notes.append(_actuator(act, flavour, common, p))
     if flavour == "dcmotor":
-        notes += _dcmotor_terms(act[0], spec, terms, plan, timestep_s)
-        if terms.constant_nm:
-            ET.SubElement(
-                act,
-                "dcmotor",
-                name=f"{joint}_load",
-                joint=joint,
-                gear=_f(n),
-                input="none",
-                resistance="1",
-                motorconst="0 0",
-                cogging=f"{_f(terms.constant_nm)} 0 {_f(-math.pi / 2)}",
+        notes += _dcmotor_terms(act[0], spec, terms, plan, timestep_s, thermal_reference_k)
+        for k, lugre in enumerate(plan.more, start=2):
+            _passive(act, f"{joint}_stribeck{k}", joint, n, lugre=" ".join(_f(x) for x in lugre))
+        if plan.more:
+            notes.append(
+                f"actuators '{joint}_stribeck2'... are Gaussian Stribeck falls beside the motor's "
+                "own: passive dcmotors whose LuGre friction sums with it to the exponential fall"
             )
+        if terms.constant_nm:
+            cogging = f"{_f(terms.constant_nm)} 0 {_f(-math.pi / 2)}"
+            _passive(act, f"{joint}_load", joint, n, cogging=cogging)
             notes.append(
                 f"actuator '{joint}_load' is the load torque ({terms.constant_nm:.4g} N*m at the "
                 "motor, against +w): a passive dcmotor whose zero-pole cogging is constant; "
@@ -181,6 +191,22 @@ def mujoco_xml(
         not_carried=terms.not_carried,
         notes=tuple(notes),
         carried=terms.carried,
+    )
+
+
+def _passive(act: ET.Element, name: str, joint: str, n: float, **terms: str) -> None:
+    """A passive ``<dcmotor>`` on the joint (no input, no motor constant): its friction
+    or cogging ``terms`` act on the joint and nothing else."""
+    ET.SubElement(
+        act,
+        "dcmotor",
+        name=name,
+        joint=joint,
+        gear=_f(n),
+        input="none",
+        resistance="1",
+        motorconst="0 0",
+        **terms,
     )
 
 
@@ -218,6 +244,7 @@ class _Friction:
     frictionloss_nm: float = 0.0
     lugre: tuple[float, float, float, float, float] | None = None
     floor_note: str = ""
+    more: tuple[tuple[float, float, float, float, float], ...] = ()  # passive elements' lugre
 
 
 @dataclass
@@ -227,6 +254,7 @@ class _Terms:
     coulomb_nm: float = 0.0
     damping2: float = 0.0
     stribeck: tuple[float, float] = (0.0, 0.0)
+    stribeck_more: tuple[tuple[float, float], ...] = ()
     cogging: tuple[float, float, float] = (0.0, 0.0, 0.0)
     thermal: tuple[float, float, float] = (0.0, 0.0, 0.0)
     delay_s: float = 0.0
@@ -256,6 +284,7 @@ class _Terms:
             out.damping2 += t.joint_damping2
             if t.stribeck[0]:
                 out.stribeck = t.stribeck
+                out.stribeck_more = t.stribeck_more
             if any(t.cogging):
                 out.cogging = t.cogging
             if any(t.thermal):
@@ -284,35 +313,64 @@ class _Terms:
         note = ""
         if fc > self.coulomb_nm:
             note = (
-                f"LuGre's Coulomb level is {fc:.4g} N*m, {LUGRE_FLOOR:.0%} of the Stribeck torque "
+                f"LuGre's Coulomb level is {fc:.4g} N*m, {LUGRE_FLOOR:g} of the Stribeck torque "
                 "(MuJoCo's bristle equation needs g(v) > 0 at every speed)"
             )
-        fs = fc + ts
-        # bristles deflecting LUGRE_Z_RAD at the static level, their resonance resolved by
-        # the step (explicit: omega h <= 0.3); no bristle damping: MuJoCo's damping force
-        # sigma1 dz/dt takes dz/dt at the step's start while it integrates z exactly, so
-        # with it the friction depends on the step (a 6 V step and a sine through zero on
-        # a 2 ohm motor: 4.7 rad/s RMS off the candidate at 50 steps per sample, 1.2 at
-        # 200; without it 0.48 at any step)
-        sig0 = min(fs / LUGRE_Z_RAD, inertia_motor * (0.3 / timestep_s) ** 2)
-        sig1 = 0.0
-        return _Friction(lugre=(sig0, sig1, fc, fs, vs), floor_note=note)
+        # (static level, Coulomb level, Stribeck speed) of each LuGre element: the motor's
+        # own, then the passive ones of further Gaussian falls (floors of their own)
+        levels = [(fc + ts, fc, vs)] + [
+            ((1.0 + LUGRE_FLOOR) * t, LUGRE_FLOOR * t, v) for t, v in self.stribeck_more
+        ]
+        # bristles deflecting LUGRE_Z_RAD at the static level, their resonance (all
+        # elements' stiffness together) resolved by the step (explicit: omega h <= 0.3);
+        # no bristle damping: MuJoCo's damping force sigma1 dz/dt takes dz/dt at the
+        # step's start while it integrates z exactly, so with it the friction depends on
+        # the step (a 6 V step and a sine through zero on a 2 ohm motor: 4.7 rad/s RMS off
+        # the candidate at 50 steps per sample, 1.2 at 200; without it 0.48 at any step)
+        stiff = sum(fs / LUGRE_Z_RAD for fs, _, _ in levels)
+        share = min(1.0, inertia_motor * (0.3 / timestep_s) ** 2 / stiff)
+        lugre = [(share * fs / LUGRE_Z_RAD, 0.0, c, fs, v) for fs, c, v in levels]
+        return _Friction(lugre=lugre[0], floor_note=note, more=tuple(lugre[1:]))
 
 
 def _dcmotor_terms(
-    el: ET.Element, spec: MotorSpec, terms: _Terms, plan: _Friction, timestep_s: float
+    el: ET.Element,
+    spec: MotorSpec,
+    terms: _Terms,
+    plan: _Friction,
+    timestep_s: float,
+    reference_k: float = 0.0,
 ) -> list[str]:
-    """The ``<dcmotor>`` attributes of the effects and the limits; the notes they need."""
+    """The ``<dcmotor>`` attributes of the effects and the limits; the notes they need.
+
+    Heating: MuJoCo's winding is R(T) = R_ref (1 + alpha' (T - reftemp)) with its
+    electrical time constant fixed at L/R_ref, so its inductance rises with R (L(T) =
+    L R(T)/R_ref); the model's L is the winding's at every temperature. The two agree
+    at reftemp only: with a reference rise D, resistance R (1 + alpha D), alpha' =
+    alpha / (1 + alpha D) and reftemp 25 + D give the same R(T) = R (1 + alpha T) and
+    MuJoCo's L = the model's at T = D (ambient 25 C, T the rise above it). MuJoCo heats
+    by R(T) i^2 where the model heats by R i^2: capacitance C (1 + alpha D) and thermal
+    resistance R_th / (1 + alpha D) make its heating rate the model's at T = D too, with
+    the same time constant."""
     notes = []
     p = spec.model.params
     if any(terms.cogging):
         el.set("cogging", " ".join(_f(x) for x in terms.cogging))
     if any(terms.thermal):
         rth, c, alpha = terms.thermal
-        el.set("thermal", f"{_f(rth)} {_f(c)} 0 {_f(alpha)} 25 25")
+        grow = 1.0 + alpha * reference_k
+        el.set("resistance", _f(float(el.get("resistance", "0")) * grow))
+        el.set(
+            "thermal",
+            f"{_f(rth / grow)} {_f(c * grow)} 0 {_f(alpha / grow)} {_f(25.0 + reference_k)} 25",
+        )
         notes.append(
-            "thermal: the winding's rise T above 25 C ambient (= reference) in the "
-            "actuator's temperature activation; R(T) = R (1 + alpha T)"
+            "thermal: the winding's rise T above 25 C ambient in the actuator's temperature "
+            f"activation; R(T) = R (1 + alpha T), written at the reference {reference_k:.4g} K "
+            "above ambient (resistance R (1 + alpha D), tempcoef alpha / (1 + alpha D), "
+            "capacitance C (1 + alpha D): heated at R(T) i^2, the model's rate at D); "
+            "MuJoCo keeps L/R as R heats, so its inductance is the winding's at the reference "
+            "rise only, (1 + alpha T) / (1 + alpha D) times it elsewhere"
         )
     if plan.lugre is not None:
         el.set("lugre", " ".join(_f(x) for x in plan.lugre))

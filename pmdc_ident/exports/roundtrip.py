@@ -178,6 +178,40 @@ def _start(seg: Segment, model: Model) -> SegmentStart:
     return SegmentStart(i0, w0, th0, temp)
 
 
+def thermal_reference(segments: Sequence[Segment], model: Model) -> float:
+    """The winding's rise above ambient (K) where its inductance acts on ``segments``:
+    the model's heating (``alpha T = k q``, ``dq/dt = i^2 - q/tau`` from each segment's
+    start heat, the measured current held over each sample) averaged with the weight
+    ``(di/dt)^2`` of the model's own simulated current (the inductive voltage L di/dt,
+    squared: to first order, the rise whose inductance error costs the current's least
+    squared error); 0 without heating. MuJoCo keeps L/R as R heats, so the export is written
+    with its inductance exact at this rise (see
+    :func:`~pmdc_ident.exports.mujoco_xml.mujoco_xml`)."""
+    drift = model.effect("resistance_drift")
+    if not (isinstance(drift, ResistanceDrift) and drift.coeff_per_a2s > 0):
+        return 0.0
+    tau = heat_time_constant(model)
+    num = den = 0.0
+    for seg in segments:
+        if seg.current is None or seg.n < 2:
+            continue
+        i2 = np.nan_to_num(seg.current, nan=0.0) ** 2
+        if seg.voltage is not None:
+            i2 = np.where(np.isnan(seg.voltage), 0.0, i2)
+        decay = math.exp(-seg.dt_s / tau) if math.isfinite(tau) and tau > 0 else 1.0
+        gain = tau * (1.0 - decay) if decay < 1.0 else seg.dt_s
+        q, heat = heat_state(seg, tau), np.empty(seg.n)
+        for k, x in enumerate(i2):
+            heat[k] = q
+            q = q * decay + x * gain
+        slope = np.gradient(general_sim(model, seg, x0_from_data(seg))[:, 0]) ** 2
+        num += float(np.sum(slope * heat))
+        den += float(np.sum(slope))
+    if not den > 0:
+        return 0.0
+    return max(0.0, drift.coeff_per_a2s * num / den / ALPHA_COPPER)
+
+
 def _crop(pred: object, k: int) -> Replayed:
     return Replayed(
         pred.label,  # type: ignore[attr-defined]
@@ -212,7 +246,10 @@ def round_trip(result: DiagnosisResult, *, substeps: int = DEFAULT_SUBSTEPS) -> 
         return residuals(held, preds, noise).gap()
 
     def mujoco_gap(s: MotorSpec) -> tuple[float, str, tuple[str, ...], tuple[str, ...]]:
-        ex = mujoco_xml(s, flavour="dcmotor", timestep_s=h)
+        # heating: MuJoCo's inductance follows R, so the file is written with it exact
+        # at the winding temperature where the record's inductive voltage is spent
+        rise = thermal_reference(everything, s.model)
+        ex = mujoco_xml(s, flavour="dcmotor", timestep_s=h, thermal_reference_k=rise)
         p = s.model.params
         runs = replay_segments(
             ex.xml,

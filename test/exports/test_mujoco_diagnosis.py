@@ -20,6 +20,8 @@ from pmdc_ident.core.effects import (
     ResistanceDrift,
     StribeckFriction,
 )
+from pmdc_ident.core.effects.resistance_drift import ALPHA_COPPER
+from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.model import Model, simulate
 from pmdc_ident.core.motors import Limits, MotorSpec, load_motor
 from pmdc_ident.core.params import MotorParams
@@ -27,6 +29,7 @@ from pmdc_ident.exports import write_exports
 from pmdc_ident.exports.diagnosis import motor_with_diagnosis
 from pmdc_ident.exports.mujoco_replay import SegmentStart, replay_segments
 from pmdc_ident.exports.mujoco_xml import mapping_table, mujoco_xml
+from pmdc_ident.exports.roundtrip import thermal_reference
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -66,8 +69,8 @@ def _errors(effect) -> tuple[float, float]:  # type: ignore[no-untyped-def]
     ("effect", "share"),
     [
         (CoulombFriction(0.1 * T), 0.01),  # joint frictionloss
-        (StribeckFriction(0.2 * T, 20.0, 2.0), 0.06),  # LuGre, Gaussian fall
-        (StribeckFriction(0.2 * T, 20.0, 1.0), 0.12),  # ... the exponential one's equal area
+        (StribeckFriction(0.2 * T, 20.0, 2.0), 0.02),  # LuGre, Gaussian fall, no floor
+        (StribeckFriction(0.2 * T, 20.0, 1.0), 0.03),  # ... the exponential one: 3 Gaussians
         (QuadraticDrag(0.1 * T / 1e4), 0.01),  # joint damping's quadratic term
         (LoadTorque(0.1 * T), 0.01),  # a passive dcmotor's zero-pole cogging
         (Cogging(0.1 * T, 7.0, 0.4), 0.03),  # dcmotor cogging, its sign as a phase
@@ -79,6 +82,35 @@ def test_each_carried_effect_replays_in_mujoco_as_in_the_project_s_model(effect,
     err, size = _errors(effect)
     assert size > 0.001  # the effect shows on this record ...
     assert err < share * size  # ... and MuJoCo carries it
+
+
+def test_a_heated_winding_replays_with_mujoco_s_inductance_exact_at_the_thermal_reference():
+    # MuJoCo keeps L/R as its winding heats (its L rises with R); the model's L does
+    # not. Written at the rise where the record's inductive voltage is spent, MuJoCo's
+    # L is the winding's there: a fast sine on a warm winding replays close to the
+    # project's model; written at ambient, MuJoCo's L is (1 + alpha T) too large
+    rate, k = 2000.0, np.arange(4000)
+    v = np.concatenate([np.full(2000, 8.0), 8.0 + 3.0 * np.sin(2 * np.pi * 150 * k[:2000] / rate)])
+    model = Model(P, (ResistanceDrift(0.25, 3.0, 0.0),))
+    ref = simulate(model, v, 1 / rate, substeps=64)
+    lin = simulate(Model(P), v, 1 / rate)
+    seg = Segment(label="x", t=k / rate, voltage=v, current=ref.current, position=ref.position,
+                  speed=ref.speed)  # fmt: skip
+    rise = thermal_reference([seg], model)
+    assert 0.05 < ALPHA_COPPER * rise < 0.15  # the winding warms 5-15 % over the sine
+
+    def current_error(reference_k: float) -> float:
+        ex = mujoco_xml(MotorSpec("t", model, limits=LIMITS), flavour="dcmotor",
+                        timestep_s=2.5e-5, thermal_reference_k=reference_k)  # fmt: skip
+        r = replay_segments(ex.xml, [seg], [SegmentStart(0.0, 0.0, 0.0)])[0]
+        return float(np.sqrt(np.mean((r.current - ref.current)[2000:] ** 2)))
+
+    size = float(np.sqrt(np.mean((lin.current - ref.current)[2000:] ** 2)))
+    at_reference, at_ambient = current_error(rise), current_error(0.0)
+    assert at_reference < 0.4 * size  # carried (31 % of the effect's size left)
+    assert at_ambient > 0.7 * size  # ... where L at ambient leaves most of it (85 %)
+    with pytest.raises(ParameterError):
+        mujoco_xml(MotorSpec("t", model, limits=LIMITS), thermal_reference_k=-1.0)
 
 
 def test_what_mujoco_cannot_carry_is_listed_with_the_part_left_out():
@@ -96,6 +128,13 @@ def test_what_mujoco_cannot_carry_is_listed_with_the_part_left_out():
     ex1 = mujoco_xml(MotorSpec("t", expo, limits=LIMITS), flavour="dcmotor")
     assert [c.split(":")[0] for c in ex1.carried] == ["stribeck_friction"]
     assert any(line.startswith("stribeck_friction: the exponential") for line in ex1.not_carried)
+    # ... as three Gaussian falls on three LuGre elements whose static levels add up to
+    # the breakaway torque, with no Coulomb level the model does not have (a floor only)
+    m1 = mujoco.MjModel.from_xml_string(ex1.xml)
+    assert m1.nu == 1 and m1.nu + 2 == m1.actuator_biasprm.shape[0]
+    static = m1.actuator_biasprm[:, 4].sum()  # lugre's static level per element
+    assert static == pytest.approx(0.2 * T, rel=1e-5)
+    assert m1.actuator_biasprm[:, 3].sum() < 1e-5 * T  # Coulomb levels: floors only
     gauss = Model(P, (StribeckFriction(0.2 * T, 20.0, 2.0),))
     ex2 = mujoco_xml(MotorSpec("t", gauss, limits=LIMITS), flavour="dcmotor")
     assert not any(line.startswith("stribeck_friction") for line in ex2.not_carried)

@@ -128,6 +128,8 @@ class MujocoTerms:
     coulomb_nm: float = 0.0  # a dry friction (joint frictionloss, or LuGre's Coulomb level)
     joint_damping2: float = 0.0  # the joint's quadratic damping coefficient (at the joint)
     stribeck: tuple[float, float] = (0.0, 0.0)  # extra breakaway torque, Stribeck speed
+    # further Gaussian falls (torque, speed) beside ``stribeck``, each a passive element
+    stribeck_more: tuple[tuple[float, float], ...] = ()
     cogging: tuple[float, float, float] = (0.0, 0.0, 0.0)  # amplitude, poles, phase
     thermal: tuple[float, float, float] = (0.0, 0.0, 0.0)  # R_th K/W, C J/K, tempcoef 1/K
     delay_s: float = 0.0  # the actuator's command delay

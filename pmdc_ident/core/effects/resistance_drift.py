@@ -77,10 +77,15 @@ class ResistanceDrift(Effect):
     }
     BENCHMARK_LADDER = Ladder("% of R", (4.0, 8.0, 16.0, 32.0))
     MUJOCO_MAPPING = (
-        '`<dcmotor thermal="R_th C 0 alpha 25 25">` with copper\'s alpha = 0.00393/K: '
+        "`<dcmotor thermal=\"R_th C 0 alpha' 25+D 25\">` with copper's alpha = 0.00393/K: "
         "C = alpha R / k, R_th = tau / C (no cooling: tau 1e6 s), so alpha T = k q to first "
-        "order (MuJoCo heats by R(T) i^2 where the candidate heats by R i^2, and keeps L/R, "
-        "so its L rises with R); the magnets' flux loss r is not carried"
+        "order (MuJoCo heats by R(T) i^2 where the candidate heats by R i^2); MuJoCo keeps "
+        "L/R as R heats, so its L is the winding's at one reference rise D only: resistance "
+        "R (1 + alpha D) and alpha' = alpha / (1 + alpha D) keep R(T), C (1 + alpha D) and "
+        "R_th / (1 + alpha D) make the heating rate the candidate's at D; D = 0 (ambient) "
+        "by default, `roundtrip` the rise where the record's L di/dt is spent (weights "
+        "(di/dt)^2: the least-squares choice for the current's error to first order); the "
+        "magnets' flux loss r is not carried"
     )
 
     coeff_per_a2s: float
