@@ -513,3 +513,34 @@ def test_after_a_pretest_a_coastdown_plan_is_kept_where_it_is_shorter():
     finally:
         family.coastdowns = keep
     assert greedy.met and designed.duration_s <= 0.85 * greedy.duration_s
+
+
+def test_a_pretests_samples_read_late_count_in_the_designed_plans_interval():
+    """A sequential session's design counts the information of the record so far; a
+    current read late biases that record's fit as well, so the plan's predicted sds
+    take the record's share of the bias too (``prior_voltages``): the same plan, other
+    intervals, and none without a lag."""
+    import dataclasses
+
+    from pmdc_ident.core.design.pretest import pretest_plan
+
+    prior, driver = _joint_prior()
+    lagged = dataclasses.replace(
+        prior, noise=dataclasses.replace(prior.noise, current_lag_s=300e-6)
+    )
+    limits = session_limits(lagged, driver, DT, budget_s=10.0)
+    pre = pretest_plan(lagged, limits, DT)
+    _, info, _ = evaluate_plan(lagged, pre)
+    volts = [s.voltage for s in pre.segments]
+    alone = plan_experiment(lagged, driver, DT, prior_info=info, limits=limits)
+    both = plan_experiment(
+        lagged, driver, DT, prior_info=info, limits=limits, prior_voltages=volts
+    )
+    assert [s.label for s in both.plan.segments] == [s.label for s in alone.plan.segments]
+    moved = [n for n in both.predicted_rsd if both.predicted_rsd[n] != alone.predicted_rsd[n]]
+    assert moved, (both.predicted_rsd, alone.predicted_rsd)
+    known = dataclasses.replace(prior, noise=dataclasses.replace(prior.noise, current_lag_s=0.0))
+    _, info0, _ = evaluate_plan(known, pre)
+    a = plan_experiment(known, driver, DT, prior_info=info0, limits=limits)
+    b = plan_experiment(known, driver, DT, prior_info=info0, limits=limits, prior_voltages=volts)
+    assert a.predicted_rsd == b.predicted_rsd

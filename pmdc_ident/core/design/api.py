@@ -95,6 +95,7 @@ def plan_experiment(
     limits: PlanLimits | None = None,
     prior_rsd: Mapping[str, float] | None = None,
     aim_scale: Mapping[str, float] | None = None,
+    prior_voltages: Sequence[np.ndarray] = (),
 ) -> DesignedPlan:
     """Design the shortest plan reaching ``target`` for the motor ``prior`` on a driver
     with ``driver`` limits at ``1 / dt_s`` Hz (see :func:`~.planner.design_plan`);
@@ -134,4 +135,5 @@ def plan_experiment(
         extra=extra,
         prior_rsd=prior_rsd,
         aim_scale=aim_scale,
+        prior_voltages=prior_voltages,
     )

@@ -235,6 +235,7 @@ class _Designer:
         self.lost: dict[str, float] = {}
         self.floor: dict[str, float] = {}  # systematic relative sd (information.systematic_rsd)
         self.lag_rsd: dict[str, float] = {}  # the plan's lag bias as an sd (_lag_rsd)
+        self.prior_voltages: tuple[FloatArray, ...] = ()  # the segments behind info0
         # a prior known to +-r: the truth may lie r below it, and a parameter's relative
         # sd grows as its value falls: aim lower by that much (at most by a third: a
         # sequential session re-fits as data come and stops once the target is met)
@@ -422,6 +423,7 @@ def design_plan(
     extra: Sequence[Candidate] = (),
     prior_rsd: Mapping[str, float] | None = None,
     aim_scale: Mapping[str, float] | None = None,
+    prior_voltages: Sequence[FloatArray] = (),
 ) -> DesignedPlan:
     """The shortest plan (greedy, see the module docs) reaching ``target`` (default
     :data:`~pmdc_ident.core.design.target.DEFAULT_TARGET`) under ``limits``.
@@ -434,7 +436,10 @@ def design_plan(
     the prior is known (relative sd per parameter, a pre-test's fit): the plan aims
     lower for a parameter whose true value may lie below the prior's; ``aim_scale``:
     per parameter, a factor on what the plan aims at (a sequential session's fit found
-    a parameter worse known than this information predicts: it aims lower by as much).
+    a parameter worse known than this information predicts: it aims lower by as much);
+    ``prior_voltages``: the commands of the segments behind ``prior_info``, in the order
+    they ran from rest (a sequential session's record so far): a current read late
+    biases their fit too, and the plan's predicted sds count it (:func:`_lag_rsd`).
     """
     if criterion not in ("A", "D"):
         msg = f"criterion must be A or D, got {criterion!r}"
@@ -487,6 +492,7 @@ def design_plan(
     aim = {k: v for k, v in requested.items() if k not in dropped}
     d = _Designer(prior, limits, dt_s, names, aim, criterion, prior_info, values, prior_rsd)
     d.floor = floor
+    d.prior_voltages = tuple(np.asarray(v, float) for v in prior_voltages)
     for n, k in (aim_scale or {}).items():
         if n in d.aim and k > 0:
             d.aim[n] *= k
@@ -524,17 +530,22 @@ def _lag_rsd(d: _Designer, cands: Sequence[Candidate], start: _State) -> dict[st
 
     Not only L's: the slow decay of the current after a step, read late, moves R, J and
     the friction too (on the independent generator's coreless, gearmotor and servo motors
-    the predicted intervals missed R, J and Tc that way: coverage 80-85 %). Only the
-    plan's own samples are known here: the information in hand before it (a pre-test's)
-    counts as unbiased, so where it is a large share the bias is under-stated (the plan
-    alone is no better: where it hardly separates B from the Coulomb torque, its own
-    bias is tens of percent of nothing it determines)."""
+    the predicted intervals missed R, J and Tc that way: coverage 80-85 %). The segments
+    behind the information in hand (``d.prior_voltages``, a pre-test's) add their part of
+    the bias (their information is in ``d.info0`` already); without them that information
+    counts as unbiased, and where it is a large share the bias is under-stated."""
     noise = d.prior.noise
     lag = noise.current_lag(d.dt)
     if lag <= 0 or noise.current_sd <= 0 or not cands:
         return {}
     info = d.reg.copy()
     grad = np.zeros(len(d.names))
+    x = np.zeros(3)
+    for v in d.prior_voltages:
+        sim = simulate(d.prior.model, v, d.dt, x0=x)
+        cur = np.where(np.isnan(v), 0.0, sim.current)
+        grad = grad + segment_lag_terms(d.im, v, cur, sim.speed, sim.position, lag)[1]
+        x = sim.final_state[:3].copy()
     x = start.x.copy()
     for c in cands:
         sim = simulate(d.prior.model, c.voltage, d.dt, x0=x)

@@ -231,6 +231,7 @@ class SequentialDesign:
                 limits=lim,
                 prior_rsd=self._prior_rsd(fitted),
                 aim_scale=calib,
+                prior_voltages=[s.voltage for s in plan_so_far.segments],
             )
         except PmdcError as exc:
             return self._log(
