@@ -594,9 +594,9 @@ def test_ctrl_c_aborts_the_session_and_makes_the_motor_safe(tmp_path, ros_domain
 def test_crashed_recorder_aborts_the_session_and_its_bag_is_readable(tmp_path, ros_domain, caplog):
     state: dict[str, Any] = {}
 
-    # SIGKILL: no goodbye, as in a real crash, once the recorder has handed 0.5 s of the
-    # session to the file (samples are held 0.5 s, chunks flushed twice a second) on
-    # the topics a bag needs: under load one topic's samples can reach the recorder
+    # SIGKILL: no goodbye, as in a real crash, once the recorder has handed the first
+    # segment and 0.7 s after it to the file (samples are held 0.5 s, chunks flushed
+    # twice a second) on the topics a bag needs: under load one topic's samples can reach the recorder
     # later than another's, and a bag killed before any voltage is written is refused
     # (no 'voltage_applied' topic), rightly
     def kill(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
@@ -605,12 +605,21 @@ def test_crashed_recorder_aborts_the_session_and_its_bag_is_readable(tmp_path, r
             return
         state["size"] = bags[0].stat().st_size
         try:
-            topics = [m[0] for m in scan_mcap(bags[0]).messages]
+            messages = scan_mcap(bags[0]).messages
         except DataError:  # no complete chunk yet
             return
+        # the first segment's end is in the file, and more than the recorder's hold of
+        # samples after it: a segment a re-read can fit (killed on 500 samples alone,
+        # they were once all before 'staircase_01' started: nothing to export, rightly)
+        ends = [
+            k
+            for k, (t, _, data) in enumerate(messages)
+            if t.endswith("/segment") and b'"event":"end"' in data
+        ]
+        after = [m[0] for m in messages[ends[0] :]] if ends else []
         if (
-            min(sum(t.endswith(f"/{k}") for t in topics) for k in ("encoder", "voltage_applied"))
-            >= 500
+            min(sum(t.endswith(f"/{k}") for t in after) for k in ("encoder", "voltage_applied"))
+            >= 700
         ):
             procs["recorder"].kill()
             state["killed"] = True
