@@ -596,9 +596,9 @@ def test_crashed_recorder_aborts_the_session_and_its_bag_is_readable(tmp_path, r
 
     # SIGKILL: no goodbye, as in a real crash, once the recorder has handed the first
     # segment and 0.7 s after it to the file (samples are held 0.5 s, chunks flushed
-    # twice a second) on the topics a bag needs: under load one topic's samples can reach the recorder
-    # later than another's, and a bag killed before any voltage is written is refused
-    # (no 'voltage_applied' topic), rightly
+    # twice a second) on the topics a bag needs: under load one topic's samples can
+    # reach the recorder later than another's, and a bag killed before any voltage is
+    # written is refused (no 'voltage_applied' topic), rightly
     def kill(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
         bags = list((tmp_path / "out").glob("*/*.mcap"))
         if "killed" in state or not bags or bags[0].stat().st_size == state.get("size"):
