@@ -338,7 +338,7 @@ def test_a_coast_is_one_segment_and_no_level_is_held_longer_than_the_target_need
 def test_an_extension_starts_where_the_hold_brings_a_moving_joint_to_rest():
     """The plan ran out with the joint at speed; the session holds 0 V while the worker
     designs, and the rotor brakes on. The next part is designed from where it comes to
-    rest under the fit so far, not from where it was (on this joint: 0.3 rad of
+    rest under the fit so far, not from where it was (on this joint: 0.26 rad of
     its 0.4 rad margin from 20 rad/s; farther still when the hold reaches the driver
     late)."""
     from pmdc_ident.core.data import Segment

@@ -153,8 +153,9 @@ class SequentialDesign:
         ``current_a`` the joint's state when the plan ran out. The session holds its safe
         command meanwhile, so an extension starts where that hold brings the rotor to
         rest under the fit so far (:attr:`start_rad`): a part that ends at speed goes on
-        turning while the worker designs (0.3 rad of a 0.4 rad margin on the geared joint
-        from 7 rad/s, which then left its range)."""
+        turning while the worker designs (0.26 rad of its 0.4 rad margin on the geared
+        joint braking from 20 rad/s; a CI run designed from where the joint passed left
+        its range)."""
         self.seen_s = sum(s.n for s in segments) * self.dt
         try:
             fitted, achieved = self._fit(segments)

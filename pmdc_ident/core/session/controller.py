@@ -167,7 +167,6 @@ class SessionController:
         self._last_position = 0.0
         self._last_speed = 0.0
         self._start_retries = 0  # extensions re-designed in a row: the joint rested elsewhere
-        self._recent_positions: deque[tuple[int, float]] = deque()  # the last RECENT_NS
 
     # -- state ---------------------------------------------------------------------------
     @property
@@ -263,10 +262,6 @@ class SessionController:
         self.peers.last_sample_s = now_s
         self.peers.on_stamp("encoder", stamp_ns)
         self._last_position, self._last_speed = position_rad, speed_rad_s
-        recent = self._recent_positions
-        recent.append((stamp_ns, position_rad))
-        while recent and stamp_ns - recent[0][0] > RECENT_NS:
-            recent.popleft()
         lag_ns = self.latency.update(stamp_ns, now_ns)
         if not self.recording_samples:
             return
@@ -738,8 +733,9 @@ class SessionController:
 
         tol = start_tolerance_rad(travel)
         off = self._last_position - start
-        seen = [p for _, p in self._recent_positions]
-        moved = max(seen) - min(seen) if seen else 0.0
+        enc = self.recording.encoder  # the session's samples: the last RECENT_NS of them
+        seen = enc.values_since(enc.last_ns() - RECENT_NS, 0)
+        moved = float(seen.max() - seen.min()) if seen.size else 0.0
         if moved > tol:
             return (
                 f"the joint is still moving ({moved:.3g} rad in the last "

@@ -41,6 +41,11 @@ class Columns:
     def values(self, k: int) -> NDArray[np.float64]:
         return self.v[: self.n, k].copy()
 
+    def values_since(self, ns: int, k: int) -> NDArray[np.float64]:
+        """Column ``k`` of the samples stamped at or after ``ns``."""
+        first = int(np.searchsorted(self.ns[: self.n], ns, side="left"))
+        return self.v[first : self.n, k].copy()
+
 
 class Recording:
     """The three driver topics of one session and the encoder samples' latency."""
