@@ -93,11 +93,19 @@ class Terminated(KeyboardInterrupt):
         self.signum = signum
 
 
+# the signals raised while the command runs: where one lands in a library that turns
+# it into its own exception, the chain no longer names it (numpy's C extension import
+# raised a bare ImportError for a SIGTERM under load)
+_RAISED: list[int] = []
+
+
 def _terminate(signum: int, _frame: object) -> None:
+    _RAISED.append(signum)
     raise Terminated(signum)
 
 
 def _interrupt(_signum: int, _frame: object) -> None:
+    _RAISED.append(int(signal.SIGINT))
     raise KeyboardInterrupt
 
 
@@ -149,6 +157,7 @@ def _signals(program: bool = False) -> Iterator[None]:
     if old[signal.SIGINT] in (_hold, signal.default_int_handler):
         signal.signal(signal.SIGINT, _interrupt)
     early, _EARLY[:] = list(_EARLY), []
+    _RAISED[:] = early[:1]
     try:
         if early:  # a signal held while this module was imported
             raise KeyboardInterrupt if early[0] == signal.SIGINT else Terminated(early[0])
@@ -236,6 +245,8 @@ def _exit_status(
     """One line on stderr for ``exc`` and the exit status; never a traceback."""
     prog = f"pmdc-ident {command}".rstrip()
     signum = _signal_of(exc)
+    if signum is None and _RAISED:
+        signum = _RAISED[0]  # it landed where a library replaced it with its own error
     if signum is not None:
         if signum == signal.SIGINT:
             _say(f"{prog}: interrupted")

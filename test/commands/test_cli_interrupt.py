@@ -114,6 +114,26 @@ def test_a_second_signal_during_the_clean_up_keeps_the_first_ones_status(capsys)
     assert capsys.readouterr().err.strip() == "pmdc-ident export: interrupted"
 
 
+def test_a_signal_a_library_turned_into_its_own_error_still_names_the_signal(capsys):
+    """SIGTERM landing inside an extension module's import under load came back as a bare
+    ImportError whose chain no longer held it: 'internal error', exit 1 (the property
+    test over signals). The handler's record names it: 143, 'stopped by SIGTERM'."""
+    from pmdc_ident import cli
+
+    cli._RAISED[:] = []
+    try:
+        try:
+            cli._terminate(int(signal.SIGTERM), None)
+        except cli.Terminated:
+            raise ImportError from None  # what the library did
+    except ImportError as exc:
+        status = cli._exit_status("identify", exc, ())
+    finally:
+        cli._RAISED[:] = []
+    assert status == 143
+    assert capsys.readouterr().err.strip() == "pmdc-ident identify: stopped by SIGTERM"
+
+
 def test_a_signal_after_the_command_is_held_in_the_program_not_raised_on_the_way_out():
     # the program (argv None) ends with its command: a Ctrl-C between the command's end
     # and the exit stays held (raised there, it was a traceback from a late import);
