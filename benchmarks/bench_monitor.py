@@ -29,10 +29,10 @@ import time
 import numpy as np
 
 from pmdc_ident.core.control_design import design_gains
-from pmdc_ident.core.drift_monitor import DriftLevel, DriftMonitor
 from pmdc_ident.core.effects import ResistanceDrift
 from pmdc_ident.core.motors import MotorSpec, load_motor
 from pmdc_ident.core.service_run import simulate_service
+from pmdc_ident.node_logic.drift_monitor import DriftLevel, DriftMonitor
 
 
 def heating(spec: MotorSpec, design, minutes: float, k_per_a2s: float, seed: int) -> None:

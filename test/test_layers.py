@@ -1,7 +1,7 @@
 """The package's layers, enforced: a module imports only from its own layer or below.
 
     core <- protocol <- dataio, report, exports <- backends, benchmark, app
-    <- commands (and cli), process <- nodes <- demo
+    <- node_logic <- commands (and cli), process <- nodes <- demo
 
 Every ``import`` / ``from ... import`` statement of every module is read from its
 syntax tree, including imports inside functions (a lazy import is still a
@@ -30,11 +30,12 @@ LAYERS: dict[str, int] = {
     "backends": 3,
     "benchmark": 3,
     "app": 3,
-    "commands": 4,
-    "cli": 4,
-    "process": 4,
-    "nodes": 5,
-    "demo": 6,
+    "node_logic": 4,
+    "commands": 5,
+    "cli": 5,
+    "process": 5,
+    "nodes": 6,
+    "demo": 7,
 }
 
 

@@ -1,6 +1,6 @@
 """``pmdc-ident monitor DATA --params MOTOR.yaml``: replay a recording through the drift monitor.
 
-The same :class:`~pmdc_ident.core.drift_monitor.DriftMonitor` the monitor node
+The same :class:`~pmdc_ident.node_logic.drift_monitor.DriftMonitor` the monitor node
 runs: every sample in time order (segments joined; a gap restarts the filters),
 the drift printed over time, a summary, and with ``--report DIR`` a plot and a
 CSV of the estimates with their 95 % intervals.
@@ -58,9 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pmdc_ident.commands._bounds import Bound, check_bounds
     from pmdc_ident.commands.outputs import check_folder_output
-    from pmdc_ident.core.drift_monitor import DriftMonitor, MonitorConfig
     from pmdc_ident.core.motors import load_motor
     from pmdc_ident.dataio.units import load_input
+    from pmdc_ident.node_logic.drift_monitor import DriftMonitor, MonitorConfig
 
     check_bounds(
         [

@@ -3,7 +3,7 @@
 ``identify``, ``diagnose`` and the benchmark take ``progress: ProgressCallback | None``
 and call it with one human-readable line per step (the CLI prints them on stderr
 unless ``--quiet``). A running session's state is a different thing:
-:class:`pmdc_ident.core.session.SessionProgress`.
+:class:`pmdc_ident.node_logic.session.SessionProgress`.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The driver's samples per topic: the one type both the bag reader and the session use.
 
 The identification node collects them as a session runs
-(:meth:`pmdc_ident.core.session.recording.Recording.samples`); the bag reader reads
+(:meth:`pmdc_ident.node_logic.session.recording.Recording.samples`); the bag reader reads
 them from a recorded session (:func:`pmdc_ident.dataio.bagio.read_driver_arrays`);
 :func:`pmdc_ident.dataio.bagio.assemble_run` joins either into a
 :class:`~pmdc_ident.core.data.Run` the same way, so offline and online
@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 if TYPE_CHECKING:
-    from pmdc_ident.core.session.markers import Marker
+    from pmdc_ident.core.markers import Marker
 
 __all__ = ["DriverSamples"]
 

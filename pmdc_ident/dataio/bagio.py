@@ -12,7 +12,7 @@ topic                  type                        content
                                                    open), effort[1] terminal V if measured
 ``voltage_cmd``        std_msgs/msg/Float64        the identification node's command, V
 ``segment``            std_msgs/msg/String         JSON segment marker
-                                                   (:class:`pmdc_ident.core.session.Marker`)
+                                                   (:class:`pmdc_ident.core.markers.Marker`)
 =====================  ==========================  ======================================
 
 Driver topics carry the driver's own sample time in ``header.stamp``;
@@ -39,8 +39,8 @@ from numpy.typing import NDArray
 from pmdc_ident.core.data import Run, Segment, link_history
 from pmdc_ident.core.errors import DataError, PmdcError
 from pmdc_ident.core.errors import option_name as opt
+from pmdc_ident.core.markers import Marker, MarkerEvent
 from pmdc_ident.core.samples import DriverSamples
-from pmdc_ident.core.session import Marker, MarkerEvent
 from pmdc_ident.core.stream_join import join_driver_samples
 
 __all__ = [

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 from pmdc_ident.core.errors import DataError
-from pmdc_ident.core.session import Marker, MarkerEvent
+from pmdc_ident.core.markers import Marker, MarkerEvent
 
 __all__ = ["Recovered", "cut_markers", "scan_mcap", "unfinished"]
 

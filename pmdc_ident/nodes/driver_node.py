@@ -30,14 +30,14 @@ re-sent instead of lost; ``voltage_cmd`` RELIABLE KEEP_LAST(10), the ROS default
 controller publishes with; ``/diagnostics`` RELIABLE KEEP_LAST(10)).
 
 The node only wires: every decision (refusing, clamping, trips, watchdog, the
-status) is :class:`pmdc_ident.backends.driver.Driver`, the plant is
+status) is :class:`pmdc_ident.node_logic.driver.Driver`, the plant is
 :class:`pmdc_ident.backends.sim.SimBackend` or the board behind
 :class:`pmdc_ident.backends.serial_board.SerialBackend`; parameters are declared from
 :data:`pmdc_ident.process.parameter_tables.DRIVER`. The motor is made safe on every way
 out (Ctrl-C, SIGTERM, exception, shutdown: :mod:`pmdc_ident.nodes.runtime`); a
 stop holds 0 V while a node still commands the driver (at most ``stop_wait_s``), so
 the identification node's own safe command lands before the armature opens
-(:meth:`pmdc_ident.backends.driver.Driver.begin_stop`).
+(:meth:`pmdc_ident.node_logic.driver.Driver.begin_stop`).
 """
 
 from __future__ import annotations
@@ -57,9 +57,9 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from pmdc_ident.backends.base import Telemetry
-from pmdc_ident.backends.driver import Driver
 from pmdc_ident.backends.status import Level
 from pmdc_ident.core.enums import ExitCode, LogLevel
+from pmdc_ident.node_logic.driver import Driver
 from pmdc_ident.nodes.parameters import declare
 from pmdc_ident.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, sample_qos
 from pmdc_ident.nodes.runtime import log as node_log

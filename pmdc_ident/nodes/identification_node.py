@@ -25,7 +25,7 @@ name                       type                          meaning
 =========================  ============================  =========================================
 
 The node only wires: every decision is
-:class:`pmdc_ident.core.session.controller.SessionController` (start-up, safety
+:class:`pmdc_ident.node_logic.session.controller.SessionController` (start-up, safety
 defaults, latency, publish policy, confirming the safe state), which this node feeds
 with its callbacks and which publishes through the methods below. Parameters are
 declared from :data:`pmdc_ident.process.parameter_tables.IDENTIFICATION`; QoS profiles
@@ -53,10 +53,10 @@ from std_srvs.srv import Trigger
 
 from pmdc_ident.core.enums import ExitCode, LogLevel
 from pmdc_ident.core.motors import MotorSpec
-from pmdc_ident.core.session.controller import SessionController
-from pmdc_ident.core.session.ports import IdentificationJob
-from pmdc_ident.core.session.sequential import DesignOutcome
 from pmdc_ident.dataio.bagio import parse_joint_state
+from pmdc_ident.node_logic.session.controller import SessionController
+from pmdc_ident.node_logic.session.ports import IdentificationJob
+from pmdc_ident.node_logic.session.sequential import DesignOutcome
 from pmdc_ident.nodes.parameters import declare
 from pmdc_ident.nodes.qos import (
     COMMAND_QOS,

@@ -2,7 +2,7 @@
 
 Runs beside any controller. Subscribes to the driver's ``voltage_applied``,
 ``current`` and ``encoder`` (raw CDR, joined by stamp), feeds
-:class:`~pmdc_ident.core.drift_monitor.DriftMonitor` (all the numerics) and
+:class:`~pmdc_ident.node_logic.drift_monitor.DriftMonitor` (all the numerics) and
 publishes:
 
 * ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``, every
@@ -35,18 +35,18 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
-from pmdc_ident.core.drift_monitor import (
-    DriftMonitor,
-    DriftReport,
-    MonitorConfig,
-    diagnostic_status,
-)
 from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.schema import SCHEMA_VERSION
 from pmdc_ident.core.stream_join import StampJoiner
 from pmdc_ident.dataio.bagio import parse_joint_state
+from pmdc_ident.node_logic.drift_monitor import (
+    DriftMonitor,
+    DriftReport,
+    MonitorConfig,
+    diagnostic_status,
+)
 from pmdc_ident.nodes.parameters import declare
 from pmdc_ident.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, LATCHED_QOS, sample_qos
 from pmdc_ident.nodes.result_topics import NumericTopic, array_message, drift_topics

@@ -32,7 +32,7 @@ from std_msgs.msg import Float64, String
 
 from pmdc_ident.core.enums import ExitCode
 from pmdc_ident.core.errors import PmdcError
-from pmdc_ident.core.session import Marker, MarkerEvent
+from pmdc_ident.core.markers import Marker, MarkerEvent
 from pmdc_ident.dataio.bagio import TOPIC_TYPES, BagWriter, header_stamp_ns
 from pmdc_ident.dataio.completeness import Completeness, completeness
 from pmdc_ident.nodes.parameters import declare

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 if TYPE_CHECKING:
-    from pmdc_ident.core.drift_monitor import DriftReport
+    from pmdc_ident.node_logic.drift_monitor import DriftReport
 
 __all__ = [
     "DRIFT_FIELDS",

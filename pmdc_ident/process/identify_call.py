@@ -37,10 +37,14 @@ from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.safe_write import write_text
 from pmdc_ident.core.samples import DriverSamples
-from pmdc_ident.core.session.ports import ExportRequest, IdentificationJob, IdentificationOutcome
-from pmdc_ident.core.session.sequential import DesignJob, DesignOutcome
 from pmdc_ident.dataio.bagio import assemble_run
 from pmdc_ident.dataio.completeness import Completeness, completeness
+from pmdc_ident.node_logic.session.ports import (
+    ExportRequest,
+    IdentificationJob,
+    IdentificationOutcome,
+)
+from pmdc_ident.node_logic.session.sequential import DesignJob, DesignOutcome
 
 __all__ = [
     "NODE_NAMES",
@@ -218,9 +222,9 @@ def _identification_job(job: IdentificationJob) -> IdentificationOutcome:
 
 
 def run_design_job(job: DesignJob) -> DesignOutcome:
-    """A ``plan: auto`` session's re-fit and design (:mod:`pmdc_ident.core.session.
+    """A ``plan: auto`` session's re-fit and design (:mod:`pmdc_ident.node_logic.session.
     sequential`) on the samples so far, assembled as the bag would be. Never raises."""
-    from pmdc_ident.core.session.sequential import run_design_job as decide
+    from pmdc_ident.node_logic.session.sequential import run_design_job as decide
 
     try:
         run = assemble_run(job.samples, source=job.source, session=job.session)

@@ -12,7 +12,7 @@ only source of the parameters' defaults. The nodes declare them from it
 (``test/nodes/test_parameter_tables.py`` runs the check.) The identification node's
 ``sequence.*`` and ``steady_state.*`` entries take their defaults from the core
 dataclasses :class:`~pmdc_ident.core.excitation.SequenceConfig` and
-:class:`~pmdc_ident.core.session.steady_state.SteadyStateConfig`.
+:class:`~pmdc_ident.node_logic.session.steady_state.SteadyStateConfig`.
 
 This module does not import ROS, so the generator and its test run anywhere.
 
@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from pmdc_ident.core.excitation import SequenceConfig
-from pmdc_ident.core.session.steady_state import SteadyStateConfig
+from pmdc_ident.node_logic.session.steady_state import SteadyStateConfig
 
 __all__ = [
     "DRIVER",

@@ -2,8 +2,8 @@
 
 The values are those of :data:`pmdc_ident.process.parameter_tables.IDENTIFICATION`,
 by name; :func:`controller_config` builds the
-:class:`~pmdc_ident.core.session.controller.ControllerConfig` the node's
-:class:`~pmdc_ident.core.session.controller.SessionController` runs on, so the
+:class:`~pmdc_ident.node_logic.session.controller.ControllerConfig` the node's
+:class:`~pmdc_ident.node_logic.session.controller.SessionController` runs on, so the
 controller is tested from the same table without ROS.
 """
 
@@ -18,11 +18,11 @@ from pmdc_ident.core.errors import OptionError, PmdcError, wording
 from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.fixed import parse_fix
 from pmdc_ident.core.motors import load_motor
-from pmdc_ident.core.session.controller import ControllerConfig
-from pmdc_ident.core.session.ports import ExportRequest
-from pmdc_ident.core.session.sequential import PlanSetting
-from pmdc_ident.core.session.startup import SessionSettings, StartRules
-from pmdc_ident.core.session.steady_state import SteadyStateConfig
+from pmdc_ident.node_logic.session.controller import ControllerConfig
+from pmdc_ident.node_logic.session.ports import ExportRequest
+from pmdc_ident.node_logic.session.sequential import PlanSetting
+from pmdc_ident.node_logic.session.startup import SessionSettings, StartRules
+from pmdc_ident.node_logic.session.steady_state import SteadyStateConfig
 from pmdc_ident.process.identify_call import NODE_NAMES
 
 __all__ = ["FLUSH_TIMEOUT_S", "controller_config"]

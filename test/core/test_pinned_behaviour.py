@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from pmdc_ident.backends.sim import SimBackend
-from pmdc_ident.core.drift_monitor import DriftMonitor, DriftReport
 from pmdc_ident.core.effects import BrushDrop, Delay, ResistanceDrift, StribeckFriction
 from pmdc_ident.core.motors import MotorSpec, load_motor
+from pmdc_ident.node_logic.drift_monitor import DriftMonitor, DriftReport
 
 SEED000 = load_motor("seed000_ebike")
 RTOL = 1e-6  # rounding of another libm, not a change of behaviour

@@ -8,7 +8,7 @@ from dataclasses import replace
 import pytest
 
 from pmdc_ident.core.enums import ParameterNote, SessionStatus
-from pmdc_ident.core.session.controller import Phase
+from pmdc_ident.node_logic.session.controller import Phase
 
 
 def test_the_status_topic_keeps_its_strings():

@@ -8,8 +8,8 @@ from helpers.plans import tiny_run
 
 from pmdc_ident.core.data import Run, Segment
 from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.markers import Marker, MarkerEvent
 from pmdc_ident.core.samples import DriverSamples
-from pmdc_ident.core.session import Marker, MarkerEvent
 from pmdc_ident.dataio import load_data
 from pmdc_ident.dataio.bagio import (
     assemble_run,

@@ -17,8 +17,8 @@ import pytest
 from pmdc_ident.cli import EXIT_USER_ERROR, main
 from pmdc_ident.core.data import Run
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
+from pmdc_ident.core.markers import Marker, MarkerEvent
 from pmdc_ident.core.motors import load_motor
-from pmdc_ident.core.session import Marker, MarkerEvent
 from pmdc_ident.dataio import bagio
 from pmdc_ident.dataio.bagio import TOPIC_TYPES, BagWriter, write_bag
 from pmdc_ident.dataio.mcap_recover import scan_mcap

@@ -15,8 +15,8 @@ from mcap.writer import CompressionType, Writer
 
 from pmdc_ident.core.data import Run, Segment
 from pmdc_ident.core.errors import DataError
+from pmdc_ident.core.markers import Marker, MarkerEvent
 from pmdc_ident.core.samples import DriverSamples
-from pmdc_ident.core.session import Marker, MarkerEvent
 from pmdc_ident.dataio import bagio
 from pmdc_ident.dataio.bagio import (
     JOINT_STATE,

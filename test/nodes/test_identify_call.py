@@ -13,7 +13,7 @@ from pmdc_ident.core._jit import HAVE_NUMBA
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
 from pmdc_ident.core.motors import load_motor
 from pmdc_ident.core.samples import DriverSamples
-from pmdc_ident.core.session.ports import IdentificationJob
+from pmdc_ident.node_logic.session.ports import IdentificationJob
 from pmdc_ident.process.identify_call import IdentificationWorker, identify_session_run, warm_up
 
 

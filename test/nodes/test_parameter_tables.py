@@ -8,7 +8,7 @@ import yaml
 from helpers.paths import REPO
 
 from pmdc_ident.core.excitation import SequenceConfig
-from pmdc_ident.core.session.steady_state import SteadyStateConfig
+from pmdc_ident.node_logic.session.steady_state import SteadyStateConfig
 from pmdc_ident.process.parameter_tables import (
     DRIVER,
     IDENTIFICATION,

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from pmdc_ident.core.drift_monitor import DriftMonitor
 from pmdc_ident.core.enums import LogLevel
 from pmdc_ident.core.motors import load_motor
+from pmdc_ident.node_logic.drift_monitor import DriftMonitor
 from pmdc_ident.nodes.result_topics import (
     DRIFT_FIELDS,
     PARAMETER_FIELDS,

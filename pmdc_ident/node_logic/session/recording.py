@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from pmdc_ident.core.markers import Marker
 from pmdc_ident.core.samples import DriverSamples
-from pmdc_ident.core.session.markers import Marker
 
 __all__ = ["Columns", "Recording"]
 

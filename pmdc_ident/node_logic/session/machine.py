@@ -11,10 +11,10 @@ from pmdc_ident.core.data import TestKind
 from pmdc_ident.core.enums import AbortReason, SafeMode
 from pmdc_ident.core.errors import ParameterError, PmdcError
 from pmdc_ident.core.excitation import PlannedSegment, TestPlan
+from pmdc_ident.core.markers import Marker, MarkerEvent
 from pmdc_ident.core.safety import SafetyConfig, SafetyMonitor
 from pmdc_ident.core.schema import SCHEMA_VERSION
-from pmdc_ident.core.session.markers import Marker, MarkerEvent
-from pmdc_ident.core.session.steady_state import SteadyStateConfig, SteadyStateDetector
+from pmdc_ident.node_logic.session.steady_state import SteadyStateConfig, SteadyStateDetector
 
 __all__ = ["Command", "Session", "SessionProgress", "SessionState", "SessionStep"]
 

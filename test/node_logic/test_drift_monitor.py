@@ -8,18 +8,18 @@ import pytest
 from pmdc_ident.cli import main
 from pmdc_ident.core.control_design import GainDesign, design_gains
 from pmdc_ident.core.data import Run, Segment
-from pmdc_ident.core.drift_monitor import (
+from pmdc_ident.core.effects import CoulombFriction, Delay, ResistanceDrift
+from pmdc_ident.core.model import Model
+from pmdc_ident.core.motors import MotorSpec, load_motor
+from pmdc_ident.core.service_run import ServiceRun, simulate_service
+from pmdc_ident.dataio.csvio import write_csv
+from pmdc_ident.node_logic.drift_monitor import (
     STALE,
     DriftLevel,
     DriftMonitor,
     DriftReport,
     diagnostic_status,
 )
-from pmdc_ident.core.effects import CoulombFriction, Delay, ResistanceDrift
-from pmdc_ident.core.model import Model
-from pmdc_ident.core.motors import MotorSpec, load_motor
-from pmdc_ident.core.service_run import ServiceRun, simulate_service
-from pmdc_ident.dataio.csvio import write_csv
 
 SPEC = load_motor("seed000_ebike")
 P = SPEC.model.params

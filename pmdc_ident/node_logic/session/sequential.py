@@ -1,6 +1,6 @@
 """The identification node's ``plan`` parameter, ROS-free: which plan a session runs.
 
-* ``default``: today's sequence (:func:`~pmdc_ident.core.session.startup.build_session`).
+* ``default``: today's sequence (:func:`~pmdc_ident.node_logic.session.startup.build_session`).
 * a path to a plan CSV (``pmdc-ident plan --csv`` writes one): that plan, checked
   against the driver's limits before anything moves.
 * ``auto``: a sequential session (:mod:`pmdc_ident.core.design.sequential`): the
@@ -31,9 +31,9 @@ from pmdc_ident.core.excitation import PlannedSegment, TestPlan
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.core.safety import COMMAND_DELAY_S, SafetyConfig
 from pmdc_ident.core.samples import DriverSamples
-from pmdc_ident.core.session.machine import Session
-from pmdc_ident.core.session.plan_check import check_plan
-from pmdc_ident.core.session.startup import SessionSettings, driver_limits, safety_for
+from pmdc_ident.node_logic.session.machine import Session
+from pmdc_ident.node_logic.session.plan_check import check_plan
+from pmdc_ident.node_logic.session.startup import SessionSettings, driver_limits, safety_for
 
 __all__ = ["DesignJob", "DesignOutcome", "PlanSetting", "build_planned_session"]
 

@@ -9,11 +9,11 @@ from typing import Any
 
 import pytest
 
-from pmdc_ident.backends.driver import Driver
 from pmdc_ident.backends.factory import BackendConfigError
 from pmdc_ident.backends.status import Level
 from pmdc_ident.core.enums import LogLevel
 from pmdc_ident.core.motors import load_motor
+from pmdc_ident.node_logic.driver import Driver
 from pmdc_ident.process.parameter_tables import DRIVER
 
 SPEC = load_motor("seed000_ebike")  # 24 V, 30 A, 450 rad/s

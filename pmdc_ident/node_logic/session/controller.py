@@ -30,25 +30,26 @@ from typing import Any
 
 from pmdc_ident.core.enums import AbortReason, ExitCode, LogLevel, SafeMode, SessionStatus
 from pmdc_ident.core.errors import PmdcError
+from pmdc_ident.core.markers import MarkerEvent
 from pmdc_ident.core.schema import SCHEMA_VERSION
-from pmdc_ident.core.session.link import CommandPolicy, Latency, SafeConfirmation
-from pmdc_ident.core.session.machine import Session, SessionState, SessionStep
-from pmdc_ident.core.session.markers import MarkerEvent
-from pmdc_ident.core.session.ports import (
+from pmdc_ident.core.stream_join import HeldStream
+from pmdc_ident.node_logic.session.link import CommandPolicy, Latency, SafeConfirmation
+from pmdc_ident.node_logic.session.machine import Session, SessionState, SessionStep
+from pmdc_ident.node_logic.session.ports import (
     ControllerPorts,
     ExportRequest,
     IdentificationJob,
     IdentificationOutcome,
 )
-from pmdc_ident.core.session.recording import Recording
-from pmdc_ident.core.session.remedy import abort_remedy
-from pmdc_ident.core.session.sequential import (
+from pmdc_ident.node_logic.session.recording import Recording
+from pmdc_ident.node_logic.session.remedy import abort_remedy
+from pmdc_ident.node_logic.session.sequential import (
     DesignJob,
     DesignOutcome,
     PlanSetting,
     build_planned_session,
 )
-from pmdc_ident.core.session.startup import (
+from pmdc_ident.node_logic.session.startup import (
     DRIVER_PARAMETERS,
     Peers,
     SessionSettings,
@@ -56,7 +57,6 @@ from pmdc_ident.core.session.startup import (
     StartRules,
     build_session,
 )
-from pmdc_ident.core.stream_join import HeldStream
 
 __all__ = [
     "ControllerConfig",
@@ -157,7 +157,7 @@ class SessionController:
         self._flush_deadline_s = 0.0
         self._session_count = 0
         self._stopped_idle = False  # a stop that cut nothing short (see confirm_tick)
-        # plan: auto (core.session.sequential): the design state, a job at the worker
+        # plan: auto (node_logic.session.sequential): the design state, a job at the worker
         self.design: Any = None
         self._design_pending = False
         self._design_seen = 0  # segment ends already re-fitted
@@ -629,7 +629,7 @@ class SessionController:
             )
         )
 
-    # -- plan: auto (core.session.sequential) ----------------------------------------------
+    # -- plan: auto (node_logic.session.sequential) ----------------------------------------------
     @property
     def design_pending(self) -> bool:
         return self._design_pending

@@ -17,7 +17,7 @@ from pmdc_ident.core.enums import SafeMode
 from pmdc_ident.core.excitation import SequenceConfig, TestPlan, plan_for_motor
 from pmdc_ident.core.model import Plant
 from pmdc_ident.core.motors import Limits, load_motor
-from pmdc_ident.core.session import (
+from pmdc_ident.node_logic.session import (
     AbortReason,
     Marker,
     MarkerEvent,
@@ -167,7 +167,7 @@ def test_a_staircase_level_applied_late_is_judged_only_once_the_driver_applies_i
 def test_a_stale_staircase_level_does_not_pass_for_the_next_one():
     """The previous level still applied (its successor's command late) is not the new
     level's steady state; a reading near the level (a board's own, a sagging supply) is."""
-    from pmdc_ident.core.session.machine import _applies
+    from pmdc_ident.node_logic.session.machine import _applies
 
     assert _applies(None, 12.0, 0.0)  # not known: as before
     assert not _applies(math.nan, 12.0, 0.0)  # armature open

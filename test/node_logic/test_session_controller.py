@@ -24,21 +24,21 @@ from pmdc_ident.core.excitation import SequenceConfig
 from pmdc_ident.core.model import Plant
 from pmdc_ident.core.motors import MotorSpec, load_motor
 from pmdc_ident.core.safety import SafetyConfig
-from pmdc_ident.core.session.controller import ControllerConfig, Phase, SessionController
-from pmdc_ident.core.session.ports import (
+from pmdc_ident.exports import EXPORT_FILES
+from pmdc_ident.node_logic.session.controller import ControllerConfig, Phase, SessionController
+from pmdc_ident.node_logic.session.ports import (
     ExportRequest,
     IdentificationJob,
     IdentificationOutcome,
 )
-from pmdc_ident.core.session.startup import (
+from pmdc_ident.node_logic.session.startup import (
     ABORT_FRACTION,
     DRIVER_PARAMETERS,
     SessionSettings,
     StartCheck,
     build_session,
 )
-from pmdc_ident.core.session.steady_state import SteadyStateConfig
-from pmdc_ident.exports import EXPORT_FILES
+from pmdc_ident.node_logic.session.steady_state import SteadyStateConfig
 from pmdc_ident.process.parameter_tables import IDENTIFICATION
 from pmdc_ident.process.settings import controller_config
 

@@ -35,9 +35,9 @@ from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.excitation import SequenceConfig, TestPlan, default_plan, plan_for_motor
 from pmdc_ident.core.motors import Limits, MotorSpec, load_motor
 from pmdc_ident.core.safety import SafetyConfig
-from pmdc_ident.core.session.machine import Session
-from pmdc_ident.core.session.plan_check import check_plan
-from pmdc_ident.core.session.steady_state import SteadyStateConfig
+from pmdc_ident.node_logic.session.machine import Session
+from pmdc_ident.node_logic.session.plan_check import check_plan
+from pmdc_ident.node_logic.session.steady_state import SteadyStateConfig
 
 __all__ = [
     "ABORT_FRACTION",

@@ -17,25 +17,26 @@ command (armature open, or zero volts, by configuration).
 Command convention: ``Command.voltage_v`` is volts, NaN = armature open.
 
 Modules: :mod:`.machine` (:class:`Session`, its commands, steps and progress),
-:mod:`.markers` (the ``segment`` topic's format), :mod:`.steady_state` (when a
-staircase level has settled), :mod:`.plan_check` (limits checked before anything
-moves); the safety monitor is :mod:`pmdc_ident.core.safety`.
+:mod:`.steady_state` (when a staircase level has settled), :mod:`.plan_check` (limits
+checked before anything moves); the ``segment`` topic's format is
+:mod:`pmdc_ident.core.markers` (the bag reader needs it too), the safety monitor
+:mod:`pmdc_ident.core.safety`.
 """
 
 from __future__ import annotations
 
 from pmdc_ident.core.enums import AbortReason
+from pmdc_ident.core.markers import Marker, MarkerEvent
 from pmdc_ident.core.safety import SafetyConfig, SafetyMonitor
-from pmdc_ident.core.session.machine import (
+from pmdc_ident.node_logic.session.machine import (
     Command,
     Session,
     SessionProgress,
     SessionState,
     SessionStep,
 )
-from pmdc_ident.core.session.markers import Marker, MarkerEvent
-from pmdc_ident.core.session.plan_check import check_plan
-from pmdc_ident.core.session.steady_state import SteadyStateConfig, SteadyStateDetector
+from pmdc_ident.node_logic.session.plan_check import check_plan
+from pmdc_ident.node_logic.session.steady_state import SteadyStateConfig, SteadyStateDetector
 
 __all__ = [
     "AbortReason",

@@ -16,9 +16,9 @@ from pmdc_ident.core.enums import AbortReason
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.model import Plant
 from pmdc_ident.core.motors import MotorSpec, load_motor
-from pmdc_ident.core.session.controller import ControllerConfig, Phase, SessionController
-from pmdc_ident.core.session.ports import IdentificationJob
-from pmdc_ident.core.session.sequential import DesignJob, PlanSetting
+from pmdc_ident.node_logic.session.controller import ControllerConfig, Phase, SessionController
+from pmdc_ident.node_logic.session.ports import IdentificationJob
+from pmdc_ident.node_logic.session.sequential import DesignJob, PlanSetting
 from pmdc_ident.process.identify_call import run_design_job
 from pmdc_ident.process.parameter_tables import IDENTIFICATION
 from pmdc_ident.process.settings import controller_config
@@ -274,7 +274,7 @@ def test_an_extension_designed_for_another_start_is_re_designed_then_refused():
     start)."""
     from pmdc_ident.core.design.sequential import start_tolerance_rad
     from pmdc_ident.core.excitation import PlannedSegment
-    from pmdc_ident.core.session.sequential import DesignOutcome
+    from pmdc_ident.node_logic.session.sequential import DesignOutcome
 
     c, ports = _holding_joint()
     tol = start_tolerance_rad((-2.0, 2.0))
@@ -310,10 +310,10 @@ def _pretest_job(cfg: ControllerConfig) -> DesignJob:
     """The worker's first job of a ``plan: auto`` session: its pre-test, run on the
     simulated motor (noise of its motor file) and recorded as the node would."""
     from pmdc_ident.core.excitation import apply_sensors
+    from pmdc_ident.core.markers import Marker, MarkerEvent
     from pmdc_ident.core.model import simulate
     from pmdc_ident.core.samples import DriverSamples
-    from pmdc_ident.core.session.markers import Marker, MarkerEvent
-    from pmdc_ident.core.session.sequential import build_planned_session
+    from pmdc_ident.node_logic.session.sequential import build_planned_session
 
     _, design = build_planned_session(cfg.session, cfg.plan, DRIVER, "lag", 0.0)
     plan = design.pretest
