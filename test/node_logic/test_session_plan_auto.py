@@ -210,10 +210,13 @@ def _default_csv() -> Path:
     return path
 
 
-def test_the_pretest_waits_until_the_node_has_caught_up_with_the_driver():
+@pytest.mark.parametrize("kind", ["auto", "csv"])
+def test_a_designed_plan_waits_until_the_node_has_caught_up_with_the_driver(kind: str):
     # making the session (the pre-test's planning) holds the node up: the samples it then
-    # drains arrive late, and a square wave started on them would reach the driver late
-    c = SessionController(_config(plan="auto"), Ports())
+    # drains arrive late, and a square wave started on them would reach the driver late;
+    # a plan CSV (travel-limited, fast switching) is held the same way
+    plan, first = ("auto", "pretest_up") if kind == "auto" else (str(_default_csv()), None)
+    c = SessionController(_config(plan=plan), Ports())
     ports = c.ports
     c.start(autostart=True, now_s=0.0)
     c.on_driver_parameters(DRIVER)
@@ -243,7 +246,8 @@ def test_the_pretest_waits_until_the_node_has_caught_up_with_the_driver():
         sample(k, 0.0)
         k += 1
     assert not c.session.awaiting_release
-    assert [m["label"] for m in ports.markers if m["event"] == "start"][0] == "pretest_up"
+    first = first or c.session.plan.segments[0].label
+    assert [m["label"] for m in ports.markers if m["event"] == "start"][0] == first
 
 
 def _holding_joint() -> tuple[SessionController, Ports]:

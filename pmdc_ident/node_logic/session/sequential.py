@@ -187,10 +187,11 @@ def build_planned_session(
         safe_mode=settings.safe_mode,
         name=name,
         open_ended=setting.auto,
-        # the pre-test switches fast: it starts once the driver is seen to apply the
-        # session's own (safe) command, so none of it is lost to a command topic that
-        # matched late
-        hold_first=setting.auto,
+        # a designed plan (the pre-test, or a plan CSV: travel-limited, fast switching)
+        # starts once the driver is seen to apply the session's own (safe) command and
+        # this node has caught up with the driver, so none of it is lost to a command
+        # topic that matched late and no first level is held longer than planned
+        hold_first=True,
     )
     return session, design
 
