@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from pmdc_ident.benchmark.truth import EQUATIONS, GENERATORS, LADDERS, VOCABULARY
+from pmdc_ident.core.design.reveal import RECIPES
 from pmdc_ident.core.diagnosis.verdict import EFFECT_PRIOR, separating_test
 from pmdc_ident.core.effects import (
     DEFAULT_CANDIDATES,
@@ -22,6 +23,7 @@ from pmdc_ident.core.effects import (
     DataScales,
     Effect,
     MujocoContext,
+    RecordScales,
     SimPath,
     layout,
 )
@@ -199,6 +201,36 @@ def test_the_mujoco_export_carries_it_or_says_why_not(name: str) -> None:
             for line in out.not_carried
             if line.startswith(f"{name}:")
         )
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_a_reveal_plan_has_a_recipe_for_it(name: str) -> None:
+    assert EFFECT_TYPES[name].REVEAL in RECIPES
+
+
+RECORDS = (
+    RecordScales(0.2, 12.0, 4.0, 300.0, 40.0, 1e-3, (4.0, 16.0)),
+    RecordScales(2e-4, 3.0, 0.05, 2000.0, 0.01, 0.02, ()),  # coreless, no turn resolved
+    RecordScales(300.0, 900.0, 800.0, 5e3, 1e6, 1e-4, (48.0,)),
+)
+
+
+@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("sc", RECORDS)
+def test_detection_probes_are_its_own_effect_sized_from_the_record(
+    name: str, sc: RecordScales
+) -> None:
+    # the detection limit sizes every effect through these hooks; a probe that cannot
+    # build its effect at its first size would be reported "not shown" for any record
+    cls = EFFECT_TYPES[name]
+    probes = cls.detection_probes(sc)
+    assert probes or cls.DETECTION_NOT_SHOWN, "no probe and no reason"
+    for p in probes:
+        assert isinstance(p.make(p.first), cls)
+        assert p.first > 0 and p.scale > 0 and p.n_params >= 1
+        assert p.unit and p.relative_to
+    assert 0.0 <= cls.detection_floor(sc) < float("inf")
+    assert len(probes) <= 1 or cls.detection_detail(sc), "a limit over several probes says so"
 
 
 def test_default_candidates_are_registered_in_order() -> None:

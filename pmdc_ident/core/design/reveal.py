@@ -44,11 +44,11 @@ import numpy as np
 from pmdc_ident.core.design.family import Candidate, Scales
 from pmdc_ident.core.design.limits import PlanLimits
 from pmdc_ident.core.design.prior import Prior
-from pmdc_ident.core.effects import EFFECT_NAMES
+from pmdc_ident.core.effects import EFFECT_NAMES, EFFECT_TYPES
 from pmdc_ident.core.errors import OptionError
 from pmdc_ident.core.excitation import log_chirp
 
-__all__ = ["REVEALABLE", "reveal_segments"]
+__all__ = ["RECIPES", "REVEALABLE", "reveal_segments"]
 
 REVEALABLE: tuple[str, ...] = EFFECT_NAMES
 COG_COUNTS = (48.0, 16.0, 4.0)  # cogging periods per turn the crawls are sized for
@@ -89,12 +89,11 @@ def reveal_segments(
     out: list[Candidate] = []
     done: set[str] = set()
     for name in dict.fromkeys(effects):
-        recipe = _RECIPES[name]
-        key = recipe.__name__
+        key = EFFECT_TYPES[name].REVEAL
         if key in done:
             continue  # one recipe serves several names (Coulomb and a load torque)
         done.add(key)
-        out += recipe(prior, limits, sc, w_top, tau)
+        out += RECIPES[key](prior, limits, sc, w_top, tau)
     return out
 
 
@@ -227,18 +226,17 @@ def _current_range(prior, limits, sc, w_top, tau):  # type: ignore[no-untyped-de
     return out
 
 
-_RECIPES = {
-    "coulomb_friction": _slow_both_ways,
-    "load_torque": _slow_both_ways,
-    "stribeck_friction": _stribeck,
-    "cogging": _cogging,
-    "quadratic_drag": _staircase_full,
-    "brush_drop": _low_voltage,
-    "dead_zone": _low_voltage,
-    "resistance_drift": _hot_hold,
-    "delay": _sharp_steps,
-    "current_offset": _open_rest,
-    "inductance_saturation": _current_range,
-    # friction in proportion to the torque transmitted: large currents while moving
-    "torque_dependent_friction": _current_range,
+#: the recipes by the key an effect names in its ``REVEAL`` hook (core/effects)
+RECIPES = {
+    "slow_both_ways": _slow_both_ways,
+    "stribeck_staircase": _stribeck,
+    "crawls": _cogging,
+    "full_staircase": _staircase_full,
+    "low_voltage": _low_voltage,
+    "hot_hold": _hot_hold,
+    "sharp_steps": _sharp_steps,
+    "open_rest": _open_rest,
+    # large currents while moving: friction in proportion to the torque transmitted,
+    # inductance falling at the highest current
+    "current_range": _current_range,
 }

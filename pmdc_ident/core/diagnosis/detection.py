@@ -26,8 +26,8 @@ cannot show the effect at all, is reported as ``None`` with the reason.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -38,21 +38,7 @@ from pmdc_ident.core.diagnosis.candidates import predict
 from pmdc_ident.core.diagnosis.holdout import HoldoutSplit
 from pmdc_ident.core.diagnosis.scoring import NoiseModel, simulated
 from pmdc_ident.core.diagnosis.verdict import Thresholds
-from pmdc_ident.core.effects import (
-    BrushDrop,
-    Cogging,
-    CoulombFriction,
-    CurrentOffset,
-    DeadZone,
-    Delay,
-    Effect,
-    InductanceSaturation,
-    LoadTorque,
-    QuadraticDrag,
-    ResistanceDrift,
-    StribeckFriction,
-    TorqueDependentFriction,
-)
+from pmdc_ident.core.effects import EFFECT_TYPES, DetectionProbe, Effect, RecordScales
 from pmdc_ident.core.model import Model
 
 __all__ = ["DetectionLimit", "detection_limits", "limits_line", "with_detection_limits"]
@@ -89,30 +75,6 @@ class DetectionLimit:
             return f"{self.effect} not shown at any size ({self.detail})"
         rel = f" ({100 * self.relative:.2g} % of {self.relative_to})" if self.relative else ""
         return f"{self.effect} {self.size:.3g} {self.unit}{rel}"
-
-
-@dataclass(frozen=True)
-class _Scales:
-    peak_torque_nm: float
-    peak_voltage_v: float
-    peak_current_a: float
-    top_speed_rad_s: float
-    heat_a2s: float
-    dt_s: float
-
-
-@dataclass(frozen=True)
-class _Spec:
-    """How one effect is sized: its constructor at size ``s`` (in ``unit``), a first
-    size to try, the record's scale it is reported against, its parameter count."""
-
-    make: Callable[[float], Effect]
-    first: float
-    unit: str
-    scale: float
-    relative_to: str
-    n_params: int
-    linear: bool  # the signature grows in proportion to the size (to first order)
 
 
 class _Record:
@@ -215,7 +177,7 @@ class _Record:
         return worst
 
 
-def _scales(segments: Sequence[Segment], model: Model) -> _Scales:
+def _scales(segments: Sequence[Segment], model: Model) -> RecordScales:
     cur = np.concatenate([s.current for s in segments if s.current is not None] or [np.zeros(1)])
     v = np.concatenate([s.voltage for s in segments if s.voltage is not None] or [np.zeros(1)])
     w = np.concatenate([s.speed_or_derivative() for s in segments])
@@ -225,7 +187,7 @@ def _scales(segments: Sequence[Segment], model: Model) -> _Scales:
         if s.current is not None
     )
     i_pk = max(float(np.max(np.abs(cur))), 1e-9)
-    return _Scales(
+    return RecordScales(
         peak_torque_nm=model.params.Kt * i_pk,
         peak_voltage_v=max(float(np.nanmax(np.abs(v))) if np.isfinite(v).any() else 0.0, 1e-9),
         peak_current_a=i_pk,
@@ -235,93 +197,7 @@ def _scales(segments: Sequence[Segment], model: Model) -> _Scales:
     )
 
 
-def _specs(sc: _Scales, periods: Sequence[float]) -> dict[str, list[_Spec]]:
-    t, v, i = sc.peak_torque_nm, sc.peak_voltage_v, sc.peak_current_a
-    w = sc.top_speed_rad_s
-    torque = "the peak motor torque on the record"
-    out: dict[str, list[_Spec]] = {
-        "coulomb_friction": [_Spec(CoulombFriction, 0.02 * t, "N*m", t, torque, 1, True)],
-        "stribeck_friction": [
-            _Spec(
-                lambda s: StribeckFriction(s, max(0.05 * w, 1e-3), 1.0),
-                0.05 * t,
-                "N*m",
-                t,
-                torque,
-                2,
-                False,
-            )
-        ],
-        "quadratic_drag": [
-            _Spec(
-                lambda s: QuadraticDrag(s / w**2), 0.02 * t, "N*m at top speed", t, torque, 1, True
-            )
-        ],
-        "load_torque": [_Spec(LoadTorque, 0.02 * t, "N*m", t, torque, 1, True)],
-        "torque_dependent_friction": [
-            _Spec(
-                TorqueDependentFriction,
-                0.02,
-                "of the motor torque",
-                1.0,
-                "the motor torque",
-                1,
-                True,
-            )
-        ],
-        "brush_drop": [
-            _Spec(
-                BrushDrop,
-                0.01 * v,
-                "V",
-                v,
-                "the largest command",
-                1,
-                False,
-            )
-        ],
-        "dead_zone": [_Spec(DeadZone, 0.01 * v, "V", v, "the largest command", 1, False)],
-        "delay": [_Spec(Delay, 0.5 * sc.dt_s, "s", sc.dt_s, "one sample", 1, False)],
-        "current_offset": [_Spec(CurrentOffset, 0.01 * i, "A", i, "the largest current", 1, True)],
-        "resistance_drift": [
-            _Spec(
-                lambda s: ResistanceDrift(s / sc.heat_a2s),
-                0.02,
-                "rise of R over the record",
-                1.0,
-                "R",
-                1,
-                False,
-            )
-        ],
-        "inductance_saturation": [
-            _Spec(
-                lambda s: InductanceSaturation(i * math.sqrt((1.0 - min(s, 0.99)) / max(s, 1e-9))),
-                0.2,
-                "fall of L at the largest current",
-                1.0,
-                "L",
-                1,
-                False,
-            )
-        ],
-        "cogging": [
-            _Spec(
-                lambda s, n=n: Cogging(s, float(n), 0.0),
-                0.02 * t,
-                "N*m",
-                t,
-                torque,
-                2,
-                True,
-            )
-            for n in periods
-        ],
-    }
-    return out
-
-
-def _cogging_periods(segments: Sequence[Segment], sc: _Scales) -> list[float]:
+def _cogging_periods(segments: Sequence[Segment], sc: RecordScales) -> list[float]:
     """Periods per measured turn the record's speeds resolve (cogging's frequency at the
     typical moving speed below a quarter of the sample rate) and its turns cover."""
     w = np.abs(np.concatenate([s.speed_or_derivative() for s in segments]))
@@ -341,7 +217,7 @@ def _cogging_periods(segments: Sequence[Segment], sc: _Scales) -> list[float]:
     return out
 
 
-def _limit(spec: _Spec, base: Model, rec: _Record, need: float) -> float | None:
+def _limit(spec: DetectionProbe, base: Model, rec: _Record, need: float) -> float | None:
     """The smallest size whose held-out gap reaches ``need`` on either side."""
     upper = 0.99 if spec.relative_to == "L" else MAX_RELATIVE * spec.scale
 
@@ -399,50 +275,33 @@ def detection_limits(
     the module notes); ``base`` is the baseline's fitted linear model."""
     segs = (*split.fit, *split.held_out)
     sc = _scales(segs, base)
-    periods = _cogging_periods(segs, sc)
-    specs = _specs(sc, periods)
+    sc = replace(sc, periods_per_turn=tuple(_cogging_periods(segs, sc)))
     rec = _Record(base, split, noise)
-    out = []
-    for name in effects:
-        if name == "cogging" and not periods:
-            out.append(
-                DetectionLimit(
-                    name, None, "N*m", None, "", "the shaft turned too little or too fast"
-                )
-            )
-            continue
-        found: list[float] = []
-        spec0 = specs[name][0]
-        for spec in specs[name]:
-            need = thresholds.no_gap_noise + thresholds.penalty_noise_per_param * spec.n_params
-            lim = _limit(spec, base, rec, need)
-            if lim is None:
-                found = []
-                break
-            found.append(lim)
-        if found and name == "delay":
-            # a delay under 1/pi sample reads as the signal chain's lag: never named
-            found = [max(f, sc.dt_s / math.pi) for f in found]
-        if not found:
-            out.append(
-                DetectionLimit(
-                    name,
-                    None,
-                    spec0.unit,
-                    None,
-                    spec0.relative_to,
-                    f"not shown below {MAX_RELATIVE:g} x {spec0.relative_to}",
-                )
-            )
-            continue
-        size = max(found)
-        detail = ""
-        if name == "cogging":
-            detail = "largest over " + ", ".join(f"{n:g}" for n in periods) + " periods per turn"
-        out.append(
-            DetectionLimit(name, size, spec0.unit, size / spec0.scale, spec0.relative_to, detail)
-        )
-    return tuple(out)
+    return tuple(
+        _detection_limit(EFFECT_TYPES[name], sc, base, rec, thresholds) for name in effects
+    )
+
+
+def _detection_limit(
+    cls: type[Effect], sc: RecordScales, base: Model, rec: _Record, thresholds: Thresholds
+) -> DetectionLimit:
+    """One effect's limit: the largest over its probes (the effect's own hooks)."""
+    probes = cls.detection_probes(sc)
+    if not probes:
+        return DetectionLimit(cls.NAME, None, "N*m", None, "", cls.DETECTION_NOT_SHOWN)
+    found: list[float] = []
+    for probe in probes:
+        need = thresholds.no_gap_noise + thresholds.penalty_noise_per_param * probe.n_params
+        lim = _limit(probe, base, rec, need)
+        if lim is None:
+            first = probes[0]
+            why = f"not shown below {MAX_RELATIVE:g} x {first.relative_to}"
+            return DetectionLimit(cls.NAME, None, first.unit, None, first.relative_to, why)
+        found.append(max(lim, cls.detection_floor(sc)))
+    size, first = max(found), probes[0]
+    return DetectionLimit(
+        cls.NAME, size, first.unit, size / first.scale, first.relative_to, cls.detection_detail(sc)
+    )
 
 
 def limits_line(limits: Sequence[DetectionLimit]) -> str:
@@ -457,8 +316,6 @@ def limits_json(limits: Sequence[DetectionLimit]) -> Mapping[str, object]:
 def with_detection_limits(result: Any, noise: NoiseModel, cfg: Any) -> Any:
     """The diagnosis' result with its detection limits (the hook in the pipeline); a
     ``no_gap`` verdict then reads "none above these sizes"."""
-    from dataclasses import replace
-
     from pmdc_ident.core.diagnosis.results import VerdictStatus
     from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
 

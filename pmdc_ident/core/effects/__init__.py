@@ -36,11 +36,13 @@ from pmdc_ident.core.effects import layout
 from pmdc_ident.core.effects.base import (
     CandidateContext,
     DataScales,
+    DetectionProbe,
     Effect,
     Ladder,
     MujocoContext,
     MujocoTerms,
     ParamSpec,
+    RecordScales,
     SimPath,
 )
 from pmdc_ident.core.effects.brush_drop import BrushDrop
@@ -71,6 +73,7 @@ __all__ = [
     "DataScales",
     "DeadZone",
     "Delay",
+    "DetectionProbe",
     "Effect",
     "InductanceSaturation",
     "Ladder",
@@ -79,6 +82,7 @@ __all__ = [
     "MujocoTerms",
     "ParamSpec",
     "QuadraticDrag",
+    "RecordScales",
     "ResistanceDrift",
     "SimPath",
     "StribeckFriction",

@@ -28,6 +28,13 @@ hook                        read by
 ``PRIOR``                   the tie order: more common in brushed PMDC motors first
 ``SEPARATING_TESTS``        per neighbour it can be confused with, the test that tells
                             the two apart (a pair is declared by one of the two)
+``REVEAL``                  the plan's recipe of segments that make it visible
+                            (:mod:`pmdc_ident.core.design.reveal`, ``plan --reveal``)
+``detection_probes``,       the diagnosis' detection limit (:mod:`pmdc_ident.core.
+``detection_floor``,        diagnosis.detection`): the effect at a size in a user's unit
+``detection_detail``,       sized from the record (:class:`RecordScales`), the smallest
+``DETECTION_NOT_SHOWN``     size worth naming, what the limit is the largest over, why
+                            a record without probes cannot show it
 ``BENCHMARK_LADDER``        the benchmark's graded sizes in a user's unit (None: not in
                             the benchmark's vocabulary)
 ``mujoco_terms``,           the MuJoCo export: what it becomes in MJCF (joint terms,
@@ -43,7 +50,7 @@ it). docs/adding-an-effect.md walks through adding one.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, MutableSequence
+from collections.abc import Callable, Mapping, MutableSequence
 from dataclasses import asdict, dataclass, fields
 from enum import Enum
 from typing import ClassVar, TypeVar
@@ -51,13 +58,16 @@ from typing import ClassVar, TypeVar
 from pmdc_ident.core.errors import ParameterError
 
 __all__ = [
+    "PEAK_TORQUE",
     "CandidateContext",
     "DataScales",
+    "DetectionProbe",
     "Effect",
     "Ladder",
     "MujocoContext",
     "MujocoTerms",
     "ParamSpec",
+    "RecordScales",
     "SimPath",
 ]
 
@@ -98,6 +108,39 @@ class CandidateContext:
 
     angle_periods: tuple[int, ...]  # periods per turn the residuals' angle spectrum shows
     inductance_held: bool  # L is held: the data do not resolve L/R
+
+
+PEAK_TORQUE = "the peak motor torque on the record"  # what torque limits are relative to
+
+
+@dataclass(frozen=True)
+class RecordScales:
+    """A record's own sizes, which an effect's detection probes are sized against
+    (:mod:`pmdc_ident.core.diagnosis.detection`)."""
+
+    peak_torque_nm: float  # Kt * the largest |current|
+    peak_voltage_v: float  # the largest |command|
+    peak_current_a: float
+    top_speed_rad_s: float
+    heat_a2s: float  # int i^2 dt while the armature is closed
+    dt_s: float  # median sample period
+    periods_per_turn: tuple[float, ...] = ()  # cogging periods the record resolves
+
+
+@dataclass(frozen=True)
+class DetectionProbe:
+    """How the detection limit sizes an effect: the effect at size ``s`` (in
+    ``unit``), a first size to try, the record's scale the limit is reported against
+    (and its name), its parameter count, whether its signature grows in proportion to
+    the size (to first order)."""
+
+    make: Callable[[float], Effect]
+    first: float
+    unit: str
+    scale: float
+    relative_to: str
+    n_params: int
+    linear: bool
 
 
 @dataclass(frozen=True)
@@ -179,6 +222,10 @@ class Effect:
     L_SCAN: ClassVar[tuple[float, ...]] = (1 / 3, 3.0)  # factors on L scanned with starts
     SEPARATING_TESTS: ClassVar[Mapping[str, str]] = {}
 
+    # -- experiment design, detection limits ---------------------------------------------
+    REVEAL: ClassVar[str] = ""  # the recipe key in core.design.reveal.RECIPES
+    DETECTION_NOT_SHOWN: ClassVar[str] = ""  # why no probe fits a record ("": one always)
+
     # -- benchmark, exports ---------------------------------------------------------------
     BENCHMARK_LADDER: ClassVar[Ladder | None] = None
     MUJOCO_MAPPING: ClassVar[str] = ""  # how it is carried, in words ("": not carried)
@@ -247,6 +294,23 @@ class Effect:
         return cls(
             *(min(max(float(v), sp.lower), sp.upper) for v, sp in zip(values, specs, strict=True))
         )
+
+    # -- detection hooks -------------------------------------------------------------------
+    @classmethod
+    def detection_probes(cls, sc: RecordScales) -> list[DetectionProbe]:
+        """The sizes the detection limit scans, in a user's unit (the limit is the
+        largest over several probes; none: :attr:`DETECTION_NOT_SHOWN`)."""
+        raise NotImplementedError
+
+    @classmethod
+    def detection_floor(cls, sc: RecordScales) -> float:
+        """The smallest size the diagnosis would name (a limit is never below it)."""
+        return 0.0
+
+    @classmethod
+    def detection_detail(cls, sc: RecordScales) -> str:
+        """What a limit over several probes is the largest over ("": one probe)."""
+        return ""
 
     # -- export hooks -------------------------------------------------------------------------
     def mujoco_terms(self, ctx: MujocoContext) -> MujocoTerms:

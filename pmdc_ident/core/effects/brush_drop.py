@@ -6,7 +6,14 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
-from pmdc_ident.core.effects.base import DataScales, Effect, Ladder, ParamSpec
+from pmdc_ident.core.effects.base import (
+    DataScales,
+    DetectionProbe,
+    Effect,
+    Ladder,
+    ParamSpec,
+    RecordScales,
+)
 
 __all__ = ["BrushDrop"]
 
@@ -40,6 +47,7 @@ class BrushDrop(Effect):
             "powered staircase"
         ),
     }
+    REVEAL = "low_voltage"
     BENCHMARK_LADDER = Ladder("% rated voltage", (1.0, 2.0, 4.0, 8.0))
     MUJOCO_NOT_CARRIED = "brush voltage drop (no such term in MuJoCo's motor)"
 
@@ -49,6 +57,11 @@ class BrushDrop(Effect):
     def varies_within_sample(self) -> bool:
         # a smooth drop's slope is a resistance that changes with the current
         return self.voltage_v > 0.0 and self.knee_current_a > 0.0
+
+    @classmethod
+    def detection_probes(cls, sc: RecordScales) -> list[DetectionProbe]:
+        v = sc.peak_voltage_v
+        return [DetectionProbe(cls, 0.01 * v, "V", v, "the largest command", 1, False)]
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[BrushDrop]:

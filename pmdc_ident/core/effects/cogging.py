@@ -8,13 +8,16 @@ from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
 from pmdc_ident.core.effects.base import (
+    PEAK_TORQUE,
     CandidateContext,
     DataScales,
+    DetectionProbe,
     Effect,
     Ladder,
     MujocoContext,
     MujocoTerms,
     ParamSpec,
+    RecordScales,
 )
 
 __all__ = ["Cogging"]
@@ -40,6 +43,8 @@ class Cogging(Effect):
         "coulomb_friction": "a slow run over several turns: cogging repeats with the shaft angle",
         "stribeck_friction": "a slow run over several turns: cogging repeats with the shaft angle",
     }
+    REVEAL = "crawls"
+    DETECTION_NOT_SHOWN = "the shaft turned too little or too fast"
     BENCHMARK_LADDER = Ladder("% rated torque", (3.0, 6.0, 12.0, 25.0))
     MUJOCO_MAPPING = (
         '`<dcmotor cogging="T N phi+pi">`: MuJoCo adds A sin(poles theta + phase) in the '
@@ -50,6 +55,21 @@ class Cogging(Effect):
     torque_nm: float
     periods_per_rev: float
     phase_rad: float = 0.0
+
+    @classmethod
+    def detection_probes(cls, sc: RecordScales) -> list[DetectionProbe]:
+        t = sc.peak_torque_nm
+        return [
+            DetectionProbe(
+                lambda s, n=n: cls(s, float(n), 0.0), 0.02 * t, "N*m", t, PEAK_TORQUE, 2, True
+            )
+            for n in sc.periods_per_turn
+        ]
+
+    @classmethod
+    def detection_detail(cls, sc: RecordScales) -> str:
+        periods = ", ".join(f"{n:g}" for n in sc.periods_per_turn)
+        return f"largest over {periods} periods per turn"
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[Cogging]:

@@ -6,7 +6,15 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
-from pmdc_ident.core.effects.base import DataScales, Effect, Ladder, ParamSpec, SimPath
+from pmdc_ident.core.effects.base import (
+    DataScales,
+    DetectionProbe,
+    Effect,
+    Ladder,
+    ParamSpec,
+    RecordScales,
+    SimPath,
+)
 
 __all__ = ["CurrentOffset"]
 
@@ -27,10 +35,16 @@ class CurrentOffset(Effect):
         "brush_drop": "read the current with the armature open: an offset reads non-zero",
         "dead_zone": "read the current with the armature open: an offset reads non-zero",
     }
+    REVEAL = "open_rest"
     BENCHMARK_LADDER = Ladder("% rated current", (1.0, 2.0, 4.0, 8.0))
     MUJOCO_NOT_CARRIED = "current-sensor offset (a measurement effect, not dynamics)"
 
     offset_a: float
+
+    @classmethod
+    def detection_probes(cls, sc: RecordScales) -> list[DetectionProbe]:
+        i = sc.peak_current_a
+        return [DetectionProbe(cls, 0.01 * i, "A", i, "the largest current", 1, True)]
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[CurrentOffset]:

@@ -6,7 +6,14 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
-from pmdc_ident.core.effects.base import DataScales, Effect, Ladder, ParamSpec
+from pmdc_ident.core.effects.base import (
+    DataScales,
+    DetectionProbe,
+    Effect,
+    Ladder,
+    ParamSpec,
+    RecordScales,
+)
 
 __all__ = ["DeadZone"]
 
@@ -26,10 +33,16 @@ class DeadZone(Effect):
             "compare a coast-down (no command, the load still acts) with a low-voltage staircase"
         ),
     }
+    REVEAL = "low_voltage"
     BENCHMARK_LADDER = Ladder("% rated voltage", (1.0, 2.0, 4.0, 8.0))
     MUJOCO_NOT_CARRIED = "driver dead zone (put it in your controller's output stage)"
 
     voltage_v: float
+
+    @classmethod
+    def detection_probes(cls, sc: RecordScales) -> list[DetectionProbe]:
+        v = sc.peak_voltage_v
+        return [DetectionProbe(cls, 0.01 * v, "V", v, "the largest command", 1, False)]
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[DeadZone]:

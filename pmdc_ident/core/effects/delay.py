@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
 from pmdc_ident.core.effects.base import (
     DataScales,
+    DetectionProbe,
     Effect,
     Ladder,
     MujocoContext,
     MujocoTerms,
     ParamSpec,
+    RecordScales,
 )
 
 __all__ = ["Delay"]
@@ -50,6 +53,7 @@ class Delay(Effect):
             "read the current with the armature open: an offset reads non-zero, a delay does not"
         ),
     }
+    REVEAL = "sharp_steps"
     BENCHMARK_LADDER = Ladder("samples", (0.5, 1.0, 2.0, 4.0))
     MUJOCO_MAPPING = (
         '`<dcmotor delay="d" nsample="ceil(d/step)+2">`: MuJoCo reads the command from '
@@ -70,6 +74,15 @@ class Delay(Effect):
                 "at low frequency, none of the lag's smoothing)"
             )
         return MujocoTerms(delay_s=self.delay_s + self.lag_s, partial=partial)
+
+    @classmethod
+    def detection_probes(cls, sc: RecordScales) -> list[DetectionProbe]:
+        return [DetectionProbe(cls, 0.5 * sc.dt_s, "s", sc.dt_s, "one sample", 1, False)]
+
+    @classmethod
+    def detection_floor(cls, sc: RecordScales) -> float:
+        """A delay under 1/pi sample reads as the signal chain's lag: never named."""
+        return sc.dt_s / math.pi
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[Delay]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -9,9 +10,11 @@ from pmdc_ident.core.effects import layout
 from pmdc_ident.core.effects.base import (
     CandidateContext,
     DataScales,
+    DetectionProbe,
     Effect,
     Ladder,
     ParamSpec,
+    RecordScales,
     SimPath,
 )
 
@@ -34,6 +37,7 @@ class InductanceSaturation(Effect):
             "speeds up only the high-current rise"
         ),
     }
+    REVEAL = "current_range"
     BENCHMARK_LADDER = Ladder("% fall of L at peak current", (20.0, 35.0, 50.0, 70.0))
     MUJOCO_NOT_CARRIED = "inductance falling with current (MuJoCo's L is constant)"
 
@@ -41,6 +45,15 @@ class InductanceSaturation(Effect):
 
     def varies_within_sample(self) -> bool:
         return self.saturation_current_a > 0.0
+
+    @classmethod
+    def detection_probes(cls, sc: RecordScales) -> list[DetectionProbe]:
+        i = sc.peak_current_a
+
+        def make(s: float) -> InductanceSaturation:
+            return cls(i * math.sqrt((1.0 - min(s, 0.99)) / max(s, 1e-9)))
+
+        return [DetectionProbe(make, 0.2, "fall of L at the largest current", 1.0, "L", 1, False)]
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[InductanceSaturation]:

@@ -7,12 +7,15 @@ from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
 from pmdc_ident.core.effects.base import (
+    PEAK_TORQUE,
     DataScales,
+    DetectionProbe,
     Effect,
     Ladder,
     MujocoContext,
     MujocoTerms,
     ParamSpec,
+    RecordScales,
     SimPath,
 )
 
@@ -35,6 +38,7 @@ class LoadTorque(Effect):
     SEPARATING_TESTS = {
         "current_offset": "read the current with the armature open: an offset reads non-zero",
     }
+    REVEAL = "slow_both_ways"
     BENCHMARK_LADDER = Ladder("% rated torque", (3.0, 6.0, 12.0, 25.0))
     MUJOCO_MAPPING = (
         'a passive `<dcmotor input="none" motorconst="0 0">` on the joint whose '
@@ -43,6 +47,11 @@ class LoadTorque(Effect):
     )
 
     torque_nm: float
+
+    @classmethod
+    def detection_probes(cls, sc: RecordScales) -> list[DetectionProbe]:
+        t = sc.peak_torque_nm
+        return [DetectionProbe(cls, 0.02 * t, "N*m", t, PEAK_TORQUE, 1, True)]
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[LoadTorque]:

@@ -7,12 +7,15 @@ from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
 from pmdc_ident.core.effects.base import (
+    PEAK_TORQUE,
     DataScales,
+    DetectionProbe,
     Effect,
     Ladder,
     MujocoContext,
     MujocoTerms,
     ParamSpec,
+    RecordScales,
     SimPath,
 )
 
@@ -39,6 +42,7 @@ class QuadraticDrag(Effect):
             "changes sign, a load torque does neither"
         ),
     }
+    REVEAL = "full_staircase"
     BENCHMARK_LADDER = Ladder("% rated torque at w0", (5.0, 10.0, 20.0, 40.0))
     MUJOCO_MAPPING = (
         'joint `damping="B N^2 Cq N^3"`: the quadratic term b of MuJoCo\'s polynomial '
@@ -46,6 +50,15 @@ class QuadraticDrag(Effect):
     )
 
     coeff_nm_s2: float
+
+    @classmethod
+    def detection_probes(cls, sc: RecordScales) -> list[DetectionProbe]:
+        t, w = sc.peak_torque_nm, sc.top_speed_rad_s
+        return [
+            DetectionProbe(
+                lambda s: cls(s / w**2), 0.02 * t, "N*m at top speed", t, PEAK_TORQUE, 1, True
+            )
+        ]
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[QuadraticDrag]:

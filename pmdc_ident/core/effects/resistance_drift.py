@@ -9,11 +9,13 @@ from typing import ClassVar
 from pmdc_ident.core.effects import layout
 from pmdc_ident.core.effects.base import (
     DataScales,
+    DetectionProbe,
     Effect,
     Ladder,
     MujocoContext,
     MujocoTerms,
     ParamSpec,
+    RecordScales,
     SimPath,
 )
 
@@ -75,6 +77,7 @@ class ResistanceDrift(Effect):
             "read the current with the armature open at the start and the end of the run"
         ),
     }
+    REVEAL = "hot_hold"
     BENCHMARK_LADDER = Ladder("% of R", (4.0, 8.0, 16.0, 32.0))
     MUJOCO_MAPPING = (
         "`<dcmotor thermal=\"R_th C 0 alpha' 25+D 25\">` with copper's alpha = 0.00393/K: "
@@ -116,6 +119,15 @@ class ResistanceDrift(Effect):
                 "motor constant does not follow the heat)"
             )
         return MujocoTerms(thermal=(self.time_constant_s / c, c, ALPHA_COPPER), partial=partial)
+
+    @classmethod
+    def detection_probes(cls, sc: RecordScales) -> list[DetectionProbe]:
+        heat = sc.heat_a2s
+        return [
+            DetectionProbe(
+                lambda s: cls(s / heat), 0.02, "rise of R over the record", 1.0, "R", 1, False
+            )
+        ]
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[ResistanceDrift]:

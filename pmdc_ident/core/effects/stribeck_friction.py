@@ -7,12 +7,15 @@ from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
 from pmdc_ident.core.effects.base import (
+    PEAK_TORQUE,
     DataScales,
+    DetectionProbe,
     Effect,
     Ladder,
     MujocoContext,
     MujocoTerms,
     ParamSpec,
+    RecordScales,
     SimPath,
 )
 
@@ -60,6 +63,7 @@ class StribeckFriction(Effect):
             "drag grows with its square"
         ),
     }
+    REVEAL = "stribeck_staircase"
     BENCHMARK_LADDER = Ladder("% rated torque", (6.0, 12.0, 25.0, 50.0))
     MUJOCO_MAPPING = (
         '`<dcmotor lugre="sigma0 0 Fc Fc+Ts vs">`: LuGre\'s Gaussian Stribeck curve '
@@ -75,6 +79,21 @@ class StribeckFriction(Effect):
     torque_nm: float
     speed_rad_s: float
     shape_exponent: float = 2.0
+
+    @classmethod
+    def detection_probes(cls, sc: RecordScales) -> list[DetectionProbe]:
+        t, w = sc.peak_torque_nm, sc.top_speed_rad_s
+        return [
+            DetectionProbe(
+                lambda s: cls(s, max(0.05 * w, 1e-3), 1.0),
+                0.05 * t,
+                "N*m",
+                t,
+                PEAK_TORQUE,
+                2,
+                False,
+            )
+        ]
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[StribeckFriction]:

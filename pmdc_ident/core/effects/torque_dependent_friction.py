@@ -25,7 +25,13 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from pmdc_ident.core.effects import layout
-from pmdc_ident.core.effects.base import DataScales, Effect, ParamSpec
+from pmdc_ident.core.effects.base import (
+    DataScales,
+    DetectionProbe,
+    Effect,
+    ParamSpec,
+    RecordScales,
+)
 
 __all__ = ["TorqueDependentFriction"]
 
@@ -43,6 +49,7 @@ class TorqueDependentFriction(Effect):
     KERNEL_SLOTS = {"loss_ratio": layout.MU}
     DEFAULT_CANDIDATE = False
     PRIOR = 55  # after the friction and drag of every motor, before the drive's effects
+    REVEAL = "current_range"
     SEPARATING_TESTS = {
         "coulomb_friction": (
             "a staircase under several loads (or both directions at several speeds): Coulomb "
@@ -71,6 +78,10 @@ class TorqueDependentFriction(Effect):
     )
 
     loss_ratio: float
+
+    @classmethod
+    def detection_probes(cls, sc: RecordScales) -> list[DetectionProbe]:
+        return [DetectionProbe(cls, 0.02, "of the motor torque", 1.0, "the motor torque", 1, True)]
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[TorqueDependentFriction]:
