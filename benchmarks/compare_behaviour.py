@@ -208,7 +208,7 @@ def _diff(a: object, b: object, where: str, rtol: float, atol: float, out: list[
     if isinstance(a, dict) and isinstance(b, dict):
         n = 0
         for k in sorted(set(a) | set(b)):
-            if k in SKIP_KEYS:
+            if k in SKIP_KEYS or k.endswith(("_cpu_s", "_wall_s")):  # a time, not a result
                 continue
             if k not in a or k not in b:
                 out.append(f"{where}.{k}: only in {'after' if k in b else 'before'}")
