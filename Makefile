@@ -47,7 +47,9 @@ demo: $(STAMP)
 # the numerics take a core each; each process holds its own DDS domains (test/conftest.py).
 # A third cost 83 s more CPU on a fresh clone (549 -> 632 s: one more collection, more
 # kernels compiled at once by several processes) for no shorter wall on the busy
-# 2-core machine. `make test TEST_WORKERS=0` runs them in one process.
+# 2-core machine; with the kernels compiled once (test/conftest.py) still 45 s more
+# (561 -> 606 s at load 7-12) and no shorter wall. `make test TEST_WORKERS=0` runs them
+# in one process.
 TEST_WORKERS ?= 2
 
 # Bytecode is written even where PYTHONDONTWRITEBYTECODE is set: the suite starts

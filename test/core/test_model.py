@@ -6,6 +6,7 @@ after more than 15 time constants, exact-discretisation checks to near round-off
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -33,6 +34,7 @@ from pmdc_ident.core.errors import ParameterError
 from pmdc_ident.core.model import (
     Model,
     Plant,
+    SimResult,
     _zoh2,
     continuous_state_space,
     discretize_zoh,
@@ -218,7 +220,14 @@ def test_rotor_stopped_by_friction_under_small_voltage_stays_stopped():
 # ---------------------------------------------------------------------------
 N_EFF = 3000
 V_EFF = 12.0
-BASE = simulate(Model(P0), _step(N_EFF, V_EFF, rest=100), DT_S)
+
+
+@functools.cache
+def _base() -> SimResult:
+    """The effect-free step response the effects are compared with: computed on first
+    use, not at import (collection would compile the model's kernels in every pytest
+    process before the suite's one compile has filled the cache)."""
+    return simulate(Model(P0), _step(N_EFF, V_EFF, rest=100), DT_S)
 
 
 def _with(*effects) -> object:
@@ -229,7 +238,7 @@ def test_effect_coulomb_friction_lowers_top_speed_to_the_closed_form():
     res = _with(CoulombFriction(0.02))
     _, w_ss = P0.steady_state(V_EFF, load_torque_nm=0.02)
     assert res.speed[-1] == pytest.approx(w_ss, rel=1e-4)
-    assert res.speed[-1] < BASE.speed[-1] - 5.0
+    assert res.speed[-1] < _base().speed[-1] - 5.0
 
 
 def test_effect_stribeck_raises_breakaway_and_slows_the_start_but_not_top_speed():
@@ -241,8 +250,8 @@ def test_effect_stribeck_raises_breakaway_and_slows_the_start_but_not_top_speed(
     assert free.speed[-1] > 1.0
     res = _with(StribeckFriction(ts, 2.0))
     k = 100 + 30  # 30 ms after the step: the extra torque acted while w < ~2 rad/s
-    assert BASE.speed[k] - res.speed[k] > 0.05
-    assert res.speed[-1] == pytest.approx(BASE.speed[-1], rel=1e-5)
+    assert _base().speed[k] - res.speed[k] > 0.05
+    assert res.speed[-1] == pytest.approx(_base().speed[-1], rel=1e-5)
 
 
 def test_effect_quadratic_drag_lowers_top_speed_to_the_quadratic_root():
@@ -252,7 +261,7 @@ def test_effect_quadratic_drag_lowers_top_speed_to_the_quadratic_root():
     a, b, c = cq, P0.B + P0.Kt * P0.Ke / P0.R, -P0.Kt * V_EFF / P0.R
     w_ss = (-b + math.sqrt(b * b - 4 * a * c)) / (2 * a)
     assert res.speed[-1] == pytest.approx(w_ss, rel=1e-4)
-    assert res.speed[-1] < BASE.speed[-1] - 5.0
+    assert res.speed[-1] < _base().speed[-1] - 5.0
 
 
 def test_effect_load_torque_matches_steady_state_with_load():
@@ -269,7 +278,7 @@ def test_effect_brush_drop_lowers_steady_speed_by_drop_over_ke():
     _, w_ss = P0.steady_state(V_EFF - vb)
     assert res.speed[-1] == pytest.approx(w_ss, rel=1e-4)
     # the speed loss is ~ Vb / Ke (B is small against Ke Kt / R)
-    assert BASE.speed[-1] - res.speed[-1] == pytest.approx(vb / P0.Ke, rel=0.05)
+    assert _base().speed[-1] - res.speed[-1] == pytest.approx(vb / P0.Ke, rel=0.05)
 
 
 def test_smooth_brush_drop_settles_where_its_tanh_law_balances_the_voltage():
@@ -327,7 +336,7 @@ def test_effect_cogging_makes_speed_ripple_at_periods_per_rev_per_turn():
     tail = slice(N_EFF - 1000, N_EFF)  # last second, near top speed
 
     def ripple_spectrum(speed: np.ndarray) -> np.ndarray:
-        w, t = speed[tail], BASE.t[tail]
+        w, t = speed[tail], _base().t[tail]
         ripple = w - np.polyval(np.polyfit(t, w, 2), t)  # remove the slow approach to top speed
         return np.abs(np.fft.rfft(ripple * np.hanning(ripple.size)))
 
@@ -338,7 +347,7 @@ def test_effect_cogging_makes_speed_ripple_at_periods_per_rev_per_turn():
     f_expected = n_cog * res.speed[tail].mean() / (2.0 * math.pi)  # ~169 Hz
     assert freqs[k_peak] == pytest.approx(f_expected, abs=2.0)  # bin width 1 Hz
     assert spec[k_peak] > 20.0 * np.median(spec[fast])
-    assert spec[k_peak] > 100.0 * ripple_spectrum(BASE.speed)[k_peak]
+    assert spec[k_peak] > 100.0 * ripple_spectrum(_base().speed)[k_peak]
 
 
 def test_effect_resistance_drift_lowers_stall_current_as_the_closed_form():
@@ -353,21 +362,21 @@ def test_effect_resistance_drift_lowers_stall_current_as_the_closed_form():
 
 def test_effect_delay_shifts_the_response_by_the_delay():
     whole = _with(Delay(0.005))
-    np.testing.assert_allclose(whole.speed[5:], BASE.speed[:-5], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(whole.speed[5:], _base().speed[:-5], rtol=1e-12, atol=1e-12)
     frac = _with(Delay(0.0025))
-    half = 0.5 * BASE.speed[-1]
+    half = 0.5 * _base().speed[-1]
 
     def crossing(speed: np.ndarray) -> float:
         k = int(np.argmax(speed >= half))
         return (k - 1 + (half - speed[k - 1]) / (speed[k] - speed[k - 1])) * DT_S
 
-    assert crossing(frac.speed) - crossing(BASE.speed) == pytest.approx(0.0025, abs=DT_S)
+    assert crossing(frac.speed) - crossing(_base().speed) == pytest.approx(0.0025, abs=DT_S)
 
 
 def test_effect_current_offset_shifts_current_by_exactly_the_offset():
     res = _with(CurrentOffset(0.1))
-    np.testing.assert_allclose(res.current - BASE.current, 0.1, rtol=0, atol=1e-12)
-    np.testing.assert_array_equal(res.speed, BASE.speed)
+    np.testing.assert_allclose(res.current - _base().current, 0.1, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(res.speed, _base().speed)
 
 
 def test_effect_inductance_saturation_speeds_the_current_rise_at_high_current():
