@@ -444,6 +444,12 @@ def main() -> int:
         "--compare-default", action="store_true", help="--reveal: the default sequence too"
     )
     ap.add_argument("--effects", default=",".join(REVEAL_GOALS), help="--reveal: which")
+    ap.add_argument(
+        "--clean",
+        action="store_true",
+        help="--reveal: each reveal plan on the same motor without the effect too (a name "
+        "there is a false attribution)",
+    )
     args = ap.parse_args()
     if args.travel:
         return travel_case(args)
@@ -651,9 +657,12 @@ def reveal_case(args: argparse.Namespace) -> int:
             }
             if args.compare_default:
                 plans["default"] = default_sequence(nominal, lim, r.dt)
-            for which, plan in plans.items():
+            runs = [(which, plan, case.effects) for which, plan in plans.items()]
+            if args.clean:
+                runs.append(("clean", plans["reveal"], ()))
+            for which, plan, effects in runs:
                 v = np.concatenate([s.voltage for s in plan.segments])
-                p_eff = bc.sensor_vector(case, case.effects)
+                p_eff = bc.sensor_vector(case, effects)
                 try:
                     sim = pl.simulate_plant(v, r.dt, p_eff)
                 except ValueError as exc:
@@ -675,7 +684,7 @@ def reveal_case(args: argparse.Namespace) -> int:
                     print(f"{case.name} {which}: {exc}")
                     continue
                 v_ = res.verdict
-                named = bool(v_.effects) and (
+                named = bool(v_.effects) if which == "clean" else bool(v_.effects) and (
                     v_.effects[0] == name
                     or any(name in t.effects and v_.effects[0] in t.effects and t.separating_test
                            for t in v_.ties)
@@ -691,17 +700,25 @@ def reveal_case(args: argparse.Namespace) -> int:
                 shown = "-" if shown is None else f"{shown:.3g}"
                 print(f"{case.name:<22} {motor.name:<16} {rate:>6.0f} Hz {eq:<12} {which:<8} "
                       f"{plan.duration_s:7.2f} s  {v_.status.value:<11} "
-                      f"{'+'.join(v_.effects) or '-':<24} {'NAMED' if named else 'missed'}  "
+                      f"{'+'.join(v_.effects) or '-':<24} {_called(which, named):<6}  "
                       f"limit {shown} % rated", flush=True)  # fmt: skip
-    print("\nnamed tie-honestly (reveal plan / default sequence):")
+    print("\nnamed tie-honestly (reveal plan / default sequence; clean: the reveal plan")
+    print("without the effect, an effect named there is a false attribution):")
     for name, pct in goals.items():
-        for which in ("reveal", "default"):
+        for which in ("reveal", "default", "clean"):
             got = [r_ for r_ in rows if r_["effect"] == name and r_["plan"] == which]
             n = sum(r_["named"] for r_ in got)
-            print(f"  {name} at {pct:g} % rated torque, {which}: {n}/{len(got)}")
+            what = "any effect named" if which == "clean" else f"at {pct:g} % rated torque"
+            print(f"  {name} {what}, {which}: {n}/{len(got)}")
     if args.json:
         write_text(args.json, json.dumps(rows, indent=1))
     return 0
+
+
+def _called(which: str, named: bool) -> str:
+    if which == "clean":
+        return "FALSE" if named else "clean"
+    return "NAMED" if named else "missed"
 
 
 def _bench_limits(m: BenchMotor) -> Limits:

@@ -500,7 +500,7 @@ def _cogging(search: Search, base: Fitted, sc: DataScales, periodic: bool) -> Fi
         base,
         "cogging",
         sc,
-        start=(base.fit.model.with_effects(*in_angle.fit.model.effects)),
+        start=in_angle.fit.model,
     )
     if in_time.failed or in_time.gap >= in_angle.gap:
         return in_angle

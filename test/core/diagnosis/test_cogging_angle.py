@@ -9,7 +9,7 @@ import pytest
 
 from pmdc_ident.core.diagnosis import DiagnosisConfig
 from pmdc_ident.core.diagnosis.candidates import data_scales
-from pmdc_ident.core.diagnosis.cogging import angle_cogging, held_waves
+from pmdc_ident.core.diagnosis.cogging import NOTE, angle_cogging, held_waves
 from pmdc_ident.core.diagnosis.holdout import split_segments
 from pmdc_ident.core.diagnosis.pipeline import _baseline
 from pmdc_ident.core.diagnosis.scoring import estimate_noise
@@ -48,3 +48,77 @@ def test_cogging_is_read_off_the_measured_angle_with_its_count_and_phase():
     assert abs(math.remainder(e.phase_rad - 1.0, 2 * math.pi)) < 0.2
     assert amp / 4 < e.torque_nm < 2 * amp
     assert f.gap < 0.5 * base.gap and math.isfinite(fit_gap)
+
+
+def _crawl_record(cogging_nm: float, seed: int = 3):  # type: ignore[no-untyped-def]
+    """The cogging reveal's crawls and a step with a coast on seed 001's motor, logged
+    with current and the encoder's angle only (no speed column), at 2 ms."""
+    from pmdc_ident.core.design import Prior, session_limits
+    from pmdc_ident.core.design.reveal import reveal_segments
+    from pmdc_ident.core.excitation import PlannedSegment, TestPlan
+
+    spec = load_motor("seed001_110v")
+    p, dt = spec.model.params, 2e-3
+    prior = Prior.from_spec(spec)
+    crawls = reveal_segments(prior, session_limits(prior, spec.limits, dt), dt, ("cogging",))
+    n = round(4 * p.mechanical_time_constant_s / dt)
+    step = np.r_[np.zeros(n), np.full(n, 0.5 * spec.limits.voltage_max_v), np.full(n, np.nan)]
+    segs = [PlannedSegment(f"crawl_{k:02d}", c.voltage) for k, c in enumerate(crawls)]
+    plan = TestPlan((*segs, PlannedSegment("step_07", step)), dt)
+    effects = (Cogging(cogging_nm, 12.0, 0.4),) if cogging_nm else ()
+    run = synthesize_run(
+        Model(p, effects), plan, spec.sensors, seed=seed, signals=("current", "position")
+    )
+    return p, list(run.segments)
+
+
+def _bent(search: Search, base):  # type: ignore[no-untyped-def]
+    """The baseline with R, L and J bent as a crawl held in a detent bends them (an
+    industrial motor's reveal record: R 1.5x, L 1e-7x, J 0.4x), its initial states
+    dropped."""
+    from dataclasses import replace
+
+    from pmdc_ident.core.diagnosis.search import Fitted
+
+    pb = base.fit.model.params
+    fit = replace(
+        base.fit,
+        model=Model(pb.replace(R=1.5 * pb.R, L=1e-4 * pb.L, J=pb.J / 3)),
+        initial_states={},
+    )
+    res = search.held_out_residuals(fit)
+    return Fitted((), fit, res, res.gap(), 0.0)
+
+
+def test_a_baseline_bent_by_the_cogging_does_not_hold_the_angle_fit():
+    """A cogging large against a crawl's drive bends the linear baseline (fitted on the
+    encoder's angle, it follows a crawl's lost angle with R, L, J and free initial
+    states: on a generator's industrial motor L came out 9e-10 H against 28 mH), and
+    cogging responses simulated with those parameters closed nothing (held-out gap 162
+    against the baseline's 161 on a gearmotor). The motor's parameters are refitted
+    with the cogging: the count, amplitude and phase come back, and the gap closes.
+    Before: the candidate held the bent parameters."""
+    p, segs = _crawl_record(0.24)
+    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
+    base = _bent(search, _baseline(search))
+    f, fit_gap = angle_cogging(search, base, [11, 12, 13])
+    assert f.gap < 0.05 * base.gap and fit_gap < 1.0  # before: 240 -> 225, fit side 1967
+    e = f.fit.model.effect("cogging")
+    assert isinstance(e, Cogging) and e.periods_per_rev == 12.0
+    assert e.torque_nm == pytest.approx(0.24, rel=0.1)
+    assert abs(math.remainder(e.phase_rad - 0.4, 2 * math.pi)) < 0.2
+    got = f.fit.model.params
+    assert got.R == pytest.approx(p.R, rel=0.05) and got.J == pytest.approx(p.J, rel=0.1)
+    assert f.fit.ci95["R"] is not None and f.fit.reasons["R"].startswith("fitted in the measured")
+
+
+def test_a_refit_that_helps_without_cogging_is_not_credited_to_cogging():
+    """On the same record without cogging the refit of a bent baseline closes the gap
+    by itself: the candidate keeps the baseline's parameters (its gain must beat the
+    refit without cogging by two parameters' penalty)."""
+    _, segs = _crawl_record(0.0)
+    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
+    base = _bent(search, _baseline(search))
+    f, _ = angle_cogging(search, base, [11, 12, 13])
+    assert f.fit.reasons["cogging.torque_nm"] == NOTE
+    assert f.fit.model.params == base.fit.model.params
