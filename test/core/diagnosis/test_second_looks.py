@@ -14,17 +14,14 @@ from __future__ import annotations
 
 from functools import cache
 
-import numpy as np
 import pytest
 
 from pmdc_ident.benchmark.cases import Case, build_cases, record
 from pmdc_ident.benchmark.runner import write_recording
-from pmdc_ident.core.data import Segment
 from pmdc_ident.core.diagnosis import DiagnosisConfig, VerdictStatus, diagnose
 from pmdc_ident.core.diagnosis.holdout import split_segments, swapped
 from pmdc_ident.core.diagnosis.pipeline import _diagnose_split
 from pmdc_ident.core.diagnosis.scoring import estimate_noise
-from pmdc_ident.core.estimators.output_error.segments import x0_from_data
 from pmdc_ident.dataio import load_data
 
 
@@ -68,33 +65,21 @@ def test_an_effect_only_the_fitted_side_shows_is_named_with_the_sides_swapped(na
     assert res.gap_after < 0.5 * res.gap_before
 
 
-def test_an_effect_free_run_is_predicted_to_the_noise_with_the_sides_swapped(tmp_path):
-    # a clean 250 Hz motor: fitted on the held-out side alone, the linear model predicts
-    # the fitted side to the noise. The record's first segment (the lowest staircase
-    # level, a start from rest) has no lead-in there: its initial speed is read off the
-    # encoder, whose first count came at the sixth sample, and a parabola through those
-    # samples turned backwards (the back-EMF error missed it by noise variances)
+def test_a_gap_only_the_swapped_side_shows_with_no_effect_to_name_it_is_no_gap(tmp_path):
+    # a clean 250 Hz motor: fitted on the held-out side alone, the linear model misses
+    # the fitted side by noise variances (that side holds the opening step, whose
+    # initial speed is read off the encoder's first counts), yet no effect explains it
+    # and the default side fits its own segments: the default split, built to span
+    # every regime, decides. (Reading a start from rest as never turning backwards
+    # removed this miss, and named a Coulomb friction on an effect-free coreless motor
+    # at 10 kHz, the generator's seed-2 clean_24: not done.)
     _, _, segs = _segments("clean_23", tmp_path)
     split = split_segments(segs)
     alone = _diagnose_split(segs, swapped(split), estimate_noise(segs), DiagnosisConfig(), None)
-    assert alone.gap_before < 1.0
-    assert alone.verdict.status is VerdictStatus.NO_GAP
+    assert alone.verdict.status is VerdictStatus.UNEXPLAINED and alone.gap_before > 1.0
     res = diagnose(segs)
     assert res.verdict.status is VerdictStatus.NO_GAP
     assert res.split.rule == "default"
-
-
-def test_a_rotor_starting_from_rest_is_never_read_as_turning_backwards():
-    # 1 kHz, a 1024-count encoder: at rest for five samples, then accelerating forward
-    rng = np.random.default_rng(0)
-    n, dt, count = 40, 1e-3, 2 * np.pi / 1024
-    t = np.arange(n) * dt
-    theta = np.floor(0.5 * 2e4 * np.maximum(t - 4e-3, 0.0) ** 2 / count) * count
-    seg = Segment("staircase_01", t, np.full(n, 6.0), rng.normal(2.0, 0.01, n), theta)
-    assert np.all(theta[:5] == 0.0) and theta[5] == count  # (0, 0, 0, 0, 0, 1) counts
-    assert x0_from_data(seg)[1] >= 0.0
-    back = Segment("staircase_01", t, np.full(n, -6.0), rng.normal(-2.0, 0.01, n), -theta)
-    assert x0_from_data(back)[1] <= 0.0
 
 
 def test_an_out_of_vocabulary_effect_only_the_fitted_side_shows_is_unexplained(tmp_path):

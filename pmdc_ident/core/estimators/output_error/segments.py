@@ -64,16 +64,6 @@ def x0_from_data(seg: Segment) -> FloatArray:
         w0 = float(np.polyfit(t[:k], seg.position[:k], deg)[deg - 1])
         if np.all(seg.position[:k] == seg.position[0]):
             w0 = 0.0
-        steps = np.diff(seg.position[:k])
-        # an encoder that never counted back cannot have started backwards: a parabola
-        # through a rotor starting from rest (0, 0, 0, 0, 0, 1 count) has a slope at t0
-        # against the motion, and its back-EMF then shows as a current error of many
-        # noise levels over a mechanical time constant (a 48 V traction motor: -3.7 rad/s,
-        # 12 noise levels for 20 samples on the record's first, held-out, staircase level)
-        if np.all(steps >= 0.0):
-            w0 = max(w0, 0.0)
-        elif np.all(steps <= 0.0):
-            w0 = min(w0, 0.0)
     th0 = float(seg.position[0]) if seg.position is not None else 0.0
     if abs(w0) < 1e-12:
         w0 = 0.0
