@@ -219,7 +219,7 @@ def _cogging_periods(segments: Sequence[Segment], sc: RecordScales) -> list[floa
 
 def _limit(spec: DetectionProbe, base: Model, rec: _Record, need: float) -> float | None:
     """The smallest size whose held-out gap reaches ``need`` on either side."""
-    upper = 0.99 if spec.relative_to == "L" else MAX_RELATIVE * spec.scale
+    upper = spec.largest if spec.largest is not None else MAX_RELATIVE * spec.scale
 
     def g(s: float) -> float:
         try:
@@ -288,7 +288,8 @@ def _detection_limit(
     """One effect's limit: the largest over its probes (the effect's own hooks)."""
     probes = cls.detection_probes(sc)
     if not probes:
-        return DetectionLimit(cls.NAME, None, "N*m", None, "", cls.DETECTION_NOT_SHOWN)
+        unit = next(iter(cls.SPECS.values())).unit  # the size's unit: its first field's
+        return DetectionLimit(cls.NAME, None, unit, None, "", cls.DETECTION_NOT_SHOWN)
     found: list[float] = []
     for probe in probes:
         need = thresholds.no_gap_noise + thresholds.penalty_noise_per_param * probe.n_params

@@ -141,6 +141,7 @@ class DetectionProbe:
     relative_to: str
     n_params: int
     linear: bool
+    largest: float | None = None  # the largest size to try (None: 10x ``scale``)
 
 
 @dataclass(frozen=True)

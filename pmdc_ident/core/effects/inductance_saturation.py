@@ -53,7 +53,8 @@ class InductanceSaturation(Effect):
         def make(s: float) -> InductanceSaturation:
             return cls(i * math.sqrt((1.0 - min(s, 0.99)) / max(s, 1e-9)))
 
-        return [DetectionProbe(make, 0.2, "fall of L at the largest current", 1.0, "L", 1, False)]
+        fall = "fall of L at the largest current"
+        return [DetectionProbe(make, 0.2, fall, 1.0, "L", 1, False, largest=0.99)]
 
     @classmethod
     def starts(cls, sc: DataScales) -> list[InductanceSaturation]:
