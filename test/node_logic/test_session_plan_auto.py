@@ -16,8 +16,11 @@ from pmdc_ident.core.enums import AbortReason
 from pmdc_ident.core.errors import PmdcError
 from pmdc_ident.core.model import Plant
 from pmdc_ident.core.motors import MotorSpec, load_motor
+from pmdc_ident.core.safety import SafetyConfig
 from pmdc_ident.node_logic.session.controller import ControllerConfig, Phase, SessionController
 from pmdc_ident.node_logic.session.ports import IdentificationJob
+from pmdc_ident.node_logic.session.recording import Recording
+from pmdc_ident.node_logic.session.remedy import abort_remedy
 from pmdc_ident.node_logic.session.sequential import DesignJob, PlanSetting
 from pmdc_ident.process.identify_call import run_design_job
 from pmdc_ident.process.parameter_tables import IDENTIFICATION
@@ -197,6 +200,26 @@ def test_a_travel_range_aborts_when_the_measured_position_leaves_it():
     # it tripped on the first sample outside: at most one sample of travel beyond the end
     over = trace[np.abs(trace[:, 1]) > 2.0]
     assert over.size and abs(over[0, 1]) < 2.0 + 0.2
+    # every sample arrived on time here: the plan, not the host, is what to look at
+    assert "commands were on time" in ports.status[-1]["remedy"], ports.status[-1]
+
+
+def test_an_abort_out_of_travel_names_a_host_that_fell_behind_the_plans_command_delay():
+    """Samples that reached the node later than the plan's command delay in the last
+    seconds before a travel abort: the line names the lateness and the parameter."""
+    rec = Recording()
+    for k in range(3000):  # 3 s at 1 kHz; the last 0.5 s arrives 0.4 s late
+        rec.encoder.append(k * 1_000_000, 0.0, 0.0)
+        rec.latency.append(400_000_000 if k >= 2500 else 2_000_000)
+    assert rec.max_latency_s(1_000_000_000) == pytest.approx(0.4)
+    assert rec.max_latency_s(0) == pytest.approx(0.4)
+    assert rec.max_latency_s(2_600_000_000) == pytest.approx(0.4)
+    safety = SafetyConfig(current_max_a=10.0, speed_max_rad_s=100.0)
+    text = abort_remedy(AbortReason.OUT_OF_TRAVEL, safety, 2.0, late_s=0.4, command_delay_s=0.15)
+    assert "0.40 s late" in text and "plan_command_delay_s (now 0.15 s)" in text
+    assert "commands were on time" in abort_remedy(
+        AbortReason.OUT_OF_TRAVEL, safety, 2.0, late_s=0.01, command_delay_s=0.15
+    )
 
 
 def _default_csv() -> Path:

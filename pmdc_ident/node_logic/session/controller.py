@@ -76,6 +76,7 @@ LATE_TICK_S = 0.1  # a timer this late means the node itself was held up
 CURRENT_WAIT_S = 0.1
 EARLY_SAMPLES = 16384  # current/voltage samples kept before a session runs (~16 s at 1 kHz)
 LATE_TICK_GRACE_S = 0.05
+LATE_WINDOW_S = 2.0  # an abort out of travel: how far back samples count for its lateness
 # plan: auto starts its pre-test once the driver has applied this session's 0 V this long
 RELEASE_AFTER_NS = 100_000_000
 RELEASE_TIMEOUT_S = 10.0
@@ -562,10 +563,13 @@ class SessionController:
         assert s is not None
         self._make_safe(now_s)
         reason = s.abort_reason.value if s.abort_reason else "?"
+        late_s = self.recording.max_latency_s(round((s.markers[-1].t_s - LATE_WINDOW_S) * 1e9))
         remedy = abort_remedy(
             s.abort_reason or AbortReason.INTERRUPTED,
             s.monitor.config,
             self.config.start.peer_timeout_s,
+            late_s=late_s,
+            command_delay_s=self.config.plan.command_delay_s,
         )
         self.ports.log(
             LogLevel.ERROR,

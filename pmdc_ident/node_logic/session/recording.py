@@ -65,6 +65,14 @@ class Recording:
         have = min(self.current.last_ns(), self.voltage.last_ns(), self.encoder.last_ns())
         return have >= end_ns
 
+    def max_latency_s(self, since_ns: int) -> float:
+        """The latest an encoder sample stamped at or after ``since_ns`` reached the node
+        (s; 0 with none): how late a command sent on it left, at the least."""
+        n = self.encoder.n
+        first = int(np.searchsorted(self.encoder.ns[:n], since_ns, side="left"))
+        lag = self.latency.ns[first:n]
+        return float(lag.max()) * 1e-9 if lag.size else 0.0
+
     def latency_summary(self) -> str:
         lag_ms = self.latency.ns[: self.latency.n] * 1e-6
         if lag_ms.size == 0:

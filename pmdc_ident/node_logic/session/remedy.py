@@ -9,9 +9,21 @@ from pmdc_ident.core.safety import SafetyConfig
 __all__ = ["abort_remedy"]
 
 
-def abort_remedy(reason: AbortReason, safety: SafetyConfig, peer_timeout_s: float) -> str:
+def abort_remedy(
+    reason: AbortReason,
+    safety: SafetyConfig,
+    peer_timeout_s: float,
+    *,
+    late_s: float | None = None,
+    command_delay_s: float | None = None,
+) -> str:
     """The parameter to raise (or lower) after an abort for ``reason`` ('' when a
-    parameter is not the fix: Ctrl-C, a driver fault)."""
+    parameter is not the fix: Ctrl-C, a driver fault). For a joint that left its travel
+    range, ``late_s`` is how late driver samples reached the node just before (a command
+    sent on them left at least that late) and ``command_delay_s`` how late a command may
+    be with the plan still keeping the joint inside."""
+    if reason is AbortReason.OUT_OF_TRAVEL and late_s is not None and command_delay_s is not None:
+        return _travel_remedy(late_s, command_delay_s)
     if reason is AbortReason.LOST_DRIVER_DATA:
         return (
             f"on a busy machine raise safety.data_timeout_s (now {safety.data_timeout_s:g} s; "
@@ -35,3 +47,18 @@ def abort_remedy(reason: AbortReason, safety: SafetyConfig, peer_timeout_s: floa
             f"s) or safety.stall_current_a (now {safety.stall_current_a:.3g} A)"
         )
     return ""
+
+
+def _travel_remedy(late_s: float, command_delay_s: float) -> str:
+    if late_s > command_delay_s:
+        return (
+            f"driver samples reached this node up to {late_s:.2f} s late just before, "
+            f"beyond the {command_delay_s:.3g} s the plan keeps the joint inside for: on a "
+            f"busy host raise plan_command_delay_s (now {command_delay_s:g} s) to "
+            f"{late_s:.2g} s or more (slower plans, that may aim lower), or give the node more CPU"
+        )
+    return (
+        f"commands were on time (samples at most {late_s:.2f} s late, the plan allows "
+        f"{command_delay_s:.3g} s): check plan_travel_rad and the motor file the plan was "
+        "designed from against the joint"
+    )
