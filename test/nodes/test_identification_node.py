@@ -308,8 +308,12 @@ def test_short_session_completes_and_the_bag_holds_every_driver_sample(short_ses
     assert np.all(v[50:n_rest] == 0.0)  # the rest before the step (after the latency)
     k_rise = 50 + int(np.argmax(v[50:] > 27.5))
     assert 0 <= k_rise - n_rest < 100, k_rise - n_rest
-    coast = run.segments[-1]
-    assert coast.open_mask.sum() > 0.9 * 1000  # armature open ~1 s
+    # the coast: the armature opens once the command arrives and stays open to the end.
+    # Its ~1 s opens within 0.6 s of the segment's start: 0.39 s late was seen with three
+    # benchmarks beside the suite (load 12 on 2 cores); the step above bounds the usual
+    coast = run.segments[-1].open_mask
+    assert coast[-1] and np.all(np.diff(coast.astype(int)) >= 0), coast
+    assert coast.size - coast.sum() < 600, coast.size - coast.sum()
 
 
 def test_the_result_is_versioned_typed_and_names_its_bag_by_absolute_path(short_session):
