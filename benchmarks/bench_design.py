@@ -630,12 +630,13 @@ def reveal_case(args: argparse.Namespace) -> int:
 
     rng = np.random.default_rng(args.seed)
     rows = []
-    tmp = Path(tempfile.mkdtemp(prefix="bench_reveal_"))
     goals = {k: v for k, v in REVEAL_GOALS.items() if k in args.effects.split(",")}
     only = {int(x) for x in args.only.split(",") if x.strip()}
     if args.out:  # keep the records (to diagnose again)
         tmp = Path(args.out)
         tmp.mkdir(parents=True, exist_ok=True)
+    else:
+        tmp = Path(tempfile.mkdtemp(prefix="bench_reveal_"))
     for name, pct in goals.items():
         eligible = [
             (m, rt) for m in MOTORS.values() for rt in m.rates_hz if bc.eligible(name, m, rt)
