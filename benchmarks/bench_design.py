@@ -438,12 +438,22 @@ def main() -> int:
     ap.add_argument("--reveal", action="store_true")
     ap.add_argument("--runs", type=int, default=10)
     ap.add_argument("--plot", default=None)
-    ap.add_argument("--out", default=None, help="--travel: folder for the session and plot")
+    ap.add_argument(
+        "--out",
+        default=None,
+        help="--travel: folder for the session and plot; --reveal: for the records",
+    )
     ap.add_argument("--seed", type=int, default=7, help="--reveal: the draw (default 7)")
     ap.add_argument(
         "--compare-default", action="store_true", help="--reveal: the default sequence too"
     )
     ap.add_argument("--effects", default=",".join(REVEAL_GOALS), help="--reveal: which")
+    ap.add_argument(
+        "--only",
+        default="",
+        help="--reveal: these run numbers of the draw only (e.g. 4,8,9), the others drawn "
+        "and skipped",
+    )
     ap.add_argument(
         "--clean",
         action="store_true",
@@ -620,8 +630,13 @@ def reveal_case(args: argparse.Namespace) -> int:
 
     rng = np.random.default_rng(args.seed)
     rows = []
-    tmp = Path(tempfile.mkdtemp(prefix="bench_reveal_"))
     goals = {k: v for k, v in REVEAL_GOALS.items() if k in args.effects.split(",")}
+    only = {int(x) for x in args.only.split(",") if x.strip()}
+    if args.out:  # keep the records (to diagnose again)
+        tmp = Path(args.out)
+        tmp.mkdir(parents=True, exist_ok=True)
+    else:
+        tmp = Path(tempfile.mkdtemp(prefix="bench_reveal_"))
     for name, pct in goals.items():
         eligible = [
             (m, rt) for m in MOTORS.values() for rt in m.rates_hz if bc.eligible(name, m, rt)
@@ -646,6 +661,8 @@ def reveal_case(args: argparse.Namespace) -> int:
             sensors = bc.draw_sensors(motor, rate, rng)
             case = bc.Case(f"{name}_{k:02d}", "effect", motor.name, rate, False, (eff,), sensors,
                            int(rng.integers(2**31)))  # fmt: skip
+            if only and k not in only:
+                continue  # drawn all the same: the runs chosen are those of the full draw
             r = Rig(motor, rate, 0.0, _bench_limits(motor), sensors)
             nominal = datasheet_prior(r, seed=k)
             nominal = Prior(Model(nominal.model.params), nominal.noise, "datasheet prior")

@@ -324,6 +324,39 @@ def test_cogging_crawls_pass_their_periods_at_the_mechanical_bandwidth_at_three_
     assert f48 <= 2.0 / (2 * math.pi * tau)
 
 
+def test_the_fastest_cogging_crawl_spans_the_two_turns_the_angle_spectrum_needs():
+    """The diagnosis looks for cogging in the held-out residuals' angle spectrum only
+    where the held-out side spans 4 pi (localization.angle_harmonics), and the crawls
+    go there and back, one direction on each side of the split. A geared scooter motor
+    (9.78:1, top speed 33 rad/s at the output): every crawl covered about a turn (the
+    fastest 1.05 turns at 2.6 rad/s), and on the independent generator cogging was not
+    even tried in 3 of 3 runs. Now the fastest covers 2.5 turns under the prior; within
+    a travel range the reach still bounds it."""
+    from pmdc_ident.benchmark.motors import MOTORS
+    from pmdc_ident.core.design.information import Noise
+    from pmdc_ident.core.model import Model
+    from pmdc_ident.core.motors import Limits
+
+    motor = MOTORS["scooter_24v"]
+    p = motor.params
+    prior = Prior(Model(p), Noise(0.08, position_sd=0.004), "test")
+    driver = Limits(motor.voltage_rated_v, 1.5 * motor.voltage_rated_v / p.R, 120.0)
+    dt = 1e-3
+    lim = session_limits(prior, driver, dt)
+    segs = reveal_segments(prior, lim, dt, ("cogging",))
+    turns = []
+    for c in segs[::2]:
+        sim = simulate(prior.model, c.voltage, dt)
+        turns.append(abs(float(sim.position[-1] - sim.position[0])) / (2 * math.pi))
+    assert max(turns) >= 2.2, turns  # 1.05 before
+    assert min(turns) < 1.0  # the slowest crawls stay short (at most MAX_CRAWL_S)
+    # within +-2 rad of travel no crawl goes farther than the reach
+    lim_t = session_limits(prior, driver, dt, travel_rad=(-2.0, 2.0))
+    for c in reveal_segments(prior, lim_t, dt, ("cogging",)):
+        sim = simulate(prior.model, c.voltage, dt)
+        assert abs(float(sim.position[-1] - sim.position[0])) < 2.0
+
+
 def test_a_coast_is_one_segment_and_no_level_is_held_longer_than_the_target_needs():
     """Consecutive open-armature decays are one coast (B is told from the Coulomb torque
     by the deceleration's change with speed over the one coast: a second initial speed

@@ -15,8 +15,9 @@ effect                      segments
 ``load_torque``             low speed
 ``stribeck_friction``       a staircase through the lowest speeds both ways (1.5 to 25 % of
                             the top speed), each level held to steady state
-``cogging``                 slow crawls over up to a turn (or what the travel allows), each
-                            way (``crawl``), at the speeds where 48, 16 and 4 periods per
+``cogging``                 slow crawls over up to a turn (the fastest over two: the angle
+                            spectrum's span; or what the travel allows), each way
+                            (``crawl``), at the speeds where 48, 16 and 4 periods per
                             turn pass at the mechanical bandwidth (at most 8 % of the top
                             speed): torque periodic in the angle, at a period the rotor
                             follows
@@ -56,6 +57,16 @@ CRAWL_TOP = 0.08  # the fastest crawl, of the top speed
 CRAWL_FLOOR = 0.002  # the lowest crawl voltage, of the top voltage (a speed to measure)
 STRIBECK_SPEEDS = (0.015, 0.03, 0.06, 0.12, 0.25)
 MAX_CRAWL_S = 6.0
+# The diagnosis looks for cogging in the held-out residuals' spectrum over the shaft
+# angle only where the held-out side spans two turns (localization.angle_harmonics: a
+# period per turn is told from its neighbours over 4 pi), and the crawls go there and
+# back, one direction on each side of the split: so the fastest crawl covers two turns
+# and a half more (the prior's speed may be 15 % high, a crawl's first tau_m and a
+# stall in a detent lose angle). A turn
+# was too little: on the independent generator's scooter motor (17 or 117 periods per
+# output turn) the held-out crawls spanned 7 rad and cogging was not even tried.
+SPAN_TURNS = 2.5
+MAX_SPAN_S = 4.0 * MAX_CRAWL_S  # ... for at most this long (a slow geared output)
 
 
 def _voltage_for_speed(prior: Prior, w: float) -> float:
@@ -151,9 +162,12 @@ def _cogging(prior, limits, sc, w_top, tau):  # type: ignore[no-untyped-def]
         cap = w / 3.0
     for w in reversed(speeds):
         v = min(max(_voltage_for_speed(prior, w) + 0.5 * v_break, v_min), sc.v_top)
-        dist = min(2.0 * math.pi, reach)
-        # a turn (or the reach), and at least ten periods of the count it is sized for
-        seconds = min(max(dist / w, 20.0 * math.pi * tau) + 2.0 * tau, MAX_CRAWL_S)
+        # a turn (or the reach), and at least ten periods of the count it is sized for;
+        # the fastest crawl SPAN_TURNS (see SPAN_TURNS)
+        fastest = w == speeds[0]
+        dist = min(2.0 * math.pi * (SPAN_TURNS if fastest else 1.0), reach)
+        longest = MAX_SPAN_S if fastest else MAX_CRAWL_S
+        seconds = min(max(dist / w, 20.0 * math.pi * tau) + 2.0 * tau, longest)
         if travel is not None:
             seconds = min(seconds, reach / w + tau)
         # there and back: the angle returns (a joint stays in its range)
