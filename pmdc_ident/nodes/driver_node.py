@@ -49,7 +49,6 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.duration import Duration
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
@@ -237,7 +236,9 @@ class DriverNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(NODE_NAME, DriverNode, args, executor=SingleThreadedExecutor, realtime=True)
+    # the EventsExecutor (run_node's default, as the other nodes): the SingleThreadedExecutor
+    # rebuilt its wait set in Python at every wake-up of the 250 Hz poll timer
+    return run_node(NODE_NAME, DriverNode, args, realtime=True)
 
 
 if __name__ == "__main__":
