@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from pmdc_ident.core.data import Segment, heat_state
 from pmdc_ident.core.diagnosis import DiagnosisResult
@@ -40,6 +41,7 @@ from pmdc_ident.exports.mujoco_xml import mujoco_xml
 __all__ = ["DEFAULT_SUBSTEPS", "RoundTrip", "round_trip"]
 
 DEFAULT_SUBSTEPS = 50  # MuJoCo steps per sample of the replay
+REFERENCE_XATOL = 0.02  # the thermal reference's search: to 2 % of the largest rise
 
 
 def _shrink(before: float, after: float) -> float:
@@ -178,38 +180,73 @@ def _start(seg: Segment, model: Model) -> SegmentStart:
     return SegmentStart(i0, w0, th0, temp)
 
 
-def thermal_reference(segments: Sequence[Segment], model: Model) -> float:
-    """The winding's rise above ambient (K) where its inductance acts on ``segments``:
-    the model's heating (``alpha T = k q``, ``dq/dt = i^2 - q/tau`` from each segment's
-    start heat, the measured current held over each sample) averaged with the weight
-    ``(di/dt)^2`` of the model's own simulated current (the inductive voltage L di/dt,
-    squared: to first order, the rise whose inductance error costs the current's least
-    squared error); 0 without heating. MuJoCo keeps L/R as R heats, so the export is written
-    with its inductance exact at this rise (see
-    :func:`~pmdc_ident.exports.mujoco_xml.mujoco_xml`)."""
+def _model_rise(segments: Sequence[Segment], model: Model) -> float:
+    """The largest rise above ambient (K) the model's heating reaches on ``segments``
+    (``alpha T = k q``, ``dq/dt = i^2 - q/tau`` from each segment's start heat, the
+    measured current held over each sample); 0 without heating."""
     drift = model.effect("resistance_drift")
     if not (isinstance(drift, ResistanceDrift) and drift.coeff_per_a2s > 0):
         return 0.0
     tau = heat_time_constant(model)
-    num = den = 0.0
+    top = 0.0
     for seg in segments:
-        if seg.current is None or seg.n < 2:
+        if seg.current is None or seg.n < 1:
             continue
         i2 = np.nan_to_num(seg.current, nan=0.0) ** 2
         if seg.voltage is not None:
             i2 = np.where(np.isnan(seg.voltage), 0.0, i2)
         decay = math.exp(-seg.dt_s / tau) if math.isfinite(tau) and tau > 0 else 1.0
         gain = tau * (1.0 - decay) if decay < 1.0 else seg.dt_s
-        q, heat = heat_state(seg, tau), np.empty(seg.n)
-        for k, x in enumerate(i2):
-            heat[k] = q
+        q = heat_state(seg, tau)
+        top = max(top, q)
+        for x in i2:
             q = q * decay + x * gain
-        slope = np.gradient(general_sim(model, seg, x0_from_data(seg))[:, 0]) ** 2
-        num += float(np.sum(slope * heat))
-        den += float(np.sum(slope))
-    if not den > 0:
+            top = max(top, q)
+    return max(0.0, drift.coeff_per_a2s * top / ALPHA_COPPER)
+
+
+def thermal_reference(
+    spec: MotorSpec,
+    fit: Sequence[Segment],
+    noise: NoiseModel,
+    *,
+    timestep_s: float,
+    tau_s: float,
+    current_scale: float = 1.0,
+) -> float:
+    """The winding's reference rise above ambient (K) for the MuJoCo export of ``spec``,
+    fitted to the data the diagnosis fitted: MuJoCo keeps L/R as R heats, so its
+    inductance is the winding's at one rise only (see
+    :func:`~pmdc_ident.exports.mujoco_xml.mujoco_xml`); the rise chosen is the one whose
+    MuJoCo replay of the fit segments ``fit`` (each from its own start, with a lead-in
+    from the fit segment it continues, as held-out segments are predicted) matches their
+    recorded current and speed best (the gap as ``diagnose`` measures it, ``noise``),
+    searched between ambient and the largest rise the model's heating reaches on them.
+    No held-out sample chooses it. 0 without heating."""
+    top = _model_rise(fit, spec.model)
+    if not top > 0:
         return 0.0
-    return max(0.0, drift.coeff_per_a2s * num / den / ALPHA_COPPER)
+    leads = lead_ins(fit, fit, tau_s)
+    starts = [_start(li.segment, spec.model) for li in leads]
+    seen: dict[float, float] = {}
+
+    def gap(rise: float) -> float:
+        if rise in seen:
+            return seen[rise]
+        ex = mujoco_xml(spec, flavour="dcmotor", timestep_s=timestep_s, thermal_reference_k=rise)
+        runs = replay_segments(
+            ex.xml, [li.segment for li in leads], starts, current_scale=current_scale
+        )
+        preds = [_crop(r, li.samples) for r, li in zip(runs, leads, strict=True)]
+        seen[rise] = residuals(fit, preds, noise).gap()
+        return seen[rise]
+
+    found = minimize_scalar(
+        gap, bounds=(0.0, top), method="bounded", options={"xatol": REFERENCE_XATOL * top}
+    )
+    best = float(found.x)
+    # the bounded search never tries its ends: ambient and the hottest rise compete too
+    return min((best, 0.0, top), key=gap)
 
 
 def _crop(pred: object, k: int) -> Replayed:
@@ -232,10 +269,12 @@ def round_trip(result: DiagnosisResult, *, substeps: int = DEFAULT_SUBSTEPS) -> 
     doc = result.to_json()
     diagnosed = motor_with_diagnosis(plain, doc, source="diagnosis", same_motor=False)
     spec = MotorSpec("roundtrip_diagnosed", diagnosed.spec.model, limits=plain.limits)
-    leads = lead_ins(everything, held, base.params.mechanical_time_constant_s)
+    tau = base.params.mechanical_time_constant_s
+    leads = lead_ins(everything, held, tau)
     dt = float(np.median([s.dt_s for s in held]))
     h = dt / substeps
     noise = _noise(result, held)
+    fit_noise = _noise(result, split.fit)
 
     def project_gap(model: Model) -> float:
         preds = []
@@ -247,10 +286,12 @@ def round_trip(result: DiagnosisResult, *, substeps: int = DEFAULT_SUBSTEPS) -> 
 
     def mujoco_gap(s: MotorSpec) -> tuple[float, str, tuple[str, ...], tuple[str, ...]]:
         # heating: MuJoCo's inductance follows R, so the file is written with it exact
-        # at the winding temperature where the record's inductive voltage is spent
-        rise = thermal_reference(everything, s.model)
-        ex = mujoco_xml(s, flavour="dcmotor", timestep_s=h, thermal_reference_k=rise)
+        # at the rise that replays the fit segments best (never chosen on held-out data)
         p = s.model.params
+        rise = thermal_reference(
+            s, split.fit, fit_noise, timestep_s=h, tau_s=tau, current_scale=p.Kt / p.Ke
+        )
+        ex = mujoco_xml(s, flavour="dcmotor", timestep_s=h, thermal_reference_k=rise)
         runs = replay_segments(
             ex.xml,
             [li.segment for li in leads],

@@ -34,6 +34,25 @@ penalty (on an effect-free record it does not).
 The candidate carries a :class:`~pmdc_ident.core.effects.Cogging` effect of the same
 amplitude, count and phase, so it costs the effect's two fitted parameters and a
 combination with another effect is fitted in time as before.
+
+**Plausibility** (:func:`implausible`): a fitted cogging is not named, and the result
+says why, where the data cannot hold one, whatever its fit:
+
+* *its period is not resolved by the sampling where its torque acts.* A torque of N
+  periods per turn moves N |d theta| of its phase between two samples; beyond pi (half a
+  period: Nyquist) the samples alias it, and sin/cos(N theta) read at those samples are
+  a pseudo-random pair of regressors that can fit part of any residual (a 1.1 kW motor
+  logged at 250 Hz with a current-rate limit: 23 periods per turn, above Nyquist at
+  every speed but the slowest staircase level, "closed" 38-50 % of the gap). The share
+  of the candidate's fitted effect (its simulated response, noise-weighted, on the fit
+  and held-out samples) that falls on samples where its period is resolved must be at
+  least half; a true cogging acts most where the rotor crawls, where it is resolved.
+* *its size is impossible.* A rotor in a detent of a cogging of amplitude A is held
+  against any torque below A; a rotor slower than sqrt(4 A / (N J)) has too little
+  kinetic energy to roll over a detent. A record that has the rotor that slow (or at
+  rest) and turning on through many periods shows a drive that exceeded A: a cogging
+  larger than the largest torque the record applied (Kt times its peak current) cannot
+  be the motor's.
 """
 
 from __future__ import annotations
@@ -57,7 +76,7 @@ from pmdc_ident.core.estimators.start import equation_error_start
 from pmdc_ident.core.model import Model, simulate_linear
 from pmdc_ident.core.params import MotorParams
 
-__all__ = ["angle_cogging", "held_waves"]
+__all__ = ["angle_cogging", "held_waves", "implausible", "resolved_steps"]
 
 FloatArray = NDArray[np.float64]
 NOTE = "fitted in the measured shaft angle (linear least squares, motor parameters held)"
@@ -67,6 +86,8 @@ NOTE_REFIT = (
 )
 REFIT_PARAMS = ("R", "L", "Ke", "J", "B")
 REFIT_NFEV = 60  # least-squares evaluations per start (5 parameters, a smooth cost)
+NYQUIST_PHASE_RAD = math.pi  # a period is resolved where its phase moves less per sample
+RESOLVED_SHARE_MIN = 0.5  # of the cogging's fitted effect on samples that resolve its period
 
 
 def _responses(
@@ -336,6 +357,77 @@ def _refitted(
     return fit, with_cog.coef, res, with_cog.fit_res.gap()
 
 
+def resolved_steps(theta: FloatArray, periods: float) -> NDArray[np.bool_]:
+    """Per sample, whether a torque of ``periods`` per turn of the angle ``theta`` is
+    resolved there: its phase moves less than half a period (pi) to the next sample."""
+    step = np.diff(theta, append=theta[-1] + (theta[-1] - theta[-2] if theta.size > 1 else 0.0))
+    return np.nan_to_num(periods * np.abs(step), nan=np.inf) < NYQUIST_PHASE_RAD
+
+
+def _resolved_share(search: Search, p: MotorParams, effect: Cogging) -> float:
+    """The share of the cogging's effect (its simulated response, noise-weighted, on the
+    fit and the held-out samples) that falls on samples resolving its period."""
+    n = effect.periods_per_rev
+    coef = effect.torque_nm * np.array([math.cos(effect.phase_rad), math.sin(effect.phase_rad)])
+    segs = [*search.split.fit, *(li.segment for li in search.leads)]
+    skips = [0] * len(search.split.fit) + [li.samples for li in search.leads]
+    on = total = 0.0
+    for seg, k in zip(segs, skips, strict=True):
+        x = _responses(p, seg, n, search.noise, k)
+        e = sum((np.nan_to_num(x[sg]) @ coef) ** 2 / search.noise.sigma[sg] ** 2 for sg in x)
+        ok = resolved_steps(shaft_angle(seg), n)[k:]
+        on += float(np.sum(e[ok]))
+        total += float(np.sum(e))
+    return on / total if total > 0 else 1.0
+
+
+def _size_reason(search: Search, p: MotorParams, effect: Cogging) -> str:
+    """Why ``effect`` is too large for the record to have turned the rotor, or ''."""
+    a, n = effect.torque_nm, effect.periods_per_rev
+    if not (a > 0 and n > 0 and p.J > 0):
+        return ""
+    segs = [*search.split.fit, *search.split.held_out]
+    w = np.concatenate([np.abs(s.speed_or_derivative()) for s in segs])
+    cur = np.concatenate([s.current for s in segs if s.current is not None] or [np.zeros(1)])
+    peak = abs(p.Kt) * float(np.nanmax(np.abs(cur)))
+    turned = sum(float(np.nansum(np.abs(np.diff(shaft_angle(s))))) for s in segs)
+    crossing = math.sqrt(4.0 * a / (n * p.J))  # kinetic energy J w^2/2 = the detent's 2A/N
+    crawled = bool(np.any(w[np.isfinite(w)] < crossing))
+    if not (crawled and n * turned > 20.0 * math.pi and a > peak):
+        return ""
+    return (
+        f"cogging not named: {a:.3g} N*m at {n:g} periods per turn would hold the rotor in a "
+        f"detent against every torque the record applied (Kt x peak current = {peak:.3g} N*m), "
+        f"yet the rotor turned on from below {crossing:.3g} rad/s, too slow to roll over a "
+        "detent: no cogging of that size"
+    )
+
+
+def implausible(search: Search, fit: FitResult) -> str:
+    """Why the cogging in ``fit`` cannot be the record's (see the module notes: its
+    period unresolved where its torque acts, or a size that would have stopped the
+    rotor), or '' where it can."""
+    effect = fit.model.effect("cogging")
+    if not isinstance(effect, Cogging) or not effect.torque_nm > 0:
+        return ""
+    p = fit.model.params
+    share = _resolved_share(search, p, effect)
+    search.say(
+        f"candidate cogging ({effect.periods_per_rev:g} per turn): {share:.0%} of its effect "
+        "on samples that resolve its period"
+    )
+    if share < RESOLVED_SHARE_MIN:
+        n, rate = effect.periods_per_rev, 1.0 / search.dt_s
+        fastest = NYQUIST_PHASE_RAD * rate / n  # rad/s: half a period per sample
+        return (
+            f"cogging not named: its {n:g} periods per turn are not resolved by the sampling "
+            f"where its fitted torque acts: {share:.0%} of its effect lies on samples where it "
+            f"moves less than half a period per sample (below {fastest:.3g} rad/s at "
+            f"{rate:.4g} Hz); aliased, sin/cos({n:g} theta) fit the residual by chance"
+        )
+    return _size_reason(search, p, effect)
+
+
 def angle_cogging(
     search: Search, base: Fitted, periods: Sequence[int | float]
 ) -> tuple[Fitted, float]:
@@ -384,5 +476,9 @@ def angle_cogging(
         values={**motor.values, **{f"cogging.{k}": v for k, v in effect.as_dict().items()}},
         reasons={**motor.reasons, "cogging.torque_nm": note, "cogging.phase_rad": note},
     )
-    out = Fitted(("cogging",), fit, res, res.gap(), time.perf_counter() - t0)
+    why = implausible(search, fit)
+    if why:
+        search.say(why)
+        search.notes.append(why)
+    out = Fitted(("cogging",), fit, res, res.gap(), time.perf_counter() - t0, failed=bool(why))
     return out, fit_gap

@@ -35,7 +35,7 @@ from pmdc_ident.core.diagnosis.candidates import (
     predict,
 )
 from pmdc_ident.core.diagnosis.choice import Choice, chain_lag_s, choose
-from pmdc_ident.core.diagnosis.cogging import angle_cogging
+from pmdc_ident.core.diagnosis.cogging import angle_cogging, implausible
 from pmdc_ident.core.diagnosis.config import DiagnosisConfig
 from pmdc_ident.core.diagnosis.detection import with_detection_limits
 from pmdc_ident.core.diagnosis.holdout import HoldoutSplit, split_segments, swapped
@@ -666,7 +666,7 @@ def _cogging(search: Search, base: Fitted, sc: DataScales, periodic: bool) -> Fi
         sc,
         start=in_angle.fit.model,
     )
-    if in_time.failed or in_time.gap >= in_angle.gap:
+    if in_time.failed or in_time.gap >= in_angle.gap or implausible(search, in_time.fit):
         return in_angle
     return in_time
 
@@ -764,4 +764,5 @@ def _assumptions(
     for n, why in untestable.items():
         if n in cfg.effects:
             out.append(f"{n} not tried: {why}")
+    out += search.notes
     return tuple(out)

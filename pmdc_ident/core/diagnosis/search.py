@@ -66,6 +66,9 @@ class Search:
         self.leads = [LeadIn(seg, 0) for seg in split.held_out]
         # the records' sample period (the scale of the signal chain's lag)
         self.dt_s = float(np.median([s.dt_s for s in (*split.fit, *split.held_out)]))
+        # what the result must say about a candidate that was fitted but cannot be named
+        # (a cogging whose period the sampling does not resolve, ...)
+        self.notes: list[str] = []
 
     def set_lead_ins(self, tau_s: float) -> None:
         """Predict held-out segments from lead-ins of ``LEAD_IN_TAU`` x ``tau_s``."""

@@ -86,8 +86,8 @@ class ResistanceDrift(Effect):
         "L/R as R heats, so its L is the winding's at one reference rise D only: resistance "
         "R (1 + alpha D) and alpha' = alpha / (1 + alpha D) keep R(T), C (1 + alpha D) and "
         "R_th / (1 + alpha D) make the heating rate the candidate's at D; D = 0 (ambient) "
-        "by default, `roundtrip` the rise where the record's L di/dt is spent (weights "
-        "(di/dt)^2: the least-squares choice for the current's error to first order); the "
+        "by default, `roundtrip` the rise whose MuJoCo replay of the diagnosis' fit "
+        "segments matches their record best (the held-out data never choose it); the "
         "magnets' flux loss r is not carried"
     )
 
