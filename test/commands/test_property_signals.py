@@ -188,16 +188,14 @@ def test_no_signal_and_no_output_path_harms_an_input_or_leaves_a_partial_file(
         sent_at.append(time.monotonic())
     _, err = proc.communicate(timeout=300)
     assert "Traceback" not in err and "Fatal Python error" not in err, err
-    # 128 + the first signal (said in one line), or killed by it before the command's
-    # handlers exist (the interpreter still starting: nothing written yet). Signals sent
-    # within a tenth of a second of the first may be pending together on a busy host (the
-    # command not scheduled meanwhile), and Python runs pending handlers in signal-number
-    # order, not arrival order: any of them may be "first" (SIGTERM then SIGINT at once
-    # ended 130 on a machine at load 25).
-    first = {s for s, t in zip(sent, sent_at, strict=True) if t - sent_at[0] < 0.1}
-    allowed = {0, 2} | {128 + s for s in first} | {-s for s in sent}
-    if signal.SIGINT in first:
-        allowed.add(130)
+    # 128 + a signal sent (said in one line), or killed by one before the command's
+    # handlers exist (the interpreter still starting: nothing written yet). Python runs a
+    # handler only between bytecodes, and pending handlers in signal-number order, not
+    # arrival order: a signal sent while the main thread is inside one long C call (a
+    # compiled kernel, an import) is pending with every later one, and any of them may be
+    # acted on first (SIGTERM then SIGINT at once ended 130 at load 25; SIGTERM, then
+    # SIGINT 0.37 s later, ended 130 in a clean-clone CI beside three benchmarks).
+    allowed = {0, 2} | {128 + s for s in sent} | {-s for s in sent}
     assert proc.returncode in allowed, (proc.returncode, sent, err)
     assert _digest(watched) == before_inputs, (argv, err)
     for p in out.rglob("*"):
