@@ -10,6 +10,7 @@ import pytest
 from pmdc_ident.benchmark.mujoco_cases import make_mj_case, record_mj
 from pmdc_ident.benchmark.runner import write_recording
 from pmdc_ident.cli import main
+from pmdc_ident.exports import roundtrip as roundtrip_mod
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -33,16 +34,28 @@ def _run(tmp_path, name: str, equation: str, level: int, seed: int):  # type: ig
     ],
 )
 def test_the_shrink_in_mujoco_is_the_project_s_within_5_points(
-    tmp_path, capsys, name, equation, level, seed
+    tmp_path, capsys, monkeypatch, name, equation, level, seed
 ):
     data = _run(tmp_path, name, equation, level, seed)
     out = tmp_path / "rt.json"
+    # what chooses the export (the heating's thermal reference) sees the fit segments only
+    seen: list[str] = []
+    real = roundtrip_mod.thermal_reference
+
+    def spy(*args, **kwargs):  # type: ignore[no-untyped-def]
+        for a in (*args, *kwargs.values()):  # every segment it is handed, whatever the slot
+            if isinstance(a, list | tuple):
+                seen.extend(s.label for s in a if hasattr(s, "label"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(roundtrip_mod, "thermal_reference", spy)
     rc = main(["roundtrip", str(data), "--quiet", "--json", str(out), "--mujoco-dir",
                str(tmp_path / "mjcf")])  # fmt: skip
     text = capsys.readouterr().out
     assert rc == 0
     doc = json.loads(out.read_text())
     assert doc["effects"] == [name] and doc["carried"] == [name]
+    assert seen and not set(seen) & set(doc["held_out"]), (seen, doc["held_out"])
     assert doc["project"]["shrink"] > 0.8
     assert abs(doc["difference_points"]) <= 5.0
     # the plain export in MuJoCo misses by what the project's plain model misses
