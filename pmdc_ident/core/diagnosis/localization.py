@@ -54,7 +54,9 @@ BINS_PER_PERIOD = 8  # angle grid of the wide search: phase error <= pi/8 at a b
 OVERSAMPLE = 2  # counts per resolution step (1 / turns spanned) of the wide search
 MAX_GRID = 2**22  # angle bins per band and signal at most (memory: 32 MB)
 MIN_SAMPLES = 50
-MEDIAN_FLOOR = 1e-5  # of the excess energy: a band's median no lower (leakage, not noise)
+PEAKS_PER_BAND = 3  # a band's strongest peaks offered (a crawl's own time pattern is one)
+MAX_WIDE = 6  # wide-search counts offered at most, the most prominent first
+MEDIAN_FLOOR = 1e-5  # of a band's residual energy: its median no lower (leakage, not noise)
 
 
 @dataclass(frozen=True)
@@ -267,9 +269,7 @@ def angle_harmonics(
         if best_e >= MIN_PROMINENCE * median_e:
             best = float(best_n)
     counts = np.concatenate([resolved_counts(t) for t in thetas])
-    wide = wide_peaks(
-        theta, res, moving, counts, _encoder_top(segments), max_harmonic, best, total
-    )
+    wide = wide_peaks(theta, res, moving, counts, _encoder_top(segments), max_harmonic, best)
     if not wide:
         return best, share, top
     n_w, e_w = wide[0]
@@ -296,11 +296,12 @@ def wide_peaks(
     top_count: float = MAX_COUNT,
     max_harmonic: int = MAX_HARMONIC,
     found_count: float | None = None,
-    total: float = 0.0,
 ) -> list[tuple[float, float]]:
     """Period counts (any real number per turn below ``top_count``) that stand out of
     the residuals' angle spectrum by :func:`prominence_needed` of every count tried, and
-    their residual energy, the most prominent first (one per band at most); an integer
+    their residual energy, the most prominent first (``PEAKS_PER_BAND`` per band, at
+    most ``MAX_WIDE``; the fit side chooses among them, see
+    :func:`~pmdc_ident.core.diagnosis.cogging.angle_cogging`); an integer
     up to ``max_harmonic`` is left out (the integer search has it).
 
     The counts are searched in bands (``WIDE_BANDS``), each on the moving samples that
@@ -312,11 +313,14 @@ def wide_peaks(
     independent counts tried are the bands' widths times their turns spanned. A peak
     is refined by least squares on sin/cos(N theta) within one step.
 
-    A count the integer search found periodic (``found_count``) is removed first, and a
-    band's median is floored at ``MEDIAN_FLOOR`` of the excess (``total``): a strong
-    count's leakage is no peak of its own (an exact 6 per turn, nothing else, put one at
-    87.5 against a median of its own sidelobes)."""
-    floor = MEDIAN_FLOOR * total
+    The spectrum is in noise units (each signal's residual over its noise, summed: as
+    the output-error fit weighs them): in scale units a coarse encoder's differentiated
+    speed, its quantisation a pattern in time at each crawl's constant speed, put lines
+    (80.9, 118.6, 199.5 per turn at 480 counts per turn) above a true 97.3 seen in the
+    current. A count the integer search found periodic (``found_count``) is removed
+    first, and a band's median is floored at ``MEDIAN_FLOOR`` of its residual energy: a
+    strong count's leakage is no peak of its own (an exact 6 per turn, nothing else, put
+    one at 87.5 against a median of its own sidelobes)."""
     found: list[tuple[float, float, NDArray[np.bool_], float]] = []  # ratio, N, samples, turns
     tried = 0.0
     for lo, edge in zip(WIDE_BANDS[:-1], WIDE_BANDS[1:], strict=True):
@@ -339,29 +343,48 @@ def wide_peaks(
         if band.sum() < 8:
             continue
         energy = np.zeros(int(band.sum()))
-        for y in _angle_signals(res, sel, found_count, theta[sel]):
+        raw = _angle_signals(res, sel, noise_units=True)
+        floor = MEDIAN_FLOOR * float(np.mean([np.sum(y**2) for y in raw]))
+        for y in _angle_signals(res, sel, found_count, th, noise_units=True):
             f = np.fft.rfft(np.bincount(idx, weights=y, minlength=size)[:size])
             energy += 2.0 * np.abs(f[band]) ** 2 / y.size
         energy /= max(len(res.error), 1)
         tried += (hi - lo) * turns
-        k = int(np.argmax(energy))
         median_e = max(float(np.median(energy)), floor, 1e-300)
-        found.append((float(energy[k]) / median_e, float(n_k[band][k]), sel, turns))
+        counts_b = n_k[band]
+        for k in _peaks(energy, PEAKS_PER_BAND, 2 * OVERSAMPLE):
+            found.append((float(energy[k]) / median_e, float(counts_b[k]), sel, turns))
     need = prominence_needed(tried)
     out: list[tuple[float, float]] = []
     for ratio, n0, sel, turns in sorted(found, key=lambda f: -f[0]):
-        if ratio < need:
+        if ratio < need or len(out) >= MAX_WIDE:
             break
-        th, ys = theta[sel], _angle_signals(res, sel, found_count, theta[sel])
+        th = theta[sel]
+        ys = _angle_signals(res, sel, found_count, th, noise_units=True)
         step = 1.0 / (OVERSAMPLE * turns)
         grid = [float(n) for n in n0 + np.linspace(-step, step, 17) if 0 < n < top_count]
         if not grid:
             continue
-        n_best, e_best = max(((n, _count_energy(th, ys, n)) for n in grid), key=lambda ne: ne[1])
+        n_best = max(grid, key=lambda n: _count_energy(th, ys, n))
         near = round(n_best)
         if near <= max_harmonic and abs(n_best - near) < 1.0 / turns:
             continue  # an integer the integer search tried
-        out.append((n_best, e_best))
+        out.append((n_best, _count_energy(th, _angle_signals(res, sel, found_count, th), n_best)))
+    return out
+
+
+def _peaks(energy: FloatArray, count: int, apart: int) -> list[int]:
+    """Indices of the ``count`` largest local maxima of ``energy``, ``apart`` bins or
+    more from a larger one."""
+    inner = np.flatnonzero(
+        (energy >= np.r_[-np.inf, energy[:-1]]) & (energy >= np.r_[energy[1:], -np.inf])
+    )
+    out: list[int] = []
+    for k in inner[np.argsort(-energy[inner])]:
+        if all(abs(int(k) - j) >= apart for j in out):
+            out.append(int(k))
+        if len(out) >= count:
+            break
     return out
 
 
@@ -370,13 +393,16 @@ def _angle_signals(
     sel: NDArray[np.bool_],
     known: float | None = None,
     theta: FloatArray | None = None,
+    *,
+    noise_units: bool = False,
 ) -> list[FloatArray]:
-    """Each signal's residual on the samples ``sel``, relative to its scale, its slow
-    trend removed (:func:`_smooth`), and its part in sin/cos(``known`` theta) where
-    given (``theta``: the angle on the samples ``sel``)."""
+    """Each signal's residual on the samples ``sel``, relative to its scale (its noise
+    with ``noise_units``), its slow trend removed (:func:`_smooth`), and its part in
+    sin/cos(``known`` theta) where given (``theta``: the angle on the samples ``sel``)."""
     out = []
     for sig, err in res.error.items():
-        y = np.nan_to_num(err[sel]) / res.noise.scale[sig]
+        unit = res.noise.sigma[sig] if noise_units else res.noise.scale[sig]
+        y = np.nan_to_num(err[sel]) / unit
         y = y - _smooth(y)
         if known is not None and theta is not None:
             basis = np.column_stack([np.sin(known * theta), np.cos(known * theta)])
