@@ -273,8 +273,17 @@ def angle_harmonics(
     if not wide:
         return best, share, top
     n_w, e_w = wide[0]
-    if best is not None and share >= e_w / total:
-        return best, share, (*top, *(n for n, _ in wide))  # the integer is the stronger
+    if best is not None:
+        # a periodic integer stands as before where it is the stronger, in noise units
+        # (the wide search's: a coarse encoder's speed weighs no more than its noise)
+        th, ys = theta[moving], _angle_signals(res, moving, noise_units=True)
+        sel_w = moving & (counts > n_w)
+        e_int = _count_energy(th, ys, best) / max(int(moving.sum()), 1)
+        e_wide = _count_energy(
+            theta[sel_w], _angle_signals(res, sel_w, noise_units=True), n_w
+        ) / max(int(sel_w.sum()), 1)
+        if e_int >= e_wide:
+            return best, share, top
     return n_w, min(e_w / total, 1.0), (*(n for n, _ in wide), *top)
 
 
