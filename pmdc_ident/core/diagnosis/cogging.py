@@ -67,7 +67,12 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from pmdc_ident.core.data import Segment
-from pmdc_ident.core.diagnosis.localization import shaft_angle
+from pmdc_ident.core.diagnosis.localization import (
+    MAX_HARMONIC,
+    NYQUIST_PHASE_RAD,
+    resolved_steps,
+    shaft_angle,
+)
 from pmdc_ident.core.diagnosis.scoring import NoiseModel, Residuals, residuals, simulated
 from pmdc_ident.core.diagnosis.search import FIT_ERRORS, Fitted, Scoring, Search, predictions
 from pmdc_ident.core.effects import Cogging
@@ -86,7 +91,7 @@ NOTE_REFIT = (
 )
 REFIT_PARAMS = ("R", "L", "Ke", "J", "B")
 REFIT_NFEV = 60  # least-squares evaluations per start (5 parameters, a smooth cost)
-NYQUIST_PHASE_RAD = math.pi  # a period is resolved where its phase moves less per sample
+REFINE_STEPS = 4  # fit-side counts each side of a wide-search count
 RESOLVED_SHARE_MIN = 0.5  # of the cogging's fitted effect on samples that resolve its period
 
 
@@ -357,13 +362,6 @@ def _refitted(
     return fit, with_cog.coef, res, with_cog.fit_res.gap()
 
 
-def resolved_steps(theta: FloatArray, periods: float) -> NDArray[np.bool_]:
-    """Per sample, whether a torque of ``periods`` per turn of the angle ``theta`` is
-    resolved there: its phase moves less than half a period (pi) to the next sample."""
-    step = np.diff(theta, append=theta[-1] + (theta[-1] - theta[-2] if theta.size > 1 else 0.0))
-    return np.nan_to_num(periods * np.abs(step), nan=np.inf) < NYQUIST_PHASE_RAD
-
-
 def _resolved_share(search: Search, p: MotorParams, effect: Cogging) -> float:
     """The share of the cogging's effect (its simulated response, noise-weighted, on the
     fit and the held-out samples) that falls on samples resolving its period."""
@@ -428,6 +426,25 @@ def implausible(search: Search, fit: FitResult) -> str:
     return _size_reason(search, p, effect)
 
 
+def _trial_counts(segs: Sequence[Segment], periods: Sequence[int | float]) -> list[float]:
+    """The counts tried on the fit segments: each of ``periods``; one from the wide
+    search (:func:`~pmdc_ident.core.diagnosis.localization.wide_peaks`: not an integer,
+    or above ``MAX_HARMONIC``) also on a grid of ``REFINE_STEPS`` around it, a quarter of
+    the fit side's resolution apart (1 / its turns spanned; the held-out spectrum's own
+    may be coarser, and a count off by 1 / turns slips a whole period over the record)."""
+    out: list[float] = []
+    theta = np.concatenate([shaft_angle(s) for s in segs])
+    turns = float(np.ptp(theta[np.isfinite(theta)])) / (2.0 * math.pi) if theta.size else 0.0
+    for n in periods:
+        n = float(n)
+        if (n != round(n) or n > MAX_HARMONIC) and turns > 0:
+            d = 0.25 / turns
+            out += [n + k * d for k in range(-REFINE_STEPS, REFINE_STEPS + 1) if n + k * d > 0]
+        else:
+            out.append(n)
+    return out
+
+
 def angle_cogging(
     search: Search, base: Fitted, periods: Sequence[int | float]
 ) -> tuple[Fitted, float]:
@@ -439,11 +456,11 @@ def angle_cogging(
     fit_res = residuals(fit_segs, predictions(base.fit, fit_segs), search.noise)
     best: tuple[float, float, FloatArray] | None = None
     try:
-        for n in periods:
-            x = _design(p, fit_segs, [0] * len(fit_segs), float(n), search.noise)
+        for n in _trial_counts(fit_segs, periods):
+            x = _design(p, fit_segs, [0] * len(fit_segs), n, search.noise)
             coef, cost = _solve(x, fit_res)
             if best is None or cost < best[0]:
-                best = (cost, float(n), coef)
+                best = (cost, n, coef)
         if best is None:
             msg = "no shaft-angle period to try"
             raise ValueError(msg)

@@ -17,6 +17,7 @@ from pmdc_ident.core.diagnosis.cogging import (
     resolved_steps,
 )
 from pmdc_ident.core.diagnosis.holdout import split_segments
+from pmdc_ident.core.diagnosis.localization import angle_harmonics
 from pmdc_ident.core.diagnosis.pipeline import _baseline
 from pmdc_ident.core.diagnosis.scoring import estimate_noise
 from pmdc_ident.core.diagnosis.search import Search
@@ -56,7 +57,7 @@ def test_cogging_is_read_off_the_measured_angle_with_its_count_and_phase():
     assert f.gap < 0.5 * base.gap and math.isfinite(fit_gap)
 
 
-def _crawl_record(cogging_nm: float, seed: int = 3):  # type: ignore[no-untyped-def]
+def _crawl_record(cogging_nm: float, seed: int = 3, periods: float = 12.0):  # type: ignore[no-untyped-def]
     """The cogging reveal's crawls and a step with a coast on seed 001's motor, logged
     with current and the encoder's angle only (no speed column), at 2 ms."""
     from pmdc_ident.core.design import Prior, session_limits
@@ -71,7 +72,7 @@ def _crawl_record(cogging_nm: float, seed: int = 3):  # type: ignore[no-untyped-
     step = np.r_[np.zeros(n), np.full(n, 0.5 * spec.limits.voltage_max_v), np.full(n, np.nan)]
     segs = [PlannedSegment(f"crawl_{k:02d}", c.voltage) for k, c in enumerate(crawls)]
     plan = TestPlan((*segs, PlannedSegment("step_07", step)), dt)
-    effects = (Cogging(cogging_nm, 12.0, 0.4),) if cogging_nm else ()
+    effects = (Cogging(cogging_nm, periods, 0.4),) if cogging_nm else ()
     run = synthesize_run(
         Model(p, effects), plan, spec.sensors, seed=seed, signals=("current", "position")
     )
@@ -190,3 +191,50 @@ def test_a_cogging_too_large_for_the_record_to_have_turned_is_not_named():
     fit = replace(f.fit, model=Model(f.fit.model.params, (big,)))
     why = implausible(search, fit)
     assert why.startswith("cogging not named") and "would hold the rotor in a detent" in why
+
+
+GEARED_COUNT = 12 * 9.78  # a 12-detent motor behind a 9.78:1 gear, read on the output
+
+
+def _geared_search(cogging_nm: float):  # type: ignore[no-untyped-def]
+    """The crawl record with a cogging of 117.36 periods per *output* turn (the encoder,
+    480 counts per turn, on the output of a 9.78:1 gear: 12 detents per motor turn),
+    its search, baseline, the held-out angle spectrum's candidates, and its segments."""
+    p, segs = _crawl_record(cogging_nm, periods=GEARED_COUNT)
+    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
+    base = _baseline(search)
+    _, _, periods = angle_harmonics(list(search.split.held_out), base.res)
+    return search, base, periods, segs
+
+
+def test_a_geared_outputs_fractional_count_above_64_is_found_in_the_angle():
+    """Issue 25 item 5 / 23: seed-7 reveal run 9 (a scooter hub, 12 x 9.78 = 117.36
+    periods per output turn) ended unexplained, the spectrum searching the integers up
+    to 64 only. The wide search offers the count the record resolves (crawls at up to
+    one encoder count per 2 ms sample: resolved up to 240 per turn), and the fit side
+    refines it: count, amplitude and the gap come back. Before: 3, 7 and 1 per turn
+    were tried, the gap stayed."""
+    search, base, periods, _ = _geared_search(0.24)
+    assert any(abs(n - GEARED_COUNT) < 0.5 for n in periods)  # before: (3, 7, 1)
+    f, _ = angle_cogging(search, base, periods)
+    e = f.fit.model.effect("cogging")
+    assert isinstance(e, Cogging) and e.periods_per_rev == pytest.approx(GEARED_COUNT, abs=0.2)
+    assert e.torque_nm == pytest.approx(0.24, rel=0.15)
+    assert f.gap < 0.2 * base.gap and implausible(search, f.fit) == ""
+
+
+def test_the_wide_search_names_no_cogging_on_an_effect_free_record():
+    """The same record without cogging: a coarse encoder's quantisation at each crawl's
+    constant speed puts lines in the angle spectrum (80.9, 118.6, 199.5 per turn) that
+    pass the extreme-value bound and are tried; none closes the gap by its penalty, and
+    the diagnosis names nothing."""
+    from pmdc_ident.core.diagnosis.search import Scoring
+
+    search, base, periods, segs = _geared_search(0.0)
+    assert any(n > 64 for n in periods)  # the wide search offered counts above 64
+    f, _ = angle_cogging(search, base, periods)
+    assert not Scoring.for_baseline(base, search.cfg.thresholds).score(f).significant
+    from pmdc_ident.core.diagnosis import diagnose
+
+    res = diagnose(segs, config=DiagnosisConfig(workers=1))
+    assert res.verdict.effects == ()
