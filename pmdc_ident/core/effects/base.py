@@ -99,14 +99,14 @@ class DataScales:
     dt_s: float  # median sample period
     charge_a2s: float  # int i^2 dt over all segments
     span_s: float  # from the first segment's start to the last one's end
-    periods_per_rev: tuple[int, ...]  # shaft-angle harmonics to try for cogging
+    periods_per_rev: tuple[float, ...]  # shaft-angle harmonics to try for cogging
 
 
 @dataclass(frozen=True)
 class CandidateContext:
     """What the diagnosis knows of the data before it fits a candidate."""
 
-    angle_periods: tuple[int, ...]  # periods per turn the residuals' angle spectrum shows
+    angle_periods: tuple[float, ...]  # periods per turn the residuals' angle spectrum shows
     inductance_held: bool  # L is held: the data do not resolve L/R
 
 
