@@ -209,8 +209,7 @@ def regime_masks(
 def resolved_steps(theta: FloatArray, periods: float) -> NDArray[np.bool_]:
     """Per sample, whether a torque of ``periods`` per turn of the angle ``theta`` is
     resolved there: its phase moves less than half a period (pi) to the next sample."""
-    step = np.diff(theta, append=theta[-1] + (theta[-1] - theta[-2] if theta.size > 1 else 0.0))
-    return np.nan_to_num(periods * np.abs(step), nan=np.inf) < NYQUIST_PHASE_RAD
+    return resolved_counts(theta) > periods
 
 
 def resolved_counts(theta: FloatArray) -> FloatArray:
