@@ -34,8 +34,11 @@ _WRAP_UNITS = ((_TWO_PI, "rad"), (360.0, "deg"), (1.0, "rev"))
 def find_wrap(position: FloatArray) -> tuple[float, int] | None:
     """``(period, count)`` when ``position`` jumps back by one period as it turns, else None.
 
-    A wrap is a step at least half the column's range, and at least 20 times
-    the 90th percentile of the other steps, against the direction of motion.
+    A wrap is a step at least half the column's range, at least 20 times the 90th
+    percentile of the other steps and at least 4 of the column's smallest steps (an
+    encoder's count), against the direction of motion. Without the last rule a shaft
+    that stood still but for one count back (a slow crawl at rest on a 4800-count
+    encoder: a range of one count) read as wrapping with a period of one count.
     """
     d = np.diff(position)
     if d.size < 10:
@@ -43,7 +46,9 @@ def find_wrap(position: FloatArray) -> tuple[float, int] | None:
     span = float(np.ptp(position))
     ad = np.abs(d)
     small = float(np.percentile(ad, 90))
-    jumps = ad > max(0.5 * span, 20.0 * small)
+    moved = ad[ad > 0]
+    count = float(moved.min()) if moved.size else 0.0
+    jumps = ad > max(0.5 * span, 20.0 * small, 4.0 * count)
     if span <= 0 or not jumps.any() or jumps.sum() > 0.2 * d.size:
         return None
     motion = float(np.median(d[~jumps])) if (~jumps).any() else 0.0
