@@ -32,10 +32,14 @@ BENCHES := $(sort $(wildcard benchmarks/bench_*.py))
 
 venv: $(STAMP)
 
-# Re-run the install only when what it installs changes.
+# Re-run the install only when what it installs changes. --no-compile: pip would
+# byte-compile all ~10,000 modules of the pinned set (16 of its 40 CPU-s, 35 s of a
+# fresh clone's 80 s install); Python writes the .pyc of the ~1,000 a run imports
+# the first time it imports them (`make test` writes bytecode, see below). The same
+# packages at the same versions (pip freeze identical).
 $(STAMP): requirements-dev.txt constraints.txt setup.py setup.cfg
 	test -x $(VPY) || $(PYTHON) -m venv $(VENV)
-	$(VPY) -m pip install -r requirements-dev.txt -c constraints.txt
+	$(VPY) -m pip install --no-compile -r requirements-dev.txt -c constraints.txt
 	$(VPY) -m pip install -e . --no-deps
 	test -x $(VENV)/bin/pmdc-ident
 	touch $@

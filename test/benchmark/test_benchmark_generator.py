@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -243,12 +244,16 @@ def test_score_counts_ties_only_with_the_truth_and_a_separating_test():
 
 
 def test_quick_benchmark_command_prints_the_table_and_draws_the_report(tmp_path, capsys):
+    # one effect run and one effect-free run, in the two workers of --jobs 2: the table's
+    # rows, the pool, the figures and the JSON (the accuracy figures come from the full
+    # benchmark, docs/results.md). With a delay run beside them (and the effect-free run
+    # the draw then gave, a one-direction 2 kHz coreless motor) 25 CPU-s, now 7
     rc = main(
         [
             "benchmark",
             "--quick",
             "--effects",
-            "coulomb_friction,delay",
+            "coulomb_friction",
             "--clean",
             "1",
             "--jobs",
@@ -262,7 +267,12 @@ def test_quick_benchmark_command_prints_the_table_and_draws_the_report(tmp_path,
     )
     out = capsys.readouterr().out
     assert rc == 0
-    assert "| effect-free runs: false attribution |" in out and "detection limit" in out
+    assert "| effect-free runs: false attribution | 0 (0%) | 1 |" in out
+    assert "| coulomb_friction | 100% | 100% | 1 | 0 | 25 % rated torque |" in out
+    assert "detection limit" in out
+    runs = json.loads((tmp_path / "runs.json").read_text())
+    assert sorted(r["kind"] for r in runs) == ["clean", "effect"]
+    assert all(r["cpu_s"] > 0 and r["generate_cpu_s"] > 0 for r in runs)
     assert (tmp_path / "confusion.png").stat().st_size > 1000
     assert (tmp_path / "detection_limits.png").stat().st_size > 1000
     assert main(["benchmark", "--effects", "nope"]) == 2
