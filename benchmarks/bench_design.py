@@ -30,7 +30,7 @@ friction at 15 % of rated torque, named by ``diagnose`` on the independent gener
 
     nice .venv/bin/python benchmarks/bench_design.py [--mc 20] [--motors a,b] [--json OUT]
     nice .venv/bin/python benchmarks/bench_design.py --travel [--plot OUT.png]
-    nice .venv/bin/python benchmarks/bench_design.py --reveal [--runs 10]
+    nice .venv/bin/python benchmarks/bench_design.py --reveal [--runs 10] [--plant mujoco]
 """
 
 from __future__ import annotations
@@ -449,6 +449,13 @@ def main() -> int:
     )
     ap.add_argument("--effects", default=",".join(REVEAL_GOALS), help="--reveal: which")
     ap.add_argument(
+        "--plant",
+        choices=("generator", "mujoco"),
+        default="generator",
+        help="--reveal: the plant the plans are played on (mujoco: MuJoCo's <dcmotor>, "
+        "the effect in its equations: LuGre's Gaussian Stribeck curve, cogging)",
+    )
+    ap.add_argument(
         "--only",
         default="",
         help="--reveal: these run numbers of the draw only (e.g. 4,8,9), the others drawn "
@@ -663,6 +670,13 @@ def reveal_case(args: argparse.Namespace) -> int:
                            int(rng.integers(2**31)))  # fmt: skip
             if only and k not in only:
                 continue  # drawn all the same: the runs chosen are those of the full draw
+            mj = None
+            if args.plant == "mujoco":  # the same motor, rate, sensors, noise: MuJoCo's effect
+                mj = _mj_reveal_effect(name, pct, ctx, k, case.seed)
+                if mj is None:
+                    print(f"{case.name}: MuJoCo cannot show {name} on {motor.name} at {rate:g} Hz")
+                    continue
+                eq = mj.equation
             r = Rig(motor, rate, 0.0, _bench_limits(motor), sensors)
             nominal = datasheet_prior(r, seed=k)
             nominal = Prior(Model(nominal.model.params), nominal.noise, "datasheet prior")
@@ -679,13 +693,18 @@ def reveal_case(args: argparse.Namespace) -> int:
                 runs.append(("clean", plans["reveal"], ()))
             for which, plan, effects in runs:
                 v = np.concatenate([s.voltage for s in plan.segments])
-                p_eff = bc.sensor_vector(case, effects)
                 try:
-                    sim = pl.simulate_plant(v, r.dt, p_eff)
+                    if mj is not None:
+                        from pmdc_ident.benchmark.mujoco_cases import simulate_measured
+
+                        mj_eff = (mj,) if effects else ()
+                        _, m = simulate_measured(motor, mj_eff, sensors, v, r.dt, case.seed)
+                    else:
+                        sim = pl.simulate_plant(v, r.dt, bc.sensor_vector(case, effects))
+                        m = measure(sim, sensors, np.random.default_rng(case.seed))
                 except ValueError as exc:
-                    print(f"{case.name} {which}: generator failed: {exc}")
+                    print(f"{case.name} {which}: {args.plant} failed: {exc}")
                     continue
-                m = measure(sim, sensors, np.random.default_rng(case.seed))
                 sizes = [s_.voltage.size for s_ in plan.segments]
                 stops = np.cumsum(sizes)
                 rec = bc.Recording(
@@ -708,6 +727,7 @@ def reveal_case(args: argparse.Namespace) -> int:
                 )  # fmt: skip
                 lim_ = next((d for d in res.detection_limits if d.effect == name), None)
                 rows.append({"effect": name, "plan": which, "case": case.name, "motor": motor.name,
+                             "plant": args.plant,
                              "rate": rate, "equation": eq, "named": named,
                              "verdict": v_.status.value, "effects": list(v_.effects),
                              "seconds": plan.duration_s, "cpu_s": time.process_time() - t0,
@@ -730,6 +750,26 @@ def reveal_case(args: argparse.Namespace) -> int:
     if args.json:
         write_text(args.json, json.dumps(rows, indent=1))
     return 0
+
+
+def _mj_reveal_effect(name: str, pct: float, ctx, k: int, seed: int):  # type: ignore[no-untyped-def]
+    """The effect at ``pct`` % of rated torque in MuJoCo's equations (``--plant mujoco``):
+    drawn as the MuJoCo benchmark draws it (equations cycled over the runs), resized;
+    None where MuJoCo's cogging periods are not resolved at this rate."""
+    from pmdc_ident.benchmark.mujoco_truth import (
+        MJ_EQUATIONS,
+        cogging_equations,
+        draw_mj_effect,
+        resized,
+    )
+    from pmdc_ident.benchmark.truth import LADDERS
+
+    eqs = cogging_equations(ctx.motor, ctx.rate_hz) if name == "cogging" else MJ_EQUATIONS[name]
+    if not eqs:
+        return None
+    top = len(LADDERS[name][1]) - 1
+    e = draw_mj_effect(name, top, ctx, np.random.default_rng(seed), eqs[k % len(eqs)])
+    return resized(e, pct, ctx.motor, ctx.rate_hz)
 
 
 def _called(which: str, named: bool) -> str:

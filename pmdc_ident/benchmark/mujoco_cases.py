@@ -36,10 +36,11 @@ from pmdc_ident.benchmark.mujoco_truth import (
     lugre,
     mj_eligible,
 )
-from pmdc_ident.benchmark.sensors import SensorSetup, measure
+from pmdc_ident.benchmark.plant import SimOutput
+from pmdc_ident.benchmark.sensors import Measured, SensorSetup, measure
 from pmdc_ident.benchmark.visibility import Visibility, linear_signals, visibility_of
 
-__all__ = ["base_plant", "build_mj_cases", "plant_and_chain", "record_mj"]
+__all__ = ["base_plant", "build_mj_cases", "plant_and_chain", "record_mj", "simulate_measured"]
 
 PLANT = "mujoco"
 
@@ -145,15 +146,28 @@ def _filters(s: SensorSetup) -> mp.Filters:
     return mp.Filters(s.current_fc_hz, s.current_order, s.speed_fc_hz)
 
 
+def simulate_measured(
+    m: BenchMotor,
+    effects: tuple[MjEffect, ...],
+    sensors: SensorSetup,
+    voltage: np.ndarray,
+    dt_s: float,
+    seed: int,
+) -> tuple[SimOutput, Measured]:
+    """Any voltage sequence (a benchmark session, a designed plan) played on MuJoCo's
+    motor with ``effects``, and what the driver's sensors log of it (noise from ``seed``)."""
+    plant, chain = plant_and_chain(m, effects)
+    sim = mp.simulate_plant(plant, voltage, dt_s, chain=chain, filters=_filters(sensors))
+    return sim, measure(sim, sensors, np.random.default_rng(seed))
+
+
 def record_mj(case: Case, *, with_visibility: bool = True) -> tuple[Recording, Visibility | None]:
     """The run as the driver logs it (MuJoCo's motor, the drive and sensors outside it),
     and how visible its effects are."""
     m = case.bench_motor
     labels, bounds, v = command(m, case.rate_hz, case.one_direction)
-    plant, chain = plant_and_chain(m, case.effects)  # type: ignore[arg-type]
     dt = 1.0 / case.rate_hz
-    sim = mp.simulate_plant(plant, v, dt, chain=chain, filters=_filters(case.sensors))
-    meas = measure(sim, case.sensors, np.random.default_rng(case.seed))
+    sim, meas = simulate_measured(m, case.effects, case.sensors, v, dt, case.seed)  # type: ignore[arg-type]
     rec = Recording(labels, bounds, dt, v, meas.current, meas.position, meas.speed)
     vis = None
     if with_visibility and case.effects:

@@ -19,7 +19,7 @@ and is not in this plant's vocabulary.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -458,3 +458,29 @@ def draw_mj_effect(
         msg = f"{name} has no MuJoCo equation {eq!r}; known: {MJ_EQUATIONS.get(name)}"
         raise ValueError(msg)
     return _GENERATORS[name](name, eq, level, ctx, rng)
+
+
+def resized(e: MjEffect, size: float, m: BenchMotor, rate_hz: float) -> MjEffect:
+    """``e`` at another size in its unit (a torque effect: LuGre friction, cogging), its
+    drawn shape kept: the reveal benchmark's effect at a chosen fraction of rated torque
+    (``benchmarks/bench_design.py --reveal --plant mujoco``)."""
+    f = size / e.size
+    n = m.gear_ratio
+    plant: list[tuple[str, object]] = []
+    for key, v in e.plant:
+        if key == "lugre":  # motor-shaft units; :func:`lugre` takes the output's
+            _s0, _s1, fc, ts, vs = v  # type: ignore[misc]
+            v = lugre(fc * n * f, ts * n * f, vs / n, m, rate_hz)
+        elif key == "cogging":
+            a, periods, phase = v  # type: ignore[misc]
+            v = (a * f, periods, phase)
+        elif key == "passive":
+            v = tuple(replace(q, amplitude_nm=q.amplitude_nm * f) for q in v)  # type: ignore[attr-defined]
+        else:
+            msg = f"{e.name} ({e.equation}): cannot resize its {key!r}"
+            raise ValueError(msg)
+        plant.append((key, v))
+    if e.chain or any(e.offset):
+        msg = f"{e.name} ({e.equation}): only torque effects are resized"
+        raise ValueError(msg)
+    return replace(e, size=size, plant=tuple(plant))

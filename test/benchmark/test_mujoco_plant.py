@@ -106,6 +106,34 @@ def test_coulomb_friction_is_the_ladder_s_torque_whatever_mujoco_model_carries_i
         assert torque == pytest.approx(case.effects[0].size, rel=0.05, abs=0.5)
 
 
+@pytest.mark.parametrize(
+    ("name", "equation"),
+    [("stribeck_friction", "lugre_gauss"), ("cogging", "motor"), ("cogging", "two_harmonics"),
+     ("cogging", "gear_mesh")],
+)  # fmt: skip
+def test_a_reveal_benchmark_effect_resized_keeps_its_shape(name, equation):
+    """``bench_design --reveal --plant mujoco`` plays an effect at a chosen % of rated
+    torque: every torque term scales, the Stribeck speed and cogging periods stay."""
+    from pmdc_ident.benchmark.mujoco_truth import draw_mj_effect, resized
+    from pmdc_ident.benchmark.truth import Context
+
+    m = ALL_MOTORS["scooter_24v"]  # geared: LuGre's terms are at the motor shaft
+    ctx = Context(m, 2000.0, 10.0, m.current_rated_a, np.zeros(1))
+    e = draw_mj_effect(name, 3, ctx, np.random.default_rng(1), equation)
+    r = resized(e, 15.0, m, ctx.rate_hz)
+    assert (r.size, r.equation) == (15.0, equation)
+    f = 15.0 / e.size
+    for (key, a), (_, b) in zip(e.plant, r.plant, strict=True):
+        if key == "lugre":  # sigma0 follows the level, the fall's speed stays
+            assert b[3] * m.gear_ratio == pytest.approx(0.15 * m.torque_rated_nm)
+            assert (b[2], b[4]) == pytest.approx((f * a[2], a[4]))
+        elif key == "cogging":
+            assert b == pytest.approx((f * a[0], a[1], a[2]))
+        else:
+            assert [q.amplitude_nm for q in b] == pytest.approx([f * q.amplitude_nm for q in a])
+            assert [q.poles for q in b] == [q.poles for q in a]
+
+
 def test_brush_drop_outside_mujoco_and_heating_inside_it_have_their_sizes():
     for case in build_mj_cases(2, 0, 0, 0, 5, effects=("brush_drop",), max_samples=5000):
         _, drop, sim = _steady(case)

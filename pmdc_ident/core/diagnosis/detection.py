@@ -10,7 +10,15 @@ J, B and each fit segment's initial current and speed) absorbs what it can; what
 left on the held-out segments, in noise variances per signal and averaged as the gap
 is (:mod:`.scoring`), must reach the verdict's threshold: one noise variance plus the
 penalty of the effect's parameters. Both sides of the split are tried (the diagnosis
-looks with them swapped when the default finds nothing), and the smaller size stands.
+looks with them swapped when the default finds nothing), and the smaller size stands;
+the swapped side's only where the diagnosis would take what it shows
+(:func:`~.pipeline._swapped_look`): where the effect leaves the default side's own
+baseline a misfit on its fit segments above ``no_gap_noise`` (a gap no candidate closes
+is then reported), or leaves one there on the swapped side's fit segments (there a
+candidate fitted can close it). An effect confined to a segment the default split fits
+(the breakaway from rest of a Stribeck fall on MuJoCo's LuGre curve) is otherwise
+judged shown on the swapped side at a size the diagnosis reports ``no_gap`` for. A
+user's split is judged on its own side only (the diagnosis looks no further).
 
 Sizes are reported in the effect's own unit and relative to the record: torques to the
 motor's peak torque on the record (Kt x its largest current), voltages to its largest
@@ -81,8 +89,16 @@ class _Record:
     """The baseline's signals and sensitivities on every segment, and both sides of the
     split: an effect's signature is simulated once per size and judged on each side."""
 
-    def __init__(self, model: Model, split: HoldoutSplit, noise: NoiseModel) -> None:
-        self.model, self.noise = model, noise
+    def __init__(
+        self,
+        model: Model,
+        split: HoldoutSplit,
+        noise: NoiseModel,
+        misfit: float = 1.0,
+        *,
+        swap: bool = True,
+    ) -> None:
+        self.model, self.noise, self.misfit = model, noise, misfit
         self.segs = (*split.fit, *split.held_out)
         self.sigs = tuple(noise.signals)
         self.y0 = self.signals(model)
@@ -100,8 +116,15 @@ class _Record:
         n_fit = len(split.fit)
         idx = list(range(len(self.segs)))
         self.sides = [(idx[:n_fit], idx[n_fit:]), (idx[n_fit:], idx[:n_fit])]
-        # the refit's least squares, solved once per side: theta = P d
-        self.P = [np.linalg.pinv(self._design(fit)) for fit, _ in self.sides]
+        # the default split's side first; a user's split has no second look
+        if split.rule == "swapped":
+            self.sides.reverse()
+        elif split.rule != "default" or not swap:
+            self.sides = self.sides[:1]
+        # the refit's least squares, solved once per side: theta = P d (and D, to
+        # leave the fit segments' own misfit)
+        self.D = [self._design(fit) for fit, _ in self.sides]
+        self.P = [np.linalg.pinv(d) for d in self.D]
 
     def signals(self, model: Model) -> list[dict[str, FloatArray]]:
         out = []
@@ -154,13 +177,33 @@ class _Record:
         return np.column_stack(cols)
 
     def gap(self, model: Model) -> float:
-        """The larger held-out gap, over both sides, the effect leaves once the linear
-        refit on the fit side has absorbed what it can."""
+        """The held-out gap the effect leaves once the linear refit on the fit side has
+        absorbed what it can: the default side's, or the swapped side's where larger and
+        the diagnosis would take it (see the module notes)."""
+        per = self.gaps(model)
+        gap, misfit = per[0]
+        if len(per) > 1:
+            gap2, misfit2 = per[1]
+            if max(misfit, misfit2) > self.misfit:
+                gap = max(gap, gap2)
+        return gap
+
+    def gaps(self, model: Model) -> list[tuple[float, float]]:
+        """Per side: the held-out gap and the misfit on the fit segments themselves (both
+        in noise variances, averaged over the signals) once the refit has absorbed what
+        it can."""
         y = self.signals(model)
         d = [{k: a[k] - b[k] for k in a} for a, b in zip(y, self.y0, strict=True)]
-        worst = 0.0
-        for (fit, ho), P in zip(self.sides, self.P, strict=True):
-            theta = P @ self._stack(fit, d)
+        out = []
+        for (fit, ho), P, D in zip(self.sides, self.P, self.D, strict=True):
+            d_fit = self._stack(fit, d)
+            theta = P @ d_fit
+            r_fit, misfit, at = d_fit - D @ theta, [], 0
+            for sig in self.sigs:
+                n = sum(d[k][sig].size for k in fit if sig in d[k])
+                if n:
+                    misfit.append(float(np.mean(r_fit[at : at + n] ** 2)))
+                at += n
             parts = []
             for sig in self.sigs:
                 segs = [k for k in ho if sig in d[k]]
@@ -172,9 +215,13 @@ class _Record:
                     for j in range(len(_PARAMS))
                 )
                 parts.append(float(np.mean(r**2)))
-            if parts:
-                worst = max(worst, float(np.mean(parts)))
-        return worst
+            out.append(
+                (
+                    float(np.mean(parts)) if parts else 0.0,
+                    float(np.mean(misfit)) if misfit else 0.0,
+                )
+            )
+        return out
 
 
 def _scales(segments: Sequence[Segment], model: Model) -> RecordScales:
@@ -270,13 +317,16 @@ def detection_limits(
     noise: NoiseModel,
     thresholds: Thresholds,
     effects: Sequence[str],
+    *,
+    swap: bool = True,
 ) -> tuple[DetectionLimit, ...]:
     """Per effect of ``effects``, the smallest size this record would have shown (see
-    the module notes); ``base`` is the baseline's fitted linear model."""
+    the module notes); ``base`` is the baseline's fitted linear model; ``swap``: the
+    diagnosis looks with the sides swapped (its ``DiagnosisConfig.swap``)."""
     segs = (*split.fit, *split.held_out)
     sc = _scales(segs, base)
     sc = replace(sc, periods_per_turn=tuple(_cogging_periods(segs, sc)))
-    rec = _Record(base, split, noise)
+    rec = _Record(base, split, noise, thresholds.no_gap_noise, swap=swap)
     return tuple(
         _detection_limit(EFFECT_TYPES[name], sc, base, rec, thresholds) for name in effects
     )
@@ -323,7 +373,9 @@ def with_detection_limits(result: Any, noise: NoiseModel, cfg: Any) -> Any:
     values = {p.name: p.value for p in result.baseline if p.name in PARAMETER_NAMES}
     try:
         base = Model(MotorParams(**values))
-        limits = detection_limits(result.split, base, noise, cfg.thresholds, cfg.effects)
+        limits = detection_limits(
+            result.split, base, noise, cfg.thresholds, cfg.effects, swap=cfg.swap
+        )
     except Exception:  # noqa: BLE001 - the verdict stands without them
         return result
     if result.verdict.status is VerdictStatus.NO_GAP:
