@@ -71,3 +71,28 @@ def test_widening_an_interval_bounded_by_nothing_gives_an_open_end_not_an_overfl
     assert hi == math.inf and lo == 0.0
     lo, hi = widen_interval(2.0, (1.0, 4.0), 2.0)
     assert math.isclose(lo, 0.5) and math.isclose(hi, 8.0)
+
+
+def test_a_parameter_run_off_beyond_a_float_is_unconstrained_without_a_warning(recwarn):
+    # a failed cogging candidate's refit on a MuJoCo reveal record (the scooter, seed 7
+    # run 9): J ran off to exp(400); its variance in physical units overflowed a float
+    # and numpy printed "overflow encountered in multiply" to the user
+    from pmdc_ident.core.estimators.output_error.results import _uncertainty
+
+    info = (SimpleNamespace(name="R", log=True), SimpleNamespace(name="J", log=True))
+    z = np.array([math.log(0.6), 400.0])
+    prob = SimpleNamespace(
+        n_total=2,
+        n_global=2,
+        info=info,
+        values_at=lambda zz: {"R": math.exp(zz[0]), "J": math.exp(zz[1])},
+        dvalue_dz=lambda zz: np.exp(zz),
+    )
+    r = np.full(100, 0.1)
+    A = np.diag([1e4, 1.0])
+    with np.errstate(all="warn"):
+        unc = _uncertainty(prob, z, r, A, {})
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+    assert unc.identifiable["R"] and unc.stderr["R"] is not None
+    assert unc.identifiable["J"] is False and unc.stderr["J"] is None
+    assert "ran off" in unc.reasons["J"]

@@ -212,16 +212,23 @@ def _uncertainty(
     vals = prob.values_at(z)
     ng = prob.n_global
     dvdz = prob.dvalue_dz(z)
-    cov = cov_z[:ng, :ng] * np.outer(dvdz, dvdz)
+    # a parameter that ran off towards exp's range (a failed candidate's refit) has a
+    # variance beyond a float: inf, judged below as unconstrained, never a warning
+    with np.errstate(over="ignore", invalid="ignore"):
+        cov = cov_z[:ng, :ng] * np.outer(dvdz, dvdz)
     unc = _Uncertainty({}, {}, {}, dict(reasons), cov)
     for j, info in enumerate(prob.info):
         name = info.name
         in_null = null_dirs.size and float(np.max(np.abs(null_dirs[j, :]))) > 1e-3
         sz = math.sqrt(max(cov_z[j, j], 0.0))
         rel = sz if info.log else sz / max(abs(vals[name]), 1e-300)
-        if in_null or not math.isfinite(sz):
+        if in_null or not math.isfinite(sz) or not math.isfinite(float(cov[j, j])):
             unc.identifiable[name] = False
-            unc.reasons[name] = "the data do not constrain it (singular information matrix)"
+            unc.reasons[name] = (
+                "the data do not constrain it (singular information matrix)"
+                if in_null or not math.isfinite(sz)
+                else f"the fit ran off ({name} = {vals[name]:.3g}): no finite interval"
+            )
             unc.ci95[name] = None
             unc.stderr[name] = None
             continue
