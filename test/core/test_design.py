@@ -589,9 +589,9 @@ def test_a_reveal_plan_is_judged_against_the_size_the_user_asks_to_see(monkeypat
 
     from pmdc_ident.core.design.api import _judged
 
-    prior = Prior.from_spec(E_BIKE)
+    prior = Prior.from_spec(S001)
     designed = plan_experiment(
-        prior, E_BIKE.limits, DT, reveal=("cogging",), reveal_sizes={"cogging": 1e-4}
+        prior, S001.limits, DT, reveal=("cogging",), reveal_sizes={"cogging": 1e-4}
     )
     (lim,) = designed.reveal_limits
     assert lim.effect == "cogging" and lim.size is not None and lim.size > 1e-4
