@@ -681,11 +681,14 @@ def reveal_case(args: argparse.Namespace) -> int:
             nominal = datasheet_prior(r, seed=k)
             nominal = Prior(Model(nominal.model.params), nominal.noise, "datasheet prior")
             lim = session_limits(nominal, r.limits, r.dt)
-            plans = {
-                "reveal": plan_experiment(
-                    nominal, r.limits, r.dt, limits=lim, reveal=(name,)
-                ).plan,
-            }
+            # sized so that the plan's predicted detection limit is the goal's size
+            size_nm = pct / 100.0 * motor.torque_rated_nm
+            designed = plan_experiment(
+                nominal, r.limits, r.dt, limits=lim, reveal=(name,), reveal_sizes={name: size_nm}
+            )
+            plans = {"reveal": designed.plan}
+            pred = next((d.size for d in designed.reveal_limits if d.effect == name), None)
+            pred_pct = None if pred is None else pred / motor.torque_rated_nm * 100
             if args.compare_default:
                 plans["default"] = default_sequence(nominal, lim, r.dt)
             runs = [(which, plan, case.effects) for which, plan in plans.items()]
@@ -732,9 +735,11 @@ def reveal_case(args: argparse.Namespace) -> int:
                              "verdict": v_.status.value, "effects": list(v_.effects),
                              "seconds": plan.duration_s, "cpu_s": time.process_time() - t0,
                              "limit": None if lim_ is None or lim_.size is None
-                             else lim_.size / motor.torque_rated_nm * 100})  # fmt: skip
+                             else lim_.size / motor.torque_rated_nm * 100,
+                             "predicted_limit": pred_pct})  # fmt: skip
                 shown = rows[-1]["limit"]
                 shown = "-" if shown is None else f"{shown:.3g}"
+                shown += " (plan: " + ("-" if pred_pct is None else f"{pred_pct:.3g}") + ")"
                 print(f"{case.name:<22} {motor.name:<16} {rate:>6.0f} Hz {eq:<12} {which:<8} "
                       f"{plan.duration_s:7.2f} s  {v_.status.value:<11} "
                       f"{'+'.join(v_.effects) or '-':<24} {_called(which, named):<6}  "

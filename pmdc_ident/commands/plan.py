@@ -75,6 +75,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="add segments that make these effects visible to `diagnose` (e.g. "
         "cogging,stribeck_friction)",
     )
+    parser.add_argument(
+        "--reveal-size",
+        default="",
+        metavar="EFFECT=SIZE,...",
+        help="with --reveal: the smallest size each effect must show, in its unit (a torque "
+        "in N*m for cogging and friction), e.g. 'cogging=0.02': the crawls grow until the "
+        "plan's predicted detection limit is below it, else SHORT says what it reaches",
+    )
     parser.add_argument("--csv", metavar="OUT.csv", help="write the plan (t, voltage, segment)")
     parser.add_argument("--json", metavar="OUT.json", help="write the plan's summary as JSON")
     parser.add_argument(
@@ -263,6 +271,7 @@ def run(args: argparse.Namespace) -> int:
     fixed = parse_fix(args.fix)
     target = parse_target(args.target) if args.target is not None else None
     reveal = tuple(e.strip() for e in args.reveal.split(",") if e.strip())
+    reveal_sizes = _parse_sizes(args.reveal_size, reveal)
     dt = 1.0 / args.rate_hz
     prior, driver = _prior(args, fixed, dt)
     travel = tuple(args.travel_rad) if args.travel_rad else None
@@ -301,6 +310,7 @@ def run(args: argparse.Namespace) -> int:
         dt,
         target=target,
         reveal=reveal,
+        reveal_sizes=reveal_sizes,
         fixed=fixed_names,
         criterion=args.criterion,
         limits=limits,
@@ -338,31 +348,37 @@ def run(args: argparse.Namespace) -> int:
     return 0 if designed.met else 3
 
 
+def _parse_sizes(text: str, reveal: tuple[str, ...]) -> dict[str, float]:
+    """``cogging=0.02,stribeck_friction=0.1`` -> sizes per revealed effect."""
+    out: dict[str, float] = {}
+    for item in text.split(","):
+        if not item.strip():
+            continue
+        name, _, value = item.partition("=")
+        name = name.strip()
+        if name not in reveal:
+            msg = f"--reveal-size {item.strip()!r}: {name!r} is not in --reveal"
+            raise ParameterError(msg)
+        try:
+            size = float(value)
+        except ValueError:
+            size = math.nan
+        if not (math.isfinite(size) and size > 0):
+            msg = f"--reveal-size {item.strip()!r}: the size must be a positive number"
+            raise ParameterError(msg)
+        out[name] = size
+    return out
+
+
 def _reveal_limits(prior, designed, reveal) -> dict[str, Any]:  # type: ignore[no-untyped-def]
     """The smallest size of each revealed effect the planned record would show under the
     prior (diagnose's detection limits on a simulated run of the plan)."""
-    from pmdc_ident.core.design.information import Noise
-    from pmdc_ident.core.diagnosis.detection import detection_limits
-    from pmdc_ident.core.diagnosis.holdout import split_segments
-    from pmdc_ident.core.diagnosis.scoring import estimate_noise
-    from pmdc_ident.core.diagnosis.verdict import Thresholds
-    from pmdc_ident.core.excitation import synthesize_run
-    from pmdc_ident.core.model import Model
-    from pmdc_ident.core.motors import SensorSpec
+    from pmdc_ident.core.design.reveal import predicted_limits
 
-    n: Noise = prior.noise
-    counts = 2 * math.pi / (n.position_sd * math.sqrt(12.0)) if n.position_sd > 0 else 0.0
-    signals = ("current", "speed") if n.uses_speed else ("current", "position")
-    run = synthesize_run(
-        prior.model, designed.plan, SensorSpec(n.current_sd, n.speed_sd, counts), signals=signals
-    )
-    limits = detection_limits(
-        split_segments(run.segments),
-        Model(prior.model.params),
-        estimate_noise(run.segments),
-        Thresholds(),
-        reveal,
-    )
+    have = {d.effect: d for d in designed.reveal_limits}  # judged against --reveal-size
+    rest = tuple(e for e in reveal if e not in have)
+    more = {d.effect: d for d in predicted_limits(prior, designed.plan, rest)} if rest else {}
+    limits = [have.get(e) or more[e] for e in reveal]
     print("shown on this plan (predicted, under the prior): the smallest sizes diagnose sees")
     for lim in limits:
         print(f"  {lim.text()}")

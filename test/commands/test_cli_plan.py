@@ -81,6 +81,8 @@ def test_a_pretest_log_is_read_with_its_sidecar(tmp_path: Path, capsys):
         (["--speed-noise", "inf"], "--speed-noise"),
         (["--current-lag-us", "-1"], "--current-lag-us"),
         (["--reveal", "warp_drive"], "unknown"),
+        (["--reveal", "cogging", "--reveal-size", "stribeck_friction=0.1"], "not in --reveal"),
+        (["--reveal", "cogging", "--reveal-size", "cogging=abc"], "positive number"),
         (["--csv", "nowhere/plan.csv"], "does not exist"),
     ],
 )

@@ -577,3 +577,31 @@ def test_a_pretests_samples_read_late_count_in_the_designed_plans_interval():
     a = plan_experiment(known, driver, DT, prior_info=info0, limits=limits)
     b = plan_experiment(known, driver, DT, prior_info=info0, limits=limits, prior_voltages=volts)
     assert a.predicted_rsd == b.predicted_rsd
+
+
+def test_a_reveal_plan_is_judged_against_the_size_the_user_asks_to_see(monkeypatch):
+    """``plan --reveal cogging --reveal-size cogging=T``: the plan's predicted detection
+    limit (diagnose's, on its run under the prior with the prior's sensor noise) is
+    a note, and where it lies above T the plan is short (``reveal:cogging``), saying
+    that a longer plan would not lower it (the diagnosis' gap is a mean per sample).
+    Before, the limit was only printed by the command, never judged."""
+    from dataclasses import replace
+
+    from pmdc_ident.core.design.api import _judged
+
+    prior = Prior.from_spec(S001)
+    designed = plan_experiment(
+        prior, S001.limits, DT, reveal=("cogging",), reveal_sizes={"cogging": 1e-4}
+    )
+    (lim,) = designed.reveal_limits
+    assert lim.effect == "cogging" and lim.size is not None and lim.size > 1e-4
+    assert not designed.met and "a longer plan does not" in designed.short["reveal:cogging"]
+    assert any(n.startswith("reveal cogging: predicted detection limit") for n in designed.notes)
+    assert designed.to_json()["reveal_limits"]["cogging"]["size"] == lim.size
+    # asked at twice the limit (the same prediction): nothing is short for the reveal
+    import pmdc_ident.core.design.reveal as rv
+
+    monkeypatch.setattr(rv, "predicted_limits", lambda *a: designed.reveal_limits)
+    plain = replace(designed, short={}, met=True, notes=(), reveal_limits=())
+    ok = _judged(prior, plain, {"cogging": 2.0 * lim.size})
+    assert ok.met and not ok.short and ok.reveal_limits == designed.reveal_limits

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -125,6 +126,8 @@ class DesignedPlan:
     trajectory: dict[str, FloatArray] = field(repr=False)
     prior_seconds: float = 0.0  # seconds of data already in hand (a pre-test)
     notes: tuple[str, ...] = ()
+    # the revealed effects' predicted detection limits (``plan_experiment(reveal_sizes=)``)
+    reveal_limits: tuple[Any, ...] = ()
 
     @property
     def dt_s(self) -> float:
@@ -203,6 +206,7 @@ class DesignedPlan:
             "heat_a2s": self.heat_a2s,
             "position_range_rad": list(self.position_range_rad),
             "notes": list(self.notes),
+            "reveal_limits": {d.effect: d.to_json() for d in self.reveal_limits},
         }
 
 

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -47,9 +48,9 @@ from pmdc_ident.core.design.limits import PlanLimits
 from pmdc_ident.core.design.prior import Prior
 from pmdc_ident.core.effects import EFFECT_NAMES, EFFECT_TYPES
 from pmdc_ident.core.errors import OptionError
-from pmdc_ident.core.excitation import log_chirp
+from pmdc_ident.core.excitation import TestPlan, log_chirp
 
-__all__ = ["RECIPES", "REVEALABLE", "reveal_segments"]
+__all__ = ["RECIPES", "REVEALABLE", "predicted_limits", "reveal_segments"]
 
 REVEALABLE: tuple[str, ...] = EFFECT_NAMES
 COG_COUNTS = (48.0, 16.0, 4.0)  # cogging periods per turn the crawls are sized for
@@ -106,6 +107,34 @@ def reveal_segments(
         done.add(key)
         out += RECIPES[key](prior, limits, sc, w_top, tau)
     return out
+
+
+def predicted_limits(prior: Prior, plan: TestPlan, effects: Sequence[str]) -> tuple[Any, ...]:
+    """Per effect of ``effects``, the smallest size ``diagnose`` would show on a run of
+    ``plan`` under the prior (:func:`~pmdc_ident.core.diagnosis.detection.detection_limits`
+    on the prior's simulated run, its sensors' noise, the default split): the
+    :class:`~pmdc_ident.core.diagnosis.detection.DetectionLimit` of each."""
+    from pmdc_ident.core.diagnosis.detection import detection_limits
+    from pmdc_ident.core.diagnosis.holdout import split_segments
+    from pmdc_ident.core.diagnosis.scoring import estimate_noise
+    from pmdc_ident.core.diagnosis.verdict import Thresholds
+    from pmdc_ident.core.excitation import synthesize_run
+    from pmdc_ident.core.model import Model
+    from pmdc_ident.core.motors import SensorSpec
+
+    n = prior.noise
+    counts = 2 * math.pi / (n.position_sd * math.sqrt(12.0)) if n.position_sd > 0 else 0.0
+    signals = ("current", "speed") if n.uses_speed else ("current", "position")
+    run = synthesize_run(
+        prior.model, plan, SensorSpec(n.current_sd, n.speed_sd, counts), signals=signals
+    )
+    return detection_limits(
+        split_segments(run.segments),
+        Model(prior.model.params),
+        estimate_noise(run.segments),
+        Thresholds(),
+        effects,
+    )
 
 
 def _slow_both_ways(prior, limits, sc, w_top, tau):  # type: ignore[no-untyped-def]

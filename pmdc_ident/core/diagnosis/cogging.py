@@ -91,6 +91,7 @@ NOTE_REFIT = (
 )
 REFIT_PARAMS = ("R", "L", "Ke", "J", "B")
 REFIT_NFEV = 60  # least-squares evaluations per start (5 parameters, a smooth cost)
+SD_REL_MAX = 50.0  # a refitted parameter's sd in log units beyond this: no interval
 REFINE_STEPS = 4  # fit-side counts each side of a wide-search count
 RESOLVED_SHARE_MIN = 0.5  # of the cogging's fitted effect on samples that resolve its period
 
@@ -249,6 +250,7 @@ def _refit(
     if not names or any(s.voltage is None for s in segs):
         return None
     sig_w = {sg: 1.0 / search.noise.sigma[sg] for sg in search.noise.signals}
+    longest = max(s.n * s.dt_s for s in segs)
 
     def params_of(z: FloatArray, p0: MotorParams) -> MotorParams:
         vals = {n: float(math.exp(v)) for n, v in zip(names, z, strict=True)}
@@ -275,6 +277,8 @@ def _refit(
         if not np.isfinite(out.cost) or (best is not None and out.cost >= best.cost):
             continue
         p = params_of(out.x, p0)
+        if p.L > longest * p.R:
+            continue  # an integrator, not a winding (the module notes)
         dof = max(out.fun.size - len(names) - 2 * cogging - 2 * len(segs), 1)
         try:
             cov = np.linalg.inv(out.jac.T @ out.jac) * (2.0 * out.cost / dof)
@@ -301,6 +305,8 @@ def _with_params(fit: FitResult, p: MotorParams, rel: dict[str, float]) -> FitRe
         v = float(getattr(p, n))
         values[n] = v
         sd = rel.get("Ke" if n == "Kt" else n)
+        if sd is not None and not sd < SD_REL_MAX:
+            sd = None  # not determined by the fit segments (and beyond exp's range)
         stderr[n] = None if sd is None else v * sd
         ci95[n] = None if sd is None else (v * math.exp(-1.96 * sd), v * math.exp(1.96 * sd))
         reasons[n] = NOTE_REFIT
@@ -335,20 +341,22 @@ def _refitted(
     if base.gap <= 2.0 * penalty:
         return None  # no two-parameter effect can be significant: nothing to refit for
     starts = [base.fit.model.params]
-    try:
-        starts.append(equation_error_start(search.split.fit, search.fixed))
-    except FIT_ERRORS:
-        pass
+    for smooth in (False, True):
+        try:
+            starts.append(equation_error_start(search.split.fit, search.fixed, smooth=smooth))
+        except FIT_ERRORS:
+            pass
     with_cog = _refit(search, starts, periods, cogging=True)
     if with_cog is None:
         return None
     without = _refit(search, [with_cog.params], periods, cogging=False)
     fit = _with_params(base.fit, with_cog.params, with_cog.stderr_rel)
     res = _held_out(search, fit, periods, with_cog.coef)
-    plain_gap = math.inf
+    # the linear motor without cogging: the refit, or the baseline where it does better
+    plain_gap = base.gap
     if without is not None:
         plain_fit = _with_params(base.fit, without.params, {})
-        plain_gap = search.held_out_residuals(plain_fit).gap()
+        plain_gap = min(plain_gap, search.held_out_residuals(plain_fit).gap())
     gap = res.gap()
     # judged against the refit without cogging as a single effect against the
     # baseline: beyond its penalty, and closing what that refit leaves

@@ -238,3 +238,49 @@ def test_the_wide_search_names_no_cogging_on_an_effect_free_record():
 
     res = diagnose(segs, config=DiagnosisConfig(workers=1))
     assert res.verdict.effects == ()
+
+
+def test_a_refit_that_turns_the_winding_into_an_integrator_is_not_taken(monkeypatch):
+    """The refit's cost has a degenerate valley where R runs to 0 and L, Ke and J to
+    huge values: the current then integrates the voltage and the free initial states
+    follow any crawl (a geared scooter motor's reveal record: R 1.6e-9 ohm, L 1 H, Ke
+    2700 V s/rad, J 400 kg m^2, a cogging of 2400 N*m, at a fit-side cost below the
+    physical minimum's from the baseline's start; held out 657 noise variances against
+    23 at the physical minimum). An L/R beyond the longest fit segment is not a
+    winding: that start's result is not taken. Here the first start is sent into that
+    valley (its cost the lowest); before, it was taken, failed on held-out data, and the
+    candidate kept the bent baseline (R 1.5x)."""
+    import pmdc_ident.core.diagnosis.cogging as cg
+
+    p, segs = _crawl_record(0.24)
+    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
+    base = _bent(search, _baseline(search))
+    real = cg.least_squares
+    calls = []
+
+    def valley(fun, x0, **kw):  # type: ignore[no-untyped-def]
+        out = real(fun, x0, **kw)
+        calls.append(1)
+        if len(calls) == 1:  # R 1e-9 ohm, L 1 H: L/R of 30 years
+            out.x = np.log([1e-9, 1.0, 1e3, 1e2, 0.1])
+            out.cost = 0.0
+        return out
+
+    monkeypatch.setattr(cg, "least_squares", valley)
+    f, _ = angle_cogging(search, base, [12])
+    got = f.fit.model.params
+    assert got.L < 1.0 * got.R
+    assert got.R == pytest.approx(p.R, rel=0.05)  # before: 4.55 against 3.05
+
+
+def test_a_refitted_parameter_the_fit_cannot_pin_gets_no_interval():
+    """A refitted parameter whose sd (log units) is beyond exp's range got an interval
+    exp(1.96 sd) that overflowed and stopped the candidate ("math range error")."""
+    from pmdc_ident.core.diagnosis.cogging import _with_params
+
+    p, segs = _crawl_record(0.0)
+    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
+    base = _baseline(search)
+    fit = _with_params(base.fit, p, {"R": 0.01, "L": 1e4, "Ke": 0.01, "J": 0.02, "B": 0.1})
+    assert fit.ci95["L"] is None and fit.stderr["L"] is None
+    assert fit.ci95["R"] is not None
