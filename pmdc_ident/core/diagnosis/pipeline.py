@@ -37,7 +37,7 @@ from pmdc_ident.core.diagnosis.candidates import (
 from pmdc_ident.core.diagnosis.choice import Choice, chain_lag_s, choose
 from pmdc_ident.core.diagnosis.cogging import angle_cogging, implausible
 from pmdc_ident.core.diagnosis.config import DiagnosisConfig
-from pmdc_ident.core.diagnosis.detection import with_detection_limits
+from pmdc_ident.core.diagnosis.detection import detection_limits, with_detection_limits
 from pmdc_ident.core.diagnosis.holdout import HoldoutSplit, split_segments, swapped
 from pmdc_ident.core.diagnosis.localization import Localization, localize, regime_masks
 from pmdc_ident.core.diagnosis.results import (
@@ -227,7 +227,7 @@ def _diagnose_split(
     loc = localize(split.held_out, base.res, masks)
     untestable, singles = _single_candidates(search, base, loc, scoring)
     choice = choose(search, scoring, base, singles)
-    verdict = _verdict(choice, scoring, search.dt_s)
+    verdict = _showable(_verdict(choice, scoring, search.dt_s), search, base)
     final = choice.chosen if verdict.status is VerdictStatus.EXPLAINED else base
     return DiagnosisResult(
         verdict=verdict,
@@ -733,6 +733,42 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
     if status is not VerdictStatus.EXPLAINED:
         return Verdict(status, (), (), message)
     return Verdict(status, named, tuple(choice.ties), message)
+
+
+def _showable(verdict: Verdict, search: Search, base: Fitted) -> Verdict:
+    """A named effect this record could not show at any size is no name: its fit closed
+    the gap by other means. The effect's detection limit on this split (its probes, up
+    to ten times the record's scale, judged as ``no_gap`` would judge them) says so.
+
+    On a 1.33 s reveal plan logged at 250 Hz (MuJoCo's gearmotor, no effect in it) an
+    inductance saturation "closed 84 %" of a gap held in the last 7 samples of a square
+    wave, with L/R a sixth of a sample and a saturation current spanning a factor 68,
+    on a record whose own limit read "inductance_saturation not shown at any size"."""
+    if verdict.status is not VerdictStatus.EXPLAINED or not search.cfg.detection_limits:
+        return verdict
+    try:
+        limits = detection_limits(
+            search.split,
+            Model(base.fit.model.params),
+            search.noise,
+            search.cfg.thresholds,
+            verdict.effects,
+            swap=search.cfg.swap,
+        )
+    except Exception:  # noqa: BLE001 - the verdict stands where the limits fail
+        return verdict
+    blind = [lim for lim in limits if lim.size is None]
+    if not blind:
+        return verdict
+    search.say(f"{', '.join(lim.effect for lim in blind)}: not shown on this record at any size")
+    return Verdict(
+        VerdictStatus.UNEXPLAINED,
+        (),
+        (),
+        f"{verdict.message}; but this record could not show "
+        + "; ".join(f"{lim.effect} at any size ({lim.detail})" for lim in blind)
+        + ": its fit closes the gap by other means, and the gap has no name the data support",
+    )
 
 
 def _regimes(
