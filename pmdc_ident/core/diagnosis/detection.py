@@ -370,6 +370,8 @@ def with_detection_limits(result: Any, noise: NoiseModel, cfg: Any) -> Any:
     from pmdc_ident.core.diagnosis.results import VerdictStatus
     from pmdc_ident.core.params import PARAMETER_NAMES, MotorParams
 
+    if result.detection_limits:
+        return result  # computed with the verdict (``pipeline._showable``): the same
     values = {p.name: p.value for p in result.baseline if p.name in PARAMETER_NAMES}
     try:
         base = Model(MotorParams(**values))

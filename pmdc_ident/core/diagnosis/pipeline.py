@@ -37,7 +37,11 @@ from pmdc_ident.core.diagnosis.candidates import (
 from pmdc_ident.core.diagnosis.choice import Choice, chain_lag_s, choose
 from pmdc_ident.core.diagnosis.cogging import angle_cogging, implausible
 from pmdc_ident.core.diagnosis.config import DiagnosisConfig
-from pmdc_ident.core.diagnosis.detection import detection_limits, with_detection_limits
+from pmdc_ident.core.diagnosis.detection import (
+    DetectionLimit,
+    detection_limits,
+    with_detection_limits,
+)
 from pmdc_ident.core.diagnosis.holdout import HoldoutSplit, split_segments, swapped
 from pmdc_ident.core.diagnosis.localization import Localization, localize, regime_masks
 from pmdc_ident.core.diagnosis.results import (
@@ -227,7 +231,7 @@ def _diagnose_split(
     loc = localize(split.held_out, base.res, masks)
     untestable, singles = _single_candidates(search, base, loc, scoring)
     choice = choose(search, scoring, base, singles)
-    verdict = _showable(_verdict(choice, scoring, search.dt_s), search, base)
+    verdict, limits = _showable(_verdict(choice, scoring, search.dt_s), search, base)
     final = choice.chosen if verdict.status is VerdictStatus.EXPLAINED else base
     return DiagnosisResult(
         verdict=verdict,
@@ -250,6 +254,7 @@ def _diagnose_split(
         held_out=split.held_out,
         predictions_before=tuple(search.held_out_predictions(base.fit)),
         predictions_after=tuple(search.held_out_predictions(final.fit)),
+        detection_limits=limits,
     )
 
 
@@ -735,7 +740,9 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
     return Verdict(status, named, tuple(choice.ties), message)
 
 
-def _showable(verdict: Verdict, search: Search, base: Fitted) -> Verdict:
+def _showable(
+    verdict: Verdict, search: Search, base: Fitted
+) -> tuple[Verdict, tuple[DetectionLimit, ...]]:
     """A named effect this record could not show at any size is no name: its fit closed
     the gap by other means. The effect's detection limit on this split (its probes, up
     to ten times the record's scale, judged as ``no_gap`` would judge them) says so.
@@ -743,31 +750,37 @@ def _showable(verdict: Verdict, search: Search, base: Fitted) -> Verdict:
     On a 1.33 s reveal plan logged at 250 Hz (MuJoCo's gearmotor, no effect in it) an
     inductance saturation "closed 84 %" of a gap held in the last 7 samples of a square
     wave, with L/R a sixth of a sample and a saturation current spanning a factor 68,
-    on a record whose own limit read "inductance_saturation not shown at any size"."""
+    on a record whose own limit read "inductance_saturation not shown at any size".
+
+    The limits of every effect are computed here once, and the result keeps them
+    (:func:`~.detection.with_detection_limits` does not compute them again)."""
     if verdict.status is not VerdictStatus.EXPLAINED or not search.cfg.detection_limits:
-        return verdict
+        return verdict, ()
     try:
         limits = detection_limits(
             search.split,
             Model(base.fit.model.params),
             search.noise,
             search.cfg.thresholds,
-            verdict.effects,
+            search.cfg.effects,
             swap=search.cfg.swap,
         )
     except Exception:  # noqa: BLE001 - the verdict stands where the limits fail
-        return verdict
-    blind = [lim for lim in limits if lim.size is None]
+        return verdict, ()
+    blind = [lim for lim in limits if lim.size is None and lim.effect in verdict.effects]
     if not blind:
-        return verdict
+        return verdict, limits
     search.say(f"{', '.join(lim.effect for lim in blind)}: not shown on this record at any size")
-    return Verdict(
-        VerdictStatus.UNEXPLAINED,
-        (),
-        (),
-        f"{verdict.message}; but this record could not show "
-        + "; ".join(f"{lim.effect} at any size ({lim.detail})" for lim in blind)
-        + ": its fit closes the gap by other means, and the gap has no name the data support",
+    return (
+        Verdict(
+            VerdictStatus.UNEXPLAINED,
+            (),
+            (),
+            f"{verdict.message}; but this record could not show "
+            + "; ".join(f"{lim.effect} at any size ({lim.detail})" for lim in blind)
+            + ": its fit closes the gap by other means, and the gap has no name the data support",
+        ),
+        limits,
     )
 
 
