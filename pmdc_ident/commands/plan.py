@@ -80,8 +80,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="",
         metavar="EFFECT=SIZE,...",
         help="with --reveal: the smallest size each effect must show, in its unit (a torque "
-        "in N*m for cogging and friction), e.g. 'cogging=0.02': the crawls grow until the "
-        "plan's predicted detection limit is below it, else SHORT says what it reaches",
+        "in N*m for cogging and friction), e.g. 'cogging=0.02': the plan's predicted "
+        "detection limit is judged against it (the plan is not grown: a longer plan does "
+        "not lower it), and where it is above, SHORT says what it reaches (exit 3)",
     )
     parser.add_argument("--csv", metavar="OUT.csv", help="write the plan (t, voltage, segment)")
     parser.add_argument("--json", metavar="OUT.json", help="write the plan's summary as JSON")
