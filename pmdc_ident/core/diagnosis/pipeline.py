@@ -752,24 +752,29 @@ def _showable(
     wave, with L/R a sixth of a sample and a saturation current spanning a factor 68,
     on a record whose own limit read "inductance_saturation not shown at any size".
 
-    The limits of every effect are computed here once, and the result keeps them
-    (:func:`~.detection.with_detection_limits` does not compute them again)."""
-    if verdict.status is not VerdictStatus.EXPLAINED or not search.cfg.detection_limits:
+    The check is part of the verdict, so it runs whether or not the result reports its
+    limits (``DiagnosisConfig.detection_limits``). Where it does, every effect's limits
+    are computed here once and the result keeps them
+    (:func:`~.detection.with_detection_limits` does not compute them again); where not,
+    only the named effects' are, and none is kept."""
+    if verdict.status is not VerdictStatus.EXPLAINED:
         return verdict, ()
+    report = search.cfg.detection_limits
     try:
         limits = detection_limits(
             search.split,
             Model(base.fit.model.params),
             search.noise,
             search.cfg.thresholds,
-            search.cfg.effects,
+            search.cfg.effects if report else verdict.effects,
             swap=search.cfg.swap,
         )
     except Exception:  # noqa: BLE001 - the verdict stands where the limits fail
         return verdict, ()
+    kept = limits if report else ()
     blind = [lim for lim in limits if lim.size is None and lim.effect in verdict.effects]
     if not blind:
-        return verdict, limits
+        return verdict, kept
     search.say(f"{', '.join(lim.effect for lim in blind)}: not shown on this record at any size")
     return (
         Verdict(
@@ -780,7 +785,7 @@ def _showable(
             + "; ".join(f"{lim.effect} at any size ({lim.detail})" for lim in blind)
             + ": its fit closes the gap by other means, and the gap has no name the data support",
         ),
-        limits,
+        kept,
     )
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from helpers.paths import FIXTURES
 
-from pmdc_ident.core.diagnosis import diagnose
+from pmdc_ident.core.diagnosis import DiagnosisConfig, diagnose
 from pmdc_ident.core.diagnosis.results import VerdictStatus
 from pmdc_ident.dataio import load_data
 
@@ -31,3 +31,11 @@ def test_an_effect_the_record_cannot_show_is_not_named():
     aug = {p.name: p.value for p in res.augmented}
     base = {p.name: p.value for p in res.baseline}
     assert aug == base
+
+
+def test_the_check_is_part_of_the_verdict_not_of_the_report():
+    # with the limits left out of the result, the verdict is the same
+    res = diagnose(load_data(RECORD), config=DiagnosisConfig(detection_limits=False))
+    assert res.verdict.status is not VerdictStatus.EXPLAINED, res.verdict
+    assert "could not show inductance_saturation at any size" in res.verdict.message
+    assert res.detection_limits == ()
