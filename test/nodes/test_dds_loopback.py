@@ -46,17 +46,18 @@ def _port_range(domain_id: int) -> range:
 
 _SOCKETS_HELPER = r'''
 import os
+import socket
 
 def own_udp_sockets():
-    """(ip, port) of every UDP socket this process holds, from /proc."""
-    inodes = set()
+    """(ip, port, receive buffer in bytes) of every UDP socket this process holds."""
+    inodes = {}
     for fd in os.listdir("/proc/self/fd"):
         try:
             link = os.readlink(f"/proc/self/fd/{fd}")
         except OSError:
             continue
         if link.startswith("socket:["):
-            inodes.add(link[8:-1])
+            inodes[link[8:-1]] = int(fd)
     found = []
     for table, v6 in (("/proc/net/udp", False), ("/proc/net/udp6", True)):
         try:
@@ -72,7 +73,12 @@ def own_udp_sockets():
                 ip = "v6:" + hex_ip
             else:
                 ip = ".".join(str(b) for b in bytes.fromhex(hex_ip)[::-1])
-            found.append([ip, int(hex_port, 16)])
+            s = socket.socket(fileno=os.dup(inodes[cols[9]]))
+            try:
+                rcvbuf = s.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+            finally:
+                s.close()
+            found.append([ip, int(hex_port, 16), rcvbuf])
     return found
 '''
 
@@ -282,13 +288,29 @@ def test_rtps_sockets_are_bound_to_loopback_only(exchange):
     pub, sub, _, _, domain = exchange
     ports = _port_range(domain)
     for who, report in (("publisher", pub), ("subscriber", sub)):
-        rtps = [(ip, port) for ip, port in report["sockets"] if port in ports]
+        rtps = [(ip, port) for ip, port, _ in report["sockets"] if port in ports]
         assert rtps, f"{who}: no socket on the domain {domain} RTPS ports {ports}"
         assert all(ip == "127.0.0.1" for ip, _ in rtps), (
             f"{who}: RTPS sockets not bound to loopback only (profile not loaded?): {rtps}"
         )
         multicast_discovery = [s for s in rtps if s[1] == _port_base(domain)]
         assert not multicast_discovery, f"{who} listens for multicast discovery"
+
+
+def test_rtps_sockets_get_the_profiles_receive_buffer(exchange):
+    """4 MB asked (the kernel reports twice what it grants), capped at rmem_max: a node
+    the host holds up keeps its driver samples instead of losing datagrams that the
+    writer sends again only seconds later (see the profile)."""
+    pub, sub, _, _, domain = exchange
+    ports = _port_range(domain)
+    try:
+        rmem_max = int(Path("/proc/sys/net/core/rmem_max").read_text())
+    except (OSError, ValueError):
+        pytest.skip("net.core.rmem_max is not readable here")
+    want = 2 * min(4 * 1024 * 1024, rmem_max)
+    for who, report in (("publisher", pub), ("subscriber", sub)):
+        bufs = {port: rb for _, port, rb in report["sockets"] if port in ports}
+        assert bufs and min(bufs.values()) >= want, (who, bufs, want)
 
 
 def test_no_rtps_packet_leaves_a_non_loopback_interface(exchange):
