@@ -294,7 +294,11 @@ RECORDER = ParameterTable(
           0.0, 20000.0),
         P("margin_s", 0.0, "also keep driver samples this long before/after a session, s",
           0.0, 20000.0),
-        P("ring_s", 3.0, "driver samples kept while no bag is open, s", 0.0, 20000.0),
+        # As long as the DDS sample queues (nodes/qos.py SAMPLE_BUFFER_S): a start marker
+        # lost once is sent again at the writer's next heartbeat (Fast DDS: 3 s), and on
+        # a loaded host came 4.05 s after its samples, beyond a 3 s ring (49 samples lost)
+        P("ring_s", 10.0, "driver samples kept while no bag is open (a late start "
+          "marker finds its samples here), s", 0.0, 20000.0),
         P("hold_s", 2.0, "samples wait this long before being written (late end marker), s",
           0.0, 20000.0),
     ),
