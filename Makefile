@@ -61,8 +61,10 @@ demo: $(STAMP)
 # A third cost 83 s more CPU on a fresh clone (549 -> 632 s: one more collection, more
 # kernels compiled at once by several processes) for no shorter wall on the busy
 # 2-core machine; with the kernels compiled once (test/conftest.py) still 45 s more
-# (561 -> 606 s at load 7-12) and no shorter wall. `make test TEST_WORKERS=0` runs them
-# in one process.
+# (561 -> 606 s at load 7-12) and no shorter wall; measured again back to back on fresh
+# clones of 87abeb1: the whole .ci/run 611 -> 780 CPU-s and 725 -> 1004 s wall (load
+# median 10.6 / 12.7), and a DDS service call in a node test timed out.
+# `make test TEST_WORKERS=0` runs them in one process.
 TEST_WORKERS ?= 2
 
 # Bytecode is written even where PYTHONDONTWRITEBYTECODE is set: the suite starts
