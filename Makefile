@@ -25,22 +25,31 @@ OMP_NUM_THREADS ?= 1
 export OPENBLAS_NUM_THREADS MKL_NUM_THREADS OMP_NUM_THREADS
 
 # Only the paths that exist (benchmarks/ and launch/ may not yet).
-LINT_PATHS := $(wildcard pmdc_ident test benchmarks launch examples setup.py)
+LINT_PATHS := $(wildcard pmdc_ident test benchmarks launch examples tools setup.py)
 BENCHES := $(sort $(wildcard benchmarks/bench_*.py))
 
 .PHONY: venv demo test lint bench clean
 
 venv: $(STAMP)
 
-# Re-run the install only when what it installs changes. --no-compile: pip would
-# byte-compile all ~10,000 modules of the pinned set (16 of its 40 CPU-s, 35 s of a
-# fresh clone's 80 s install); Python writes the .pyc of the ~1,000 a run imports
-# the first time it imports them (`make test` writes bytecode, see below). The same
-# packages at the same versions (pip freeze identical).
+# uv (bootstrapped into $(VENV)/uv-bin with pip, outside the venv's packages) downloads
+# and unpacks in parallel: a fresh clone's `make venv` took 17-19 CPU-s and 42-72 s wall
+# where pip took 35-38 CPU-s and 86-121 s, back to back at load 8-15 (uv's cache empty;
+# pip keeps none here). tools/uv_pip.py hands uv the index, mirrors and constraints pip
+# is configured for (uv reads no pip.conf); should uv fail anyway, pip installs as
+# before. Neither byte-compiles (pip would spend 16 of its 40 CPU-s on it): Python writes
+# the .pyc of the ~1,000 modules a run imports the first time it imports them (`make
+# test` writes bytecode, see below). The same packages at the same versions, the same
+# files (pip freeze --all identical; pip stays in the venv). Re-run only when what it
+# installs changes.
+UV_VERSION := 0.13.8
+UV := $(VENV)/uv-bin/bin/uv
 $(STAMP): requirements-dev.txt constraints.txt setup.py setup.cfg
 	test -x $(VPY) || $(PYTHON) -m venv $(VENV)
-	$(VPY) -m pip install --no-compile -r requirements-dev.txt -c constraints.txt
-	$(VPY) -m pip install -e . --no-deps
+	test -x $(UV) || $(VPY) -m pip install -q --no-compile --target $(VENV)/uv-bin uv==$(UV_VERSION) || true
+	$(VPY) tools/uv_pip.py $(UV) install -r requirements-dev.txt -c constraints.txt \
+		|| $(VPY) -m pip install --no-compile -r requirements-dev.txt -c constraints.txt
+	$(VPY) tools/uv_pip.py $(UV) install -e . --no-deps || $(VPY) -m pip install -e . --no-deps
 	test -x $(VENV)/bin/pmdc-ident
 	touch $@
 
@@ -52,8 +61,10 @@ demo: $(STAMP)
 # A third cost 83 s more CPU on a fresh clone (549 -> 632 s: one more collection, more
 # kernels compiled at once by several processes) for no shorter wall on the busy
 # 2-core machine; with the kernels compiled once (test/conftest.py) still 45 s more
-# (561 -> 606 s at load 7-12) and no shorter wall. `make test TEST_WORKERS=0` runs them
-# in one process.
+# (561 -> 606 s at load 7-12) and no shorter wall; measured again back to back on fresh
+# clones of 87abeb1: the whole .ci/run 611 -> 780 CPU-s and 725 -> 1004 s wall (load
+# median 10.6 / 12.7), and a DDS service call in a node test timed out.
+# `make test TEST_WORKERS=0` runs them in one process.
 TEST_WORKERS ?= 2
 
 # Bytecode is written even where PYTHONDONTWRITEBYTECODE is set: the suite starts

@@ -9,7 +9,7 @@ import pytest
 from helpers.paths import REPO
 
 # Same set as `make lint`; only the ones that exist yet.
-CANDIDATES = ("pmdc_ident", "test", "benchmarks", "launch", "setup.py")
+CANDIDATES = ("pmdc_ident", "test", "benchmarks", "launch", "tools", "setup.py")
 PATHS = [name for name in CANDIDATES if (REPO / name).exists()]
 
 

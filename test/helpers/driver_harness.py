@@ -260,7 +260,15 @@ class DriverClient(Node):
         while not fut.done() and time.monotonic() < end:
             self.spin_once(0.05)
         if not fut.done() or fut.result() is None or not fut.result().success:
-            msg = f"{service} call failed"
+            # which of the three: a flake under load (no answer) is not a refusal
+            why = (
+                f"no answer within {timeout_s:g} s"
+                if not fut.done()
+                else "no response"
+                if fut.result() is None
+                else f"refused: {fut.result().message}"
+            )
+            msg = f"{service} call failed ({why})"
             raise DemoError(msg)
         return fut.result().message
 
