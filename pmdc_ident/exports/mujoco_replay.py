@@ -92,9 +92,12 @@ def _replay(mujoco, xml, segments, starts, reduction, current_scale) -> list[Rep
     cur = adr0 + nact - 1
     dyn = model.actuator_dynprm[0]
     temp = adr0 if dyn[2] > 0 else -1  # slots: temperature, bristle, current
-    bristle = adr0 + (1 if temp >= 0 else 0) if dyn[5] > 0 else -1
     k_motor = float(model.actuator_gainprm[0, 1])
-    nsample = int(model.actuator_history[0, 0]) if model.actuator_history.size else 0
+    # the actuator that takes the command: the motor, or a drive in front of it (a lag)
+    inp = next((a for a in range(model.actuator_ctrlnum.size) if model.actuator_ctrlnum[a] > 0), 0)
+    nsample = int(model.actuator_history[inp, 0]) if model.actuator_history.size else 0
+    delay_s = float(model.actuator_delay[inp])
+    lag_dof, lag_s = _drive_lag(mujoco, model, inp)
     out = []
     for seg, x0 in zip(segments, starts, strict=True):
         nsub = int(round(seg.dt_s / h))
@@ -107,13 +110,15 @@ def _replay(mujoco, xml, segments, starts, reduction, current_scale) -> list[Rep
         data.act[cur] = x0.current_a * current_scale
         if temp >= 0:
             data.act[temp] = x0.temperature_k
-        if bristle >= 0:
-            data.act[bristle] = _bristle_state(model, x0.speed_rad_s)
+        for adr, z in _bristle_states(model, x0.speed_rad_s / reduction):
+            data.act[adr] = z
         if nsample > 0 and seg.history_voltage is not None and seg.history_voltage.size:
-            _init_history(model, data, seg, nsample)
+            _init_history(model, data, seg, nsample, inp)
         v = seg.voltage if seg.voltage is not None else np.zeros(seg.n)
+        if lag_dof >= 0:
+            data.qvel[lag_dof] = _lag_state(v, seg.history_voltage, delay_s, lag_s, seg.dt_s)
         n = seg.n
-        opened = _open_mask(v, seg.history_voltage, float(model.actuator_delay[0]), seg.dt_s)
+        opened = _open_mask(v, seg.history_voltage, delay_s, seg.dt_s)
         i_out, w_out, th_out = np.empty(n), np.empty(n), np.empty(n)
         was_open = False
         for k in range(n):
@@ -130,6 +135,8 @@ def _replay(mujoco, xml, segments, starts, reduction, current_scale) -> list[Rep
                 for _ in range(nsub):
                     mujoco.mj_step(model, data)
                     data.act[cur] = 0.0
+                    if lag_dof >= 0:  # the drive's lag restarts from 0 V after an open interval
+                        data.qvel[lag_dof] = 0.0
             else:
                 data.ctrl[0] = 0.0 if math.isnan(v[k]) else v[k]
                 mujoco.mj_step(model, data, nsub)
@@ -155,17 +162,58 @@ def _open_mask(v: FloatArray, history: FloatArray | None, delay_s: float, dt_s: 
     return np.concatenate([before.astype(bool), np.isnan(v)])[: v.size]
 
 
-def _bristle_state(model, speed: float) -> float:  # type: ignore[no-untyped-def]
-    """LuGre's bristles at their steady deflection for the start's speed (0 at rest)."""
-    sig0 = float(model.actuator_dynprm[0, 5])
-    fc, fs, vs = (float(x) for x in model.actuator_biasprm[0, 3:6])
-    if speed == 0.0 or sig0 <= 0:
-        return 0.0
-    g = fc + (fs - fc) * math.exp(-((speed / max(vs, 1e-12)) ** 2))
-    return math.copysign(g / sig0, speed)
+def _bristle_states(model, speed: float) -> list[tuple[int, float]]:  # type: ignore[no-untyped-def]
+    """Every LuGre element's bristles at their steady deflection for the start's speed
+    (``speed`` at the joint; 0 at rest): (activation address, deflection) pairs."""
+    out = []
+    for a in range(model.actuator_dynprm.shape[0]):
+        dyn = model.actuator_dynprm[a]
+        sig0 = float(dyn[5])
+        if sig0 <= 0 or int(model.actuator_actnum[a]) < 1:
+            continue
+        adr = int(model.actuator_actadr[a]) + (1 if dyn[2] > 0 else 0)  # after a temperature
+        fc, fs, vs = (float(x) for x in model.actuator_biasprm[a, 3:6])
+        w = speed * float(model.actuator_gear[a, 0])  # the element's own shaft
+        z = 0.0
+        if w != 0.0:
+            g = fc + (fs - fc) * math.exp(-((w / max(vs, 1e-12)) ** 2))
+            z = math.copysign(g / sig0, w)
+        out.append((adr, z))
+    return out
 
 
-def _init_history(model, data, seg: Segment, nsample: int) -> None:  # type: ignore[no-untyped-def]
+def _drive_lag(mujoco, model, inp: int) -> tuple[int, float]:  # type: ignore[no-untyped-def]
+    """A drive's first-order lag in front of the motor (:func:`~pmdc_ident.exports.
+    mujoco_xml.mujoco_xml`): the drive joint's dof and time constant, or (-1, 0)."""
+    if inp == 0 or int(model.actuator_trntype[inp]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+        return -1, 0.0
+    dof = int(model.jnt_dofadr[int(model.actuator_trnid[inp, 0])])
+    damping = float(model.dof_damping[dof])
+    if not damping > 0:
+        return -1, 0.0
+    return dof, float(model.dof_armature[dof]) / damping
+
+
+def _lag_state(v: FloatArray, history: FloatArray | None, delay_s: float, lag_s: float,
+               dt_s: float) -> float:  # fmt: skip
+    """The lagged voltage at a segment's start, as the project's model has it: the
+    (delayed) commands before it through the lag from the oldest one held; without
+    them, the first command."""
+    from pmdc_ident.core.model import apply_delay
+
+    first = float(v[0]) if v.size and math.isfinite(v[0]) else 0.0
+    if history is None or not np.asarray(history).size or not lag_s > 0:
+        return first
+    pre = np.asarray(history, dtype=float)
+    both = apply_delay(np.concatenate([pre, v]), delay_s, dt_s, float(pre[0]))[: pre.size]
+    x = float(pre[0]) if math.isfinite(pre[0]) else 0.0
+    a = math.exp(-dt_s / lag_s)
+    for vk in both:
+        x = 0.0 if math.isnan(vk) else vk + (x - vk) * a
+    return x
+
+
+def _init_history(model, data, seg: Segment, nsample: int, inp: int = 0) -> None:  # type: ignore[no-untyped-def]
     """MuJoCo's ctrl history: the commands before the segment at the buffer's times."""
     import mujoco
 
@@ -175,4 +223,4 @@ def _init_history(model, data, seg: Segment, nsample: int) -> None:  # type: ign
     idx = np.floor(times / seg.dt_s + 1e-9).astype(int)  # -1: the sample just before
     vals = np.array([hist[k] if -k <= hist.size else hist[0] for k in idx], dtype=float)
     vals = np.where(np.isnan(vals), 0.0, vals)
-    mujoco.mj_initCtrlHistory(model, data, 0, times.reshape(-1, 1), vals.reshape(-1, 1))
+    mujoco.mj_initCtrlHistory(model, data, inp, times.reshape(-1, 1), vals.reshape(-1, 1))

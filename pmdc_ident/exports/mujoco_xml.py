@@ -25,7 +25,8 @@ motor shaft's angle, speed and torque. Each effect of the model says what it bec
 (``MUJOCO_NOT_CARRIED``): a quadratic drag the joint's second damping coefficient, a
 Stribeck friction ``<dcmotor lugre>`` (with the Coulomb friction as its Coulomb
 level), cogging ``<dcmotor cogging>``, winding heating ``<dcmotor thermal>``, a
-transport delay the actuator's ``delay``, a constant load a passive ``<dcmotor>``.
+transport delay the actuator's ``delay``, a drive's first-order lag a drive joint in front
+of the motor (:func:`_drive`), a constant load a passive ``<dcmotor>``.
 The motor file's current limit becomes ``<dcmotor saturation>`` (the torque a
 current-limited drive delivers at most). What is not carried is listed in
 :attr:`MujocoExport.not_carried` and in the file. The ``general`` flavour (MuJoCo < 4)
@@ -57,13 +58,21 @@ __all__ = [
 
 MUJOCO_FLAVOURS: tuple[str, ...] = ("dcmotor", "general")
 
-LUGRE_Z_RAD = 1e-4  # the LuGre bristles' deflection at the static friction level
+# LuGre bristles as stiff as the model's step resolves: their resonance with the rotor
+# sqrt(sigma0 / J) x step = LUGRE_OMEGA_STEP (explicit); softer bristles ring against the
+# rotor where the project's model holds it stuck (the 24 V scooter's held-out step down:
+# the current 0.076 A RMS off the model's, its noise 0.059 A, at 1e-4 rad of deflection)
+LUGRE_OMEGA_STEP = 0.3
 # LuGre's Coulomb level at least this share of the Stribeck torque: MuJoCo divides by
 # g(v), which a Gaussian fall alone takes to 0 (underflow) at high speed; its bristle
 # state is integrated exactly, so a floor far under any measurable torque is stable at
 # any step (checked at 2e-5 to 1e-3 s). A floor of 2 % of Ts was a Coulomb friction
 # the model does not have (the 48 V scooter's fitted fall: -31 % shrink in MuJoCo)
 LUGRE_FLOOR = 1e-6
+# a drive's first-order lag: the drive joint's damping D = DRIVE_STIFFNESS / R (N*m*s/rad
+# per V of the drive's speed); the winding's current reacts on it, an error of i / D =
+# R i / DRIVE_STIFFNESS in the lagged voltage
+DRIVE_STIFFNESS = 1e6
 
 _ALWAYS_NOTED = (
     "open armature (coast-down): MuJoCo's motor has no open circuit; ctrl = 0 V shorts "
@@ -161,9 +170,29 @@ def mujoco_xml(
         "ctrlrange": f"{_f(-vmax)} {_f(vmax)}",
     }
     act = ET.SubElement(root, "actuator")
+    lagged = flavour == "dcmotor" and terms.lag_s > 0
+    drive = None
+    if lagged:
+        drive, common = _drive(root, world, act, joint, n, p, terms.lag_s, common)
     notes.append(_actuator(act, flavour, common, p))
+    if lagged:
+        act.append(drive)  # the motor stays the first actuator, the drive the one with ctrl
+        notes.append(
+            f"a drive's first-order lag ({terms.lag_s:.4g} s): actuator '{joint}_drive' takes "
+            f"ctrl (V) and turns joint '{joint}_drive' at the lagged voltage (rad/s = V); the "
+            f"motor '{joint}_motor' has no input and acts on tendon '{joint}_drive', the motor "
+            "shaft's angle minus the drive joint's over K, so its back-EMF K (w - V_lag / K) "
+            "puts the lagged voltage across the winding; its friction and cogging act on "
+            "passive elements of the joint"
+        )
     if flavour == "dcmotor":
-        notes += _dcmotor_terms(act[0], spec, terms, plan, timestep_s, thermal_reference_k)
+        notes += _dcmotor_terms(
+            act[0], spec, terms, plan, timestep_s, thermal_reference_k, drive=drive
+        )
+        if lagged and (plan.lugre is not None or any(terms.cogging)):
+            for attr in ("lugre", "cogging"):  # one passive element each
+                if attr in act[0].attrib:
+                    _passive(act, f"{joint}_{attr}", joint, n, **{attr: act[0].attrib.pop(attr)})
         for k, lugre in enumerate(plan.more, start=2):
             _passive(act, f"{joint}_stribeck{k}", joint, n, lugre=" ".join(_f(x) for x in lugre))
         if plan.more:
@@ -258,6 +287,7 @@ class _Terms:
     cogging: tuple[float, float, float] = (0.0, 0.0, 0.0)
     thermal: tuple[float, float, float] = (0.0, 0.0, 0.0)
     delay_s: float = 0.0
+    lag_s: float = 0.0
     constant_nm: float = 0.0
     carried: tuple[str, ...] = ()
     not_carried: tuple[str, ...] = ()
@@ -290,6 +320,7 @@ class _Terms:
             if any(t.thermal):
                 out.thermal = t.thermal
             out.delay_s += t.delay_s
+            out.lag_s += t.lag_s
             out.constant_nm += t.constant_torque_nm
             carried.append(f"{e.NAME}: {e.MUJOCO_MAPPING}")
             if t.partial:
@@ -321,15 +352,15 @@ class _Terms:
         levels = [(fc + ts, fc, vs)] + [
             ((1.0 + LUGRE_FLOOR) * t, LUGRE_FLOOR * t, v) for t, v in self.stribeck_more
         ]
-        # bristles deflecting LUGRE_Z_RAD at the static level, their resonance (all
-        # elements' stiffness together) resolved by the step (explicit: omega h <= 0.3);
+        # bristles as stiff as the step resolves (all elements' stiffness together, each
+        # in proportion to its static level: omega h = LUGRE_OMEGA_STEP, explicit);
         # no bristle damping: MuJoCo's damping force sigma1 dz/dt takes dz/dt at the
         # step's start while it integrates z exactly, so with it the friction depends on
         # the step (a 6 V step and a sine through zero on a 2 ohm motor: 4.7 rad/s RMS off
         # the candidate at 50 steps per sample, 1.2 at 200; without it 0.48 at any step)
-        stiff = sum(fs / LUGRE_Z_RAD for fs, _, _ in levels)
-        share = min(1.0, inertia_motor * (0.3 / timestep_s) ** 2 / stiff)
-        lugre = [(share * fs / LUGRE_Z_RAD, 0.0, c, fs, v) for fs, c, v in levels]
+        stiff = inertia_motor * (LUGRE_OMEGA_STEP / timestep_s) ** 2
+        total = sum(fs for fs, _, _ in levels)
+        lugre = [(stiff * fs / total, 0.0, c, fs, v) for fs, c, v in levels]
         return _Friction(lugre=lugre[0], floor_note=note, more=tuple(lugre[1:]))
 
 
@@ -340,6 +371,8 @@ def _dcmotor_terms(
     plan: _Friction,
     timestep_s: float,
     reference_k: float = 0.0,
+    *,
+    drive: ET.Element | None = None,
 ) -> list[str]:
     """The ``<dcmotor>`` attributes of the effects and the limits; the notes they need.
 
@@ -384,8 +417,8 @@ def _dcmotor_terms(
             notes.append(plan.floor_note)
     if terms.delay_s > 0:
         nsample = int(math.ceil(terms.delay_s / timestep_s)) + 2
-        el.set("delay", _f(terms.delay_s))
-        el.set("nsample", str(nsample))
+        (drive if drive is not None else el).set("delay", _f(terms.delay_s))
+        (drive if drive is not None else el).set("nsample", str(nsample))
         notes.append(
             f"delay: the command is read {terms.delay_s:.4g} s late from MuJoCo's ctrl history "
             f"(nsample {nsample} at this step: keep delay <= nsample x timestep)"
@@ -398,6 +431,41 @@ def _dcmotor_terms(
         "drive delivers at most; MuJoCo's current itself is not limited)"
     )
     return notes
+
+
+def _drive(
+    root: ET.Element,
+    world: ET.Element,
+    act: ET.Element,
+    joint: str,
+    n: float,
+    p: MotorParams,
+    lag_s: float,
+    common: dict[str, str],
+) -> tuple[ET.Element, dict[str, str]]:
+    """A drive's first-order lag in front of the winding: a drive joint whose speed is the
+    lagged voltage, ``lag_s D dw/dt = D (V - w)`` (armature ``lag_s D``, damping ``D``,
+    a ``<general>`` actuator of gain ``D`` that takes ``ctrl``), and a fixed tendon of the
+    motor shaft's angle minus the drive joint's over K, on which the motor (no input of
+    its own) acts: its back-EMF ``K (w_motor - w_drive / K)`` is the motor's minus the
+    lagged voltage. The winding's torque reacts on the drive joint (``-i``, against ``D V``):
+    an error of ``i / D`` volts, ``R i / DRIVE_STIFFNESS``. Returns the drive actuator (to
+    be placed after the motor, which stays the first actuator) and the motor's attributes."""
+    damping = DRIVE_STIFFNESS / (p.R * p.Ke / p.Kt)
+    name = f"{joint}_drive"
+    body = ET.SubElement(world, "body", name=name)
+    ET.SubElement(body, "joint", name=name, type="hinge", axis="0 0 1",
+                  armature=_f(lag_s * damping), damping=_f(damping))  # fmt: skip
+    ET.SubElement(body, "inertial", pos="0 0 0", mass="1e-6", diaginertia="1e-12 1e-12 1e-12")
+    tendon = ET.Element("tendon")
+    fixed = ET.SubElement(tendon, "fixed", name=name)
+    ET.SubElement(fixed, "joint", joint=joint, coef=_f(n))
+    ET.SubElement(fixed, "joint", joint=name, coef=_f(-1.0 / p.Ke))
+    root.insert(list(root).index(act), tendon)
+    limits = {k: common[k] for k in ("ctrllimited", "ctrlrange")}
+    drive = ET.Element("general", name=name, joint=name, gainprm=_f(damping), **limits)
+    motor = {"name": common["name"], "tendon": name, "gear": "1", "input": "none"}
+    return drive, motor
 
 
 def _actuator(act: ET.Element, flavour: str, common: dict[str, str], p: MotorParams) -> str:

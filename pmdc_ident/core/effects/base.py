@@ -177,6 +177,7 @@ class MujocoTerms:
     cogging: tuple[float, float, float] = (0.0, 0.0, 0.0)  # amplitude, poles, phase
     thermal: tuple[float, float, float] = (0.0, 0.0, 0.0)  # R_th K/W, C J/K, tempcoef 1/K
     delay_s: float = 0.0  # the actuator's command delay
+    lag_s: float = 0.0  # a first-order lag of the voltage in front of the winding
     constant_torque_nm: float = 0.0  # against +w (a passive dcmotor's zero-pole cogging)
     partial: str = ""  # what of the effect the terms leave out ("": nothing)
 
