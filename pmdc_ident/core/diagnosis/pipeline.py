@@ -35,7 +35,7 @@ from pmdc_ident.core.diagnosis.candidates import (
     predict,
 )
 from pmdc_ident.core.diagnosis.choice import Choice, chain_lag_s, choose
-from pmdc_ident.core.diagnosis.cogging import angle_cogging, implausible
+from pmdc_ident.core.diagnosis.cogging import NOTE_REFIT, angle_cogging, implausible
 from pmdc_ident.core.diagnosis.config import DiagnosisConfig
 from pmdc_ident.core.diagnosis.detection import (
     DetectionLimit,
@@ -231,7 +231,9 @@ def _diagnose_split(
     loc = localize(split.held_out, base.res, masks)
     untestable, singles = _single_candidates(search, base, loc, scoring)
     choice = choose(search, scoring, base, singles)
-    verdict, limits = _showable(_verdict(choice, scoring, search.dt_s), search, base)
+    verdict, limits = _showable(
+        _verdict(choice, scoring, search.dt_s), search, base, choice.chosen
+    )
     final = choice.chosen if verdict.status is VerdictStatus.EXPLAINED else base
     return DiagnosisResult(
         verdict=verdict,
@@ -741,7 +743,7 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
 
 
 def _showable(
-    verdict: Verdict, search: Search, base: Fitted
+    verdict: Verdict, search: Search, base: Fitted, chosen: Fitted | None = None
 ) -> tuple[Verdict, tuple[DetectionLimit, ...]]:
     """A named effect this record could not show at any size is no name: its fit closed
     the gap by other means. The effect's detection limit on this split (its probes, up
@@ -756,23 +758,40 @@ def _showable(
     limits (``DiagnosisConfig.detection_limits``). Where it does, every effect's limits
     are computed here once and the result keeps them
     (:func:`~.detection.with_detection_limits` does not compute them again); where not,
-    only the named effects' are, and none is kept."""
+    only the named effects' are, and none is kept.
+
+    A cogging fitted with the motor's parameters refitted (:mod:`.cogging`: the baseline
+    bent far off the motor by a crawl it cannot follow) is judged on that refitted motor
+    where the baseline's cannot show it (the generator's 1 kHz gearmotor: a baseline at
+    J 37 kg m^2 and L 1.7e-9 H, against the refit's 1.5e-4 and 1.7e-4, showed no
+    cogging below 10x its peak torque; the refitted motor one of 10 % of rated torque)."""
     if verdict.status is not VerdictStatus.EXPLAINED:
         return verdict, ()
     report = search.cfg.detection_limits
-    try:
-        limits = detection_limits(
+
+    def on(params: MotorParams) -> tuple[DetectionLimit, ...]:
+        return detection_limits(
             search.split,
-            Model(base.fit.model.params),
+            Model(params),
             search.noise,
             search.cfg.thresholds,
             search.cfg.effects if report else verdict.effects,
             swap=search.cfg.swap,
         )
+
+    try:
+        limits = on(base.fit.model.params)
     except Exception:  # noqa: BLE001 - the verdict stands where the limits fail
         return verdict, ()
-    kept = limits if report else ()
     blind = [lim for lim in limits if lim.size is None and lim.effect in verdict.effects]
+    if blind and chosen is not None and _refitted_cogging(chosen):
+        try:
+            limits = on(chosen.fit.model.params)
+        except Exception:  # noqa: BLE001 - the baseline's limits stand
+            pass
+        else:
+            blind = [lim for lim in limits if lim.size is None and lim.effect in verdict.effects]
+    kept = limits if report else ()
     if not blind:
         return verdict, kept
     search.say(f"{', '.join(lim.effect for lim in blind)}: not shown on this record at any size")
@@ -787,6 +806,11 @@ def _showable(
         ),
         kept,
     )
+
+
+def _refitted_cogging(f: Fitted) -> bool:
+    """Whether ``f`` names a cogging fitted with the motor's parameters refitted."""
+    return "cogging" in f.effects and f.fit.reasons.get("cogging.torque_nm") == NOTE_REFIT
 
 
 def _regimes(

@@ -284,3 +284,66 @@ def test_a_refitted_parameter_the_fit_cannot_pin_gets_no_interval():
     fit = _with_params(base.fit, p, {"R": 0.01, "L": 1e4, "Ke": 0.01, "J": 0.02, "B": 0.1})
     assert fit.ci95["L"] is None and fit.stderr["L"] is None
     assert fit.ci95["R"] is not None
+
+
+def test_a_cogging_below_the_noise_per_sample_is_named_by_its_held_out_angle_evidence():
+    """A cogging whose ripple is under the noise per sample leaves the refit without it
+    within the noise (a generator's gearmotor at 5 % rated torque: 0.46 noise variances
+    held out, two parameters' penalty 0.6), so its mean per sample can never beat the
+    penalty. The evidence accumulates over samples: the fit side's (a, b) predict the
+    held-out ripple at the count (their gain summed over the held-out samples), far
+    beyond the same gain at off-harmonic counts. Before: the candidate kept the
+    baseline's bent parameters (the refit not credited)."""
+    p, segs = _crawl_record(0.01)
+    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
+    base = _bent(search, _baseline(search))
+    f, _ = angle_cogging(search, base, [11, 12, 13])
+    assert f.fit.reasons["cogging.torque_nm"] != NOTE
+    e = f.fit.model.effect("cogging")
+    assert isinstance(e, Cogging) and e.periods_per_rev == 12.0
+    assert e.torque_nm == pytest.approx(0.01, rel=0.2)
+    assert f.gap < 0.2 and f.fit.model.params.R == pytest.approx(p.R, rel=0.05)
+    assert any("off-harmonic counts" in n for n in search.notes)
+
+
+def test_the_refitted_motor_chooses_the_count_again():
+    """The count was chosen with the baseline's bent parameters (a generator's
+    gearmotor: 24 per turn for its 25; a scooter's 17 not among the counts at all under
+    a misfit of 1300 noise variances). With the motor refitted it is chosen again on the
+    fit side, among the counts tried and the strongest of what the refit leaves on
+    held-out data. Before: the wrong count stood."""
+    _, segs = _crawl_record(0.24)
+    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
+    base = _bent(search, _baseline(search))
+    f, _ = angle_cogging(search, base, [13])
+    e = f.fit.model.effect("cogging")
+    assert isinstance(e, Cogging) and e.periods_per_rev == 12.0
+    assert e.torque_nm == pytest.approx(0.24, rel=0.1)
+
+
+def test_a_refitted_cogging_is_judged_showable_on_the_refitted_motor(monkeypatch):
+    """The showable check withdraws a name the record could not show at any size. A
+    cogging refitted with the motor (the baseline bent far off it) is judged on that
+    motor where the baseline's could not show it (a generator gearmotor's baseline: no
+    cogging below 10x its peak torque; its refit: 10 % rated)."""
+    import pmdc_ident.core.diagnosis.pipeline as pipe
+    from pmdc_ident.core.diagnosis.detection import DetectionLimit
+    from pmdc_ident.core.diagnosis.results import Verdict, VerdictStatus
+
+    _, segs = _crawl_record(0.24)
+    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
+    base = _bent(search, _baseline(search))
+    f, _ = angle_cogging(search, base, [12])
+    assert f.fit.reasons["cogging.torque_nm"] != NOTE
+    bent = base.fit.model.params
+
+    def limits(split, model, *args, **kw):  # type: ignore[no-untyped-def]
+        size = None if model.params == bent else 0.05
+        return (DetectionLimit("cogging", size, "N*m", None, "the peak motor torque"),)
+
+    monkeypatch.setattr(pipe, "detection_limits", limits)
+    named = Verdict(VerdictStatus.EXPLAINED, ("cogging",), (), "cogging closes 99 %")
+    assert pipe._showable(named, search, base, f)[0].status is VerdictStatus.EXPLAINED
+    # the baseline's motor alone still withdraws it, as does a cogging not refitted
+    assert pipe._showable(named, search, base)[0].status is VerdictStatus.UNEXPLAINED
+    assert pipe._showable(named, search, base, base)[0].status is VerdictStatus.UNEXPLAINED
