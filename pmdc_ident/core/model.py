@@ -75,6 +75,7 @@ __all__ = [
     "effect_coefficients",
     "effects_kernel",
     "expm_small",
+    "lagged",
     "simulate",
     "simulate_linear",
     "substeps_for",
@@ -356,10 +357,20 @@ def apply_lag(
     of ``Va`` over each sample (the value the motor's step holds). ``initial_v`` is
     ``Va`` before the first sample; an open armature (NaN) passes through and the lag
     restarts from 0 V after it."""
+    return lagged(voltage, lag_s, dt_s, initial_v)[0]
+
+
+def lagged(
+    voltage: FloatArray, lag_s: float, dt_s: float, initial_v: float = 0.0
+) -> tuple[FloatArray, float]:
+    """:func:`apply_lag`'s output and the lag's state ``Va`` after the last sample (where
+    a run cut here goes on from: a stepper's next sample, a replay's next segment)."""
     if lag_s <= 0.0:
-        return voltage
+        last = float(voltage[-1]) if voltage.size else float(initial_v)
+        return voltage, last if math.isfinite(last) else 0.0
     a = math.exp(-dt_s / lag_s)
-    return _lag_kernel(voltage, a, lag_s / dt_s * (1.0 - a), float(initial_v))
+    out, x = _lag_kernel(voltage, a, lag_s / dt_s * (1.0 - a), float(initial_v))
+    return out, float(x)
 
 
 @njit
@@ -374,7 +385,7 @@ def _lag_kernel(v, a, g, x0):  # pragma: no cover - jitted
             continue
         out[k] = vk + (x - vk) * g
         x = vk + (x - vk) * a
-    return out
+    return out, x
 
 
 def simulate(
@@ -720,10 +731,7 @@ class Plant:
             delayed = apply_delay(self._history, self._delay_s, self.dt_s)
             v_arr = delayed[-1:]
         if self._lag_s > 0.0:
-            vk = float(v_arr[0])
-            v_arr = apply_lag(v_arr, self._lag_s, self.dt_s, self._lag_v)
-            a = math.exp(-self.dt_s / self._lag_s)
-            self._lag_v = 0.0 if math.isnan(vk) else vk + (self._lag_v - vk) * a
+            v_arr, self._lag_v = lagged(v_arr, self._lag_s, self.dt_s, self._lag_v)
         self._run(v_arr, self._state)
         self.samples += 1
 

@@ -199,18 +199,15 @@ def _lag_state(v: FloatArray, history: FloatArray | None, delay_s: float, lag_s:
     """The lagged voltage at a segment's start, as the project's model has it: the
     (delayed) commands before it through the lag from the oldest one held; without
     them, the first command."""
-    from pmdc_ident.core.model import apply_delay
+    from pmdc_ident.core.model import apply_delay, lagged
 
     first = float(v[0]) if v.size and math.isfinite(v[0]) else 0.0
     if history is None or not np.asarray(history).size or not lag_s > 0:
         return first
     pre = np.asarray(history, dtype=float)
     both = apply_delay(np.concatenate([pre, v]), delay_s, dt_s, float(pre[0]))[: pre.size]
-    x = float(pre[0]) if math.isfinite(pre[0]) else 0.0
-    a = math.exp(-dt_s / lag_s)
-    for vk in both:
-        x = 0.0 if math.isnan(vk) else vk + (x - vk) * a
-    return x
+    x0 = float(pre[0]) if math.isfinite(pre[0]) else 0.0
+    return lagged(both, lag_s, dt_s, x0)[1]
 
 
 def _init_history(model, data, seg: Segment, nsample: int, inp: int = 0) -> None:  # type: ignore[no-untyped-def]
