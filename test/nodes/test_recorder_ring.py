@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -33,25 +34,23 @@ RATE_HZ = 1000.0
 T0_NS = 1_700_000_000 * 1_000_000_000
 
 
-def _templates() -> dict[str, bytes]:
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    JointState, Header, Time = (
-        ts.types["sensor_msgs/msg/JointState"],
-        ts.types["std_msgs/msg/Header"],
-        ts.types["builtin_interfaces/msg/Time"],
-    )
-    import numpy as np
+_TS = get_typestore(Stores.ROS2_JAZZY)
 
+
+def _joint_state_cdr() -> bytes:
+    """One driver sample (a JointState of one joint) as CDR; the stamp is patched in."""
+    t = _TS.types
     one = np.array([0.5])
-    msg = JointState(
-        header=Header(stamp=Time(sec=0, nanosec=0), frame_id=""),
+    msg = t["sensor_msgs/msg/JointState"](
+        header=t["std_msgs/msg/Header"](
+            stamp=t["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=""
+        ),
         name=["m"],
         position=one,
         velocity=one,
         effort=one,
     )
-    raw = bytes(ts.serialize_cdr(msg, "sensor_msgs/msg/JointState"))
-    return dict.fromkeys(DRIVER_TOPICS, raw)
+    return bytes(_TS.serialize_cdr(msg, "sensor_msgs/msg/JointState"))
 
 
 def _stamped(raw: bytes, ns: int) -> bytes:
@@ -60,17 +59,16 @@ def _stamped(raw: bytes, ns: int) -> bytes:
 
 
 def _marker(event: MarkerEvent, t_ns: int) -> bytes:
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    String = ts.types["std_msgs/msg/String"]
     text = Marker(event, "", t_ns * 1e-9, session="late_start").to_json()
-    return bytes(ts.serialize_cdr(String(data=text), "std_msgs/msg/String"))
+    msg = _TS.types["std_msgs/msg/String"](data=text)
+    return bytes(_TS.serialize_cdr(msg, "std_msgs/msg/String"))
 
 
 def test_a_start_marker_as_late_as_the_dds_buffer_loses_no_sample(
     tmp_path: Path, ros_domain: int
 ) -> None:
     delay_s = SAMPLE_BUFFER_S - 1.0  # a marker this late: its samples are still in DDS
-    raw = _templates()
+    raw = _joint_state_cdr()
     ctx = Context()
     rclpy.init(args=[], context=ctx, domain_id=ros_domain)
     try:
@@ -95,7 +93,7 @@ def test_a_start_marker_as_late_as_the_dds_buffer_loses_no_sample(
             if ns == late_at + 10 * dt:
                 node._on_segment(_marker(MarkerEvent.SESSION_END, end_ns))
             for t in DRIVER_TOPICS:
-                cbs[t](_stamped(raw[t], ns))
+                cbs[t](_stamped(raw, ns))
             k += 1
         assert node.writer is None, "the bag was not closed at the session's end"
         bags = list(node.bags)
