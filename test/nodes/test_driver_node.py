@@ -476,3 +476,29 @@ def test_bad_start_parameter_is_one_line_and_a_non_zero_exit(args, fragment, ros
 @pytest.mark.parametrize("name", ["driver.launch.py", "session.launch.py", "two_motors.launch.py"])
 def test_launch_file_compiles(name):
     py_compile.compile(str(REPO / "launch" / name), doraise=True)
+
+
+@pytest.mark.parametrize(
+    ("given", "used"), [(None, "ASYNCHRONOUS"), ("SYNCHRONOUS", "SYNCHRONOUS")]
+)
+def test_the_driver_publishes_asynchronously_unless_the_user_chose(monkeypatch, given, used):
+    """Fast DDS sends what a 250 Hz poll published in one datagram per reader (see
+    docs/integration.md, "CPU of the driver"); a mode set by the user wins. Checked where
+    the participant is made: the environment ``rclpy.init`` sees."""
+    from pmdc_ident.nodes import driver_node
+
+    if given is None:
+        monkeypatch.delenv("RMW_FASTRTPS_PUBLICATION_MODE", raising=False)
+    else:
+        monkeypatch.setenv("RMW_FASTRTPS_PUBLICATION_MODE", given)
+    seen = []
+
+    def run_node(name, build, args, **kwargs):  # type: ignore[no-untyped-def]
+        import os
+
+        seen.append(os.environ.get("RMW_FASTRTPS_PUBLICATION_MODE"))
+        return 0
+
+    monkeypatch.setattr(driver_node, "run_node", run_node)
+    assert driver_node.main([]) == 0
+    assert seen == [used]
