@@ -10,6 +10,11 @@ CDR, EventsExecutor, so the subscriber itself is cheap) and measures:
 * publish lag: receive time - stamp, p50 / p99 (includes the poll period, 4 ms);
 * driver CPU: user+system time of the driver process / wall time.
 
+The driver runs under SCHED_RR where permitted, as bring-up runs it, once per Fast DDS
+publication mode (``--modes``): asynchronous, the driver's default, and synchronous,
+Fast DDS's own default; the driver CPU ratio of the two is printed per rate (see
+docs/integration.md, "CPU of the driver").
+
 Reference in the same run: a naive driver (a ROS timer at the sample rate that
 publishes one sample per tick stamped with ``now()``), the design the exact grid
 replaces; its stamps jitter with the host timer, and its delivered rate is
@@ -59,6 +64,34 @@ try:
 except (KeyboardInterrupt, ExternalShutdownException):
     pass
 finally:
+    node.destroy_node()
+    rclpy.try_shutdown()
+"""
+
+
+#: RMW_FASTRTPS_PUBLICATION_MODE values compared; the first is the driver's default
+MODES = ("ASYNCHRONOUS", "SYNCHRONOUS")
+SHORT = {"ASYNCHRONOUS": "async", "SYNCHRONOUS": "sync"}
+
+
+READER = r"""
+import sys, time, rclpy
+from rclpy.experimental import EventsExecutor
+from sensor_msgs.msg import JointState
+from pmdc_ident.nodes.qos import sample_qos
+rclpy.init()
+node = rclpy.create_node("reader")
+qos = sample_qos(float(sys.argv[1]))
+for topic in ("current", "encoder", "voltage_applied"):
+    node.create_subscription(JointState, topic, lambda raw: None, qos, raw=True)
+executor = EventsExecutor()
+executor.add_node(node)
+try:
+    executor.spin()
+except KeyboardInterrupt:
+    pass
+finally:
+    executor.shutdown()
     node.destroy_node()
     rclpy.try_shutdown()
 """
@@ -133,12 +166,54 @@ def _measure(name: str, pid: int, rate_hz: float, seconds: float, node, executor
     )
 
 
+def _drivers(args, rate, cmd, node, executor) -> list[Figures]:  # type: ignore[no-untyped-def]
+    """The driver at ``rate`` once per publication mode in ``args.modes``."""
+    from std_msgs.msg import Float64
+
+    out = []
+    params = {"rate_hz": rate, "watchdog_s": 0.0, "poll_rate_hz": 250.0}
+    # Where other readers listen, the first driver of a run cost 4-6x the CPU of every
+    # later one, in either mode (both orders tried), even with the readers in the graph
+    # 15 s before it started: a short warm-up driver runs first, its figures not shown.
+    for k, mode in enumerate((args.modes[0], *args.modes)):
+        drv = DriverProcess(params, domain_id=args.domain, realtime=True)
+        drv.env["RMW_FASTRTPS_PUBLICATION_MODE"] = mode
+        with drv:
+            t0 = time.monotonic()
+            while cmd.get_subscription_count() == 0 and time.monotonic() - t0 < 20:
+                executor.spin_once(timeout_sec=0.05)
+            for _ in range(5):
+                cmd.publish(Float64(data=5.0))
+                executor.spin_once(timeout_sec=0.02)
+            seconds = args.seconds if k else min(3.0, args.seconds)
+            fig = _measure(f"driver {SHORT[mode]}", drv.pid, rate, seconds, node, executor)
+            if k:
+                out.append(fig)
+            rc = drv.stop()
+            if rc != 0:
+                print(f"driver exited {rc}: {drv.stderr.strip()[-300:]}", file=sys.stderr)
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--domain", type=int, default=None, help="default: a free one")
     ap.add_argument("--rates", type=float, nargs="+", default=[1000.0, 5000.0])
     ap.add_argument("--no-naive", action="store_true", help="skip the naive reference")
+    ap.add_argument(
+        "--readers",
+        type=int,
+        default=2,
+        help="other processes reading all three sample topics, as a session's nodes do",
+    )
+    ap.add_argument(
+        "--modes",
+        nargs="+",
+        choices=MODES,
+        default=list(MODES),
+        help="Fast DDS publication modes of the driver (default: both)",
+    )
     args = ap.parse_args()
     # A DDS domain no other suite, benchmark or demo on this machine uses meanwhile.
     held = lock_domain(args.domain) if args.domain is not None else allocate_domain()
@@ -158,18 +233,28 @@ def main() -> int:
     results: list[Figures] = []
     try:
         for rate in args.rates:
-            params = {"rate_hz": rate, "watchdog_s": 0.0, "poll_rate_hz": 250.0}
-            with DriverProcess(params, domain_id=args.domain) as drv:
-                t0 = time.monotonic()
-                while cmd.get_subscription_count() == 0 and time.monotonic() - t0 < 20:
+            readers = [
+                subprocess.Popen(
+                    [sys.executable, "-c", READER, str(rate)], env=ros_env(args.domain), cwd=REPO
+                )
+                for _ in range(args.readers)
+            ]
+            try:
+                t0 = time.monotonic()  # every reader in the graph before a driver starts
+                while node.count_subscribers("current") < args.readers:
+                    if time.monotonic() - t0 > 30:
+                        raise SystemExit(f"{args.readers} readers not seen in 30 s")
                     executor.spin_once(timeout_sec=0.05)
-                for _ in range(5):
-                    cmd.publish(Float64(data=5.0))
-                    executor.spin_once(timeout_sec=0.02)
-                results.append(_measure("driver", drv.pid, rate, args.seconds, node, executor))
-                rc = drv.stop()
-                if rc != 0:
-                    print(f"driver exited {rc}: {drv.stderr.strip()[-300:]}", file=sys.stderr)
+                results += _drivers(args, rate, cmd, node, executor)
+            finally:
+                for r in readers:
+                    r.send_signal(2)
+                for r in readers:
+                    try:
+                        r.wait(timeout=10)
+                    except subprocess.TimeoutExpired:
+                        r.kill()
+                        r.wait()
             if not args.no_naive:
                 naive = subprocess.Popen(
                     [sys.executable, "-c", NAIVE, str(rate)],
@@ -189,29 +274,34 @@ def main() -> int:
         rclpy.try_shutdown()
     load = os.getloadavg()[0]
     print(
-        f"driver sample rate over DDS, {args.seconds:g} s windows, loadavg {load:.1f}, "
-        f"{os.cpu_count()} cores"
+        f"driver sample rate over DDS, {args.seconds:g} s windows, {args.readers} other "
+        f"readers of all three topics, loadavg {load:.1f}, {os.cpu_count()} cores"
     )
     head = (
-        f"{'publisher':<12} {'rate Hz':>8} {'delivered':>9} {'jit std us':>10} "
+        f"{'publisher':<13} {'rate Hz':>8} {'delivered':>9} {'jit std us':>10} "
         f"{'jit max us':>10} {'off-grid us':>11} {'lag p50 ms':>10} {'lag p99 ms':>10} "
         f"{'pub CPU':>7}"
     )
     print(head)
     for f in results:
         print(
-            f"{f.name:<12} {f.rate_hz:8.0f} {f.delivered:9.4f} {f.jitter_std_us:10.1f} "
+            f"{f.name:<13} {f.rate_hz:8.0f} {f.delivered:9.4f} {f.jitter_std_us:10.1f} "
             f"{f.jitter_max_us:10.1f} {f.off_grid_max_us:11.3f} {f.lag_p50_ms:10.2f} "
             f"{f.lag_p99_ms:10.2f} {100 * f.driver_cpu:6.0f}%"
         )
     for rate in args.rates:
-        d = [f for f in results if f.rate_hz == rate and f.name == "driver"]
+        d = [f for f in results if f.rate_hz == rate and f.name.startswith("driver")]
         n = [f for f in results if f.rate_hz == rate and f.name == "naive timer"]
         if d and n:
             print(
                 f"{rate:g} Hz reference: naive timer stamp jitter std {n[0].jitter_std_us:.1f} us "
                 f"vs driver {d[0].jitter_std_us:.1f} us; delivered {n[0].delivered:.3f} vs "
                 f"{d[0].delivered:.3f}"
+            )
+        if len(d) == 2:
+            print(
+                f"{rate:g} Hz driver CPU, {d[1].name} / {d[0].name}: "
+                f"{d[1].driver_cpu / max(d[0].driver_cpu, 1e-9):.2f}x"
             )
     return 0
 
