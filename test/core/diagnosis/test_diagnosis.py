@@ -137,7 +137,7 @@ _FAST_PLAN = SequenceConfig(sweep_duration_tau=20.0)
 @pytest.fixture(scope="module")
 def seed000_runs():
     # 250 Hz: the same verdicts, friction torque and localization as at 500 Hz
-    # (diagnoses 14.2 + 4.3 -> 4.7 + 1.7 CPU-s)
+    # (diagnoses 7.8 + 2.3 -> 5.1 + 1.2 CPU-s)
     spec = load_motor("seed000_ebike")
     plan = plan_for_motor(spec, 4e-3, _FAST_PLAN)
     with_friction = synthesize_run(spec.model, plan, spec.sensors, seed=5)

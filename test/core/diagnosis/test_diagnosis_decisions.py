@@ -50,7 +50,7 @@ def test_a_difference_that_is_itself_a_gap_separates_wherever_it_lies():
 
 def _session(tau_s: float, k: float = 0.02):  # type: ignore[no-untyped-def]
     # 250 Hz: heating of a 6 s time constant is resolved as at 500 Hz (the three
-    # diagnoses below: the same verdicts and intervals, 55 -> 21 CPU-s)
+    # diagnoses below: the same verdicts and intervals, 32 -> 21 CPU-s)
     spec = load_motor("seed000_ebike")
     plan = plan_for_motor(spec, 1 / 250.0, SequenceConfig(sweep_duration_tau=20.0))
     model = Model(spec.model.params, (ResistanceDrift(k, tau_s),))
