@@ -41,10 +41,12 @@ def test_a_held_wave_is_the_mean_of_the_wave_over_its_sample():
 def sweep_cogging():  # type: ignore[no-untyped-def]
     """Seed 001's motor run through its plan with a cogging of 2 % of the record's torque
     scale (17 per turn), its search, baseline and the angle fit at 16, 17, 18 per turn:
-    two tests read the same fit (each built it before)."""
+    two tests read the same fit (each built it before). Logged at 2 ms (was 1 ms): the
+    fit keeps the phase within 0.03 rad, the amplitude at 1.02x, the gap at 0.11 of the
+    baseline's."""
     spec = load_motor("seed001_110v")
     p = spec.model.params
-    plan = plan_for_motor(spec, 1e-3, SequenceConfig(sweep_duration_tau=20.0))
+    plan = plan_for_motor(spec, 2e-3, SequenceConfig(sweep_duration_tau=20.0))
     clean = synthesize_run(Model(p), plan, None, seed=0)
     amp = 0.02 * data_scales(clean.segments, p.Kt).torque_nm
     run = synthesize_run(Model(p, (Cogging(amp, 17.0, 1.0),)), plan, spec.sensors, seed=2)
