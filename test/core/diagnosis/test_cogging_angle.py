@@ -92,11 +92,11 @@ def _crawl_record(cogging_nm: float, seed: int = 3, periods: float = 12.0):  # t
 
 
 @cache
-def _crawl_search(cogging_nm: float):  # type: ignore[no-untyped-def]
+def _crawl_search(cogging_nm: float, periods: float = 12.0):  # type: ignore[no-untyped-def]
     """The crawl record's search and baseline, built once for the tests that read them
     (a candidate's fit leaves both as they were; it may add to ``search.notes``, which
     none of these tests reads)."""
-    p, segs = _crawl_record(cogging_nm)
+    p, segs = _crawl_record(cogging_nm, periods=periods)
     search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
     return p, search, _baseline(search)
 
@@ -212,9 +212,9 @@ def _geared_search(cogging_nm: float):  # type: ignore[no-untyped-def]
     """The crawl record with a cogging of 117.36 periods per *output* turn (the encoder,
     480 counts per turn, on the output of a 9.78:1 gear: 12 detents per motor turn),
     its search, baseline, the held-out angle spectrum's candidates, and its segments."""
-    p, segs = _crawl_record(cogging_nm, periods=GEARED_COUNT)
-    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
-    base = _baseline(search)
+    periods = GEARED_COUNT if cogging_nm else 12.0  # without cogging: the same record
+    _, segs = _crawl_record(cogging_nm, periods=periods)
+    _, search, base = _crawl_search(cogging_nm, periods)
     _, _, periods = angle_harmonics(list(search.split.held_out), base.res)
     return search, base, periods, segs
 
