@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from functools import cache
 
 import numpy as np
 import pytest
@@ -36,18 +37,28 @@ def test_a_held_wave_is_the_mean_of_the_wave_over_its_sample():
     assert c[k] == pytest.approx((math.sin(b) - math.sin(a)) / (b - a), abs=1e-12)
 
 
-def test_cogging_is_read_off_the_measured_angle_with_its_count_and_phase():
+@pytest.fixture(scope="module")
+def sweep_cogging():  # type: ignore[no-untyped-def]
+    """Seed 001's motor run through its plan with a cogging of 2 % of the record's torque
+    scale (17 per turn), its search, baseline and the angle fit at 16, 17, 18 per turn:
+    two tests read the same fit (each built it before). Logged at 2 ms (was 1 ms): the
+    fit keeps the phase within 0.03 rad, the amplitude at 1.02x, the gap at 0.11 of the
+    baseline's."""
     spec = load_motor("seed001_110v")
     p = spec.model.params
-    plan = plan_for_motor(spec, 1e-3, SequenceConfig(sweep_duration_tau=20.0))
+    plan = plan_for_motor(spec, 2e-3, SequenceConfig(sweep_duration_tau=20.0))
     clean = synthesize_run(Model(p), plan, None, seed=0)
     amp = 0.02 * data_scales(clean.segments, p.Kt).torque_nm
-    truth = Cogging(amp, 17.0, 1.0)
-    run = synthesize_run(Model(p, (truth,)), plan, spec.sensors, seed=2)
+    run = synthesize_run(Model(p, (Cogging(amp, 17.0, 1.0),)), plan, spec.sensors, seed=2)
     segs = list(run.segments)
     search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
     base = _baseline(search)
     f, fit_gap = angle_cogging(search, base, [16, 17, 18])
+    return p, amp, segs, search, base, f, fit_gap
+
+
+def test_cogging_is_read_off_the_measured_angle_with_its_count_and_phase(sweep_cogging):
+    _, amp, _, _, base, f, fit_gap = sweep_cogging
     e = f.fit.model.effect("cogging")
     assert isinstance(e, Cogging) and e.periods_per_rev == 17.0
     # the count and the phase from the angle; the amplitude only to a factor (the fit
@@ -57,6 +68,7 @@ def test_cogging_is_read_off_the_measured_angle_with_its_count_and_phase():
     assert f.gap < 0.5 * base.gap and math.isfinite(fit_gap)
 
 
+@cache
 def _crawl_record(cogging_nm: float, seed: int = 3, periods: float = 12.0):  # type: ignore[no-untyped-def]
     """The cogging reveal's crawls and a step with a coast on seed 001's motor, logged
     with current and the encoder's angle only (no speed column), at 2 ms."""
@@ -77,6 +89,16 @@ def _crawl_record(cogging_nm: float, seed: int = 3, periods: float = 12.0):  # t
         Model(p, effects), plan, spec.sensors, seed=seed, signals=("current", "position")
     )
     return p, list(run.segments)
+
+
+@cache
+def _crawl_search(cogging_nm: float, periods: float = 12.0):  # type: ignore[no-untyped-def]
+    """The crawl record's search and baseline, built once for the tests that read them
+    (a candidate's fit leaves both as they were; it may add to ``search.notes``, which
+    none of these tests reads)."""
+    p, segs = _crawl_record(cogging_nm, periods=periods)
+    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
+    return p, search, _baseline(search)
 
 
 def _bent(search: Search, base):  # type: ignore[no-untyped-def]
@@ -105,9 +127,8 @@ def test_a_baseline_bent_by_the_cogging_does_not_hold_the_angle_fit():
     against the baseline's 161 on a gearmotor). The motor's parameters are refitted
     with the cogging: the count, amplitude and phase come back, and the gap closes.
     Before: the candidate held the bent parameters."""
-    p, segs = _crawl_record(0.24)
-    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
-    base = _bent(search, _baseline(search))
+    p, search, base = _crawl_search(0.24)
+    base = _bent(search, base)
     f, fit_gap = angle_cogging(search, base, [11, 12, 13])
     assert f.gap < 0.05 * base.gap and fit_gap < 1.0  # before: 240 -> 225, fit side 1967
     e = f.fit.model.effect("cogging")
@@ -123,9 +144,8 @@ def test_a_refit_that_helps_without_cogging_is_not_credited_to_cogging():
     """On the same record without cogging the refit of a bent baseline closes the gap
     by itself: the candidate keeps the baseline's parameters (its gain must beat the
     refit without cogging by two parameters' penalty)."""
-    _, segs = _crawl_record(0.0)
-    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
-    base = _bent(search, _baseline(search))
+    _, search, base = _crawl_search(0.0)
+    base = _bent(search, base)
     f, _ = angle_cogging(search, base, [11, 12, 13])
     assert f.fit.reasons["cogging.torque_nm"] == NOTE
     assert f.fit.model.params == base.fit.model.params
@@ -169,22 +189,14 @@ def test_a_cogging_the_sampling_aliases_is_not_named_and_the_result_says_why(tmp
     assert len(why) == 1 and "23 periods per turn are not resolved by the sampling" in why[0]
 
 
-def test_a_cogging_too_large_for_the_record_to_have_turned_is_not_named():
+def test_a_cogging_too_large_for_the_record_to_have_turned_is_not_named(sweep_cogging):
     """A rotor slower than sqrt(4 A / (N J)) cannot roll over a detent of a cogging of
     amplitude A: only a drive torque above A turns it on. A cogging larger than the
     largest torque the record applied (Kt x peak current), on a record that starts
     from rest, is no cogging of that motor; the true one on the same record is."""
     from dataclasses import replace
 
-    spec = load_motor("seed001_110v")
-    p = spec.model.params
-    plan = plan_for_motor(spec, 1e-3, SequenceConfig(sweep_duration_tau=20.0))
-    clean = synthesize_run(Model(p), plan, None, seed=0)
-    amp = 0.02 * data_scales(clean.segments, p.Kt).torque_nm
-    run = synthesize_run(Model(p, (Cogging(amp, 17.0, 1.0),)), plan, spec.sensors, seed=2)
-    segs = list(run.segments)
-    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
-    f, _ = angle_cogging(search, _baseline(search), [16, 17, 18])
+    p, _, segs, search, _, f, _ = sweep_cogging
     assert not f.failed and implausible(search, f.fit) == "" and search.notes == []
     peak = p.Kt * max(float(np.max(np.abs(s.current))) for s in segs)
     big = Cogging(1.2 * peak, 17.0, 1.0)
@@ -200,9 +212,9 @@ def _geared_search(cogging_nm: float):  # type: ignore[no-untyped-def]
     """The crawl record with a cogging of 117.36 periods per *output* turn (the encoder,
     480 counts per turn, on the output of a 9.78:1 gear: 12 detents per motor turn),
     its search, baseline, the held-out angle spectrum's candidates, and its segments."""
-    p, segs = _crawl_record(cogging_nm, periods=GEARED_COUNT)
-    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
-    base = _baseline(search)
+    periods = GEARED_COUNT if cogging_nm else 12.0  # without cogging: the same record
+    _, segs = _crawl_record(cogging_nm, periods=periods)
+    _, search, base = _crawl_search(cogging_nm, periods)
     _, _, periods = angle_harmonics(list(search.split.held_out), base.res)
     return search, base, periods, segs
 
@@ -252,9 +264,8 @@ def test_a_refit_that_turns_the_winding_into_an_integrator_is_not_taken(monkeypa
     candidate kept the bent baseline (R 1.5x)."""
     import pmdc_ident.core.diagnosis.cogging as cg
 
-    p, segs = _crawl_record(0.24)
-    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
-    base = _bent(search, _baseline(search))
+    p, search, base = _crawl_search(0.24)
+    base = _bent(search, base)
     real = cg.least_squares
     calls = []
 
@@ -278,9 +289,7 @@ def test_a_refitted_parameter_the_fit_cannot_pin_gets_no_interval():
     exp(1.96 sd) that overflowed and stopped the candidate ("math range error")."""
     from pmdc_ident.core.diagnosis.cogging import _with_params
 
-    p, segs = _crawl_record(0.0)
-    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
-    base = _baseline(search)
+    p, search, base = _crawl_search(0.0)
     fit = _with_params(base.fit, p, {"R": 0.01, "L": 1e4, "Ke": 0.01, "J": 0.02, "B": 0.1})
     assert fit.ci95["L"] is None and fit.stderr["L"] is None
     assert fit.ci95["R"] is not None
@@ -312,9 +321,8 @@ def test_the_refitted_motor_chooses_the_count_again():
     a misfit of 1300 noise variances). With the motor refitted it is chosen again on the
     fit side, among the counts tried and the strongest of what the refit leaves on
     held-out data. Before: the wrong count stood."""
-    _, segs = _crawl_record(0.24)
-    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
-    base = _bent(search, _baseline(search))
+    _, search, base = _crawl_search(0.24)
+    base = _bent(search, base)
     f, _ = angle_cogging(search, base, [13])
     e = f.fit.model.effect("cogging")
     assert isinstance(e, Cogging) and e.periods_per_rev == 12.0
@@ -330,9 +338,8 @@ def test_a_refitted_cogging_is_judged_showable_on_the_refitted_motor(monkeypatch
     from pmdc_ident.core.diagnosis.detection import DetectionLimit
     from pmdc_ident.core.diagnosis.results import Verdict, VerdictStatus
 
-    _, segs = _crawl_record(0.24)
-    search = Search(split_segments(segs), estimate_noise(segs), DiagnosisConfig(workers=1), None)
-    base = _bent(search, _baseline(search))
+    _, search, base = _crawl_search(0.24)
+    base = _bent(search, base)
     f, _ = angle_cogging(search, base, [12])
     assert f.fit.reasons["cogging.torque_nm"] != NOTE
     bent = base.fit.model.params
