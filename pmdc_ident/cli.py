@@ -233,7 +233,43 @@ def _run(argv: Sequence[str] | None) -> int:
     except BaseException as exc:  # noqa: BLE001 - sorted below; SystemExit passes
         if isinstance(exc, SystemExit):
             raise
-        return _exit_status(command, exc, user_errors, names)
+        status = _exit_status(command, exc, user_errors, names)
+        if _RAISED:
+            _free_what_the_signal_cut(exc, program=argv is None)
+        return status
+
+
+def _release(_unraisable: object) -> None:
+    """A ``sys.unraisablehook`` that reports nothing."""
+
+
+def _free_what_the_signal_cut(exc: BaseException, *, program: bool) -> None:
+    """Free, without a report, the objects a stop signal left half-built.
+
+    A signal raises where it lands: in an ``__init__`` (llvmlite's, while numba compiled
+    a kernel into an empty cache) the object is left without the fields its ``__del__``
+    reads, and freeing it printed "Exception ignored in ... Traceback" after the one
+    line (SIGTERM 0.5 s into ``identify``: llvmlite's ``PassBuilder`` had no
+    ``_as_parameter_``; 1 of 30 random signal times on a cold cache). The frames of the
+    exception chain hold them: cleared here, and collected, with such reports dropped.
+    ``program`` (``pmdc-ident`` itself, about to exit): the reports stay dropped, for
+    what is freed only at the exit."""
+    import traceback
+
+    old = sys.unraisablehook
+    sys.unraisablehook = _release  # type: ignore[assignment]
+    try:
+        seen: set[int] = set()
+        e: BaseException | None = exc
+        while e is not None and id(e) not in seen:
+            seen.add(id(e))
+            if e.__traceback__ is not None:
+                traceback.clear_frames(e.__traceback__)
+            e = e.__cause__ or e.__context__
+        gc.collect()
+    finally:
+        if not program:
+            sys.unraisablehook = old
 
 
 def _exit_status(
