@@ -34,8 +34,17 @@ def test_virtual_board_command_serves_a_backend_and_stops_on_sigint(tmp_path: Pa
         limits = load_motor("seed001_110v").limits
         # this checks that the command serves a backend, not the link's stall detection
         # (test_serial_backend does): a board process starved beside two CPU hogs paused
-        # its telemetry 0.52 s against the default 0.5 s
-        be = SerialBackend(str(link), 1_000_000, limits, dt_s=0.001, telemetry_timeout_s=5.0)
+        # its telemetry 0.52 s against the default 0.5 s; nor the board's watchdog (this
+        # process, the host, starved beside three test processes was silent past the
+        # default 0.5 s of the board's time: the armature opened, the last voltage NaN)
+        be = SerialBackend(
+            str(link),
+            1_000_000,
+            limits,
+            dt_s=0.001,
+            telemetry_timeout_s=5.0,
+            board_watchdog_ms=5000,
+        )
         be.start()
         try:
             assert be.state is LinkState.STREAMING
