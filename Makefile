@@ -63,7 +63,9 @@ demo: $(STAMP)
 # 2-core machine; with the kernels compiled once (test/conftest.py) still 45 s more
 # (561 -> 606 s at load 7-12) and no shorter wall; measured again back to back on fresh
 # clones of 87abeb1: the whole .ci/run 611 -> 780 CPU-s and 725 -> 1004 s wall (load
-# median 10.6 / 12.7), and a DDS service call in a node test timed out.
+# median 10.6 / 12.7), and a DDS service call in a node test timed out. On an idle
+# machine a third saved a minute at no more CPU (fresh clones of a25a861/791df1a: 393 ->
+# 323 s, 613 -> 597 CPU-s; docs/results.md section 9): `make test TEST_WORKERS=3` there.
 # `make test TEST_WORKERS=0` runs them in one process.
 TEST_WORKERS ?= 2
 
