@@ -749,9 +749,10 @@ def _beyond_plain_refit(
     verdict: Verdict, search: Search, base: Fitted, scoring: Scoring, chosen: Fitted
 ) -> tuple[Verdict, Fitted]:
     """A name only for what the effect itself closes: the chosen candidate judged against
-    the linear motor refitted under the candidates' own objective, as a single effect is
-    judged against the baseline (beyond the penalty of every parameter it adds, and
-    closing what that refit leaves). Returns the verdict and the model it rests on.
+    the linear motor refitted under the candidates' own objective: it must beat that
+    refit by the penalty of every parameter it adds (closing most of the baseline's gap
+    is judged before, as for every verdict). Returns the verdict and the model it rests
+    on.
 
     Every candidate's fit frees the motor's parameters with the effect's, from the
     baseline's values. Where the baseline's fit stopped short (its evaluations spent,
@@ -783,7 +784,12 @@ def _beyond_plain_refit(
         return verdict, chosen
     ref = Scoring.for_baseline(plain, scoring.thresholds)
     k = n_added(m, verdict.effects)
-    if plain.gap - chosen.gap > k * ref.penalty and ref.closes(chosen.gap):
+    # beyond the penalty of what it adds; "most of the gap" stays judged against the
+    # baseline (the verdict above): asked of what the refit leaves, it also withdrew a
+    # true cogging on MuJoCo's reveal record run 4 (baseline 50.2, refit 33, cogging
+    # 16.7: 49 % of what the refit leaves), where the false names it is for beat their
+    # refit by 0.01 noise variances against a penalty of 0.3
+    if plain.gap - chosen.gap > k * ref.penalty:
         return verdict, chosen
     g0, named = scoring.g0, " + ".join(verdict.effects)
     refit = (
@@ -792,7 +798,7 @@ def _beyond_plain_refit(
     )
     beyond = (
         f"{named} leaves {chosen.gap:.3g}: it does not beat that refit by its penalty "
-        f"({k} x {ref.penalty:.3g}) and close most of what the refit leaves"
+        f"({k} x {ref.penalty:.3g})"
     )
     if plain.gap <= scoring.thresholds.no_gap_noise:
         status = VerdictStatus.NO_GAP

@@ -107,14 +107,17 @@ class _Search:
     ("plain_gap", "status"),
     [
         (0.5, VerdictStatus.NO_GAP),
-        (4.0, VerdictStatus.UNEXPLAINED),
+        (3.2, VerdictStatus.UNEXPLAINED),
+        (4.0, VerdictStatus.EXPLAINED),
         (9.0, VerdictStatus.EXPLAINED),
     ],
 )
 def test_the_named_model_is_judged_against_the_linear_refit(plain_gap, status):
     # baseline 10 noise variances, a Coulomb friction leaving 3: named against the
-    # baseline; against a refit leaving 0.5 it is noise (no_gap), leaving 4 it closes
-    # only a quarter of what the refit leaves (unexplained), leaving 9 it stands
+    # baseline; against a refit leaving 0.5 it is noise (no_gap), leaving 3.2 it beats
+    # the refit by less than its penalty of 0.3 (unexplained); leaving 4 it stands,
+    # though it closes only a quarter of what the refit leaves (MuJoCo's cogging reveal
+    # run 4: refit 33, cogging 16.7 of a baseline 50.2), and leaving 9 it stands
     p = load_motor("seed000_ebike").model.params
     moved = p.replace(J=1.1 * p.J)
     base = _fitted(10.0, p)
