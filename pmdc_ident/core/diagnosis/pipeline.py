@@ -232,12 +232,12 @@ def _diagnose_split(
     loc = localize(split.held_out, base.res, masks)
     untestable, singles = _single_candidates(search, base, loc, scoring)
     choice = choose(search, scoring, base, singles)
-    verdict, final = _beyond_plain_refit(
+    verdict, plain = _beyond_plain_refit(
         _verdict(choice, scoring, search.dt_s), search, base, scoring, choice.chosen
     )
     verdict, limits = _showable(verdict, search, base, choice.chosen)
-    if final is choice.chosen and verdict.status is not VerdictStatus.EXPLAINED:
-        final = base
+    explained = verdict.status is VerdictStatus.EXPLAINED
+    final = choice.chosen if explained else plain or base
     return DiagnosisResult(
         verdict=verdict,
         split=split,
@@ -747,12 +747,12 @@ def _verdict(choice: Choice, scoring: Scoring, dt_s: float) -> Verdict:
 
 def _beyond_plain_refit(
     verdict: Verdict, search: Search, base: Fitted, scoring: Scoring, chosen: Fitted
-) -> tuple[Verdict, Fitted]:
+) -> tuple[Verdict, Fitted | None]:
     """A name only for what the effect itself closes: the chosen candidate judged against
     the linear motor refitted under the candidates' own objective: it must beat that
     refit by the penalty of every parameter it adds (closing most of the baseline's gap
-    is judged before, as for every verdict). Returns the verdict and the model it rests
-    on.
+    is judged before, as for every verdict). Returns the verdict, and the refit where
+    the name was withdrawn (the model the verdict then rests on), else ``None``.
 
     Every candidate's fit frees the motor's parameters with the effect's, from the
     baseline's values. Where the baseline's fit stopped short (its evaluations spent,
@@ -761,10 +761,11 @@ def _beyond_plain_refit(
     reveal record of a scooter motor (seed 7, run 4: 2 kHz, 35 s of crawls and a coast)
     every candidate "closed" 55-57 % (0.856 -> 0.37-0.39 noise variances) and a Coulomb
     friction of 8.4e-7 N*m (its interval across zero, its detection limit 0.133 N*m)
-    was named; the linear motor refitted from the baseline alone leaves 0.374. One
-    refit per split, only where a name is about to be given, from the baseline's
-    values with the candidates' budget (:class:`Search`'s ``max_nfev``); where it does
-    no better than the baseline on held-out data the verdict stands unchanged. A
+    was named; that motor refitted without the friction leaves 0.393. One refit per
+    split, only where a name is about to be given, from the chosen model's motor (from
+    the baseline's values, a starved baseline's refit took another path and left 2.3
+    where a Coulomb friction fitted at 0 N*m left 0.21), with the candidates' budget;
+    where it fails or does no better than the baseline the verdict stands unchanged. A
     cogging refitted in the shaft angle (:mod:`.cogging`) is already judged against the
     same refit without cogging under its own objective.
 
@@ -772,7 +773,7 @@ def _beyond_plain_refit(
     the refit matches held-out data to the noise (the baseline's linear parameters are
     off on this record, and the result reports the refit's), else ``unexplained``."""
     if verdict.status is not VerdictStatus.EXPLAINED or _refitted_cogging(chosen):
-        return verdict, chosen
+        return verdict, None
     m = chosen.fit.model
     kept = tuple(e for e in m.effects if e.NAME not in verdict.effects)  # a chain lag
     plain = search.try_evaluate(tuple(e.NAME for e in kept), Model(m.params, kept), base)
@@ -781,7 +782,7 @@ def _beyond_plain_refit(
         f"held-out gap {plain.gap:.3g}"
     )
     if plain.failed or plain.gap >= base.gap:
-        return verdict, chosen
+        return verdict, None
     ref = Scoring.for_baseline(plain, scoring.thresholds)
     k = n_added(m, verdict.effects)
     # beyond the penalty of what it adds; "most of the gap" stays judged against the
@@ -790,7 +791,7 @@ def _beyond_plain_refit(
     # 16.7: 49 % of what the refit leaves), where the false names it is for beat their
     # refit by 0.01 noise variances against a penalty of 0.3
     if plain.gap - chosen.gap > k * ref.penalty:
-        return verdict, chosen
+        return verdict, None
     g0, named = scoring.g0, " + ".join(verdict.effects)
     refit = (
         f"the linear model refitted without {named} (from the motor fitted with it) "
