@@ -17,6 +17,7 @@ The default profile is a dozen examples (derandomized: the same on every machine
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -28,7 +29,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, given, seed, settings
 from hypothesis import strategies as st
 
 from pmdc_ident.core.excitation import SequenceConfig, plan_for_motor, synthesize_run
@@ -136,6 +137,19 @@ def _target(kind: str, d: Path, out: Path, inputs: Path, suffix: str | None) -> 
     return str(link)
 
 
+#: The default run's examples: those the derandomized run drew up to 3a3b90d. Hypothesis
+#: seeds a derandomized run with a digest of the test function's source, so any edit of
+#: it drew another dozen, with other targets and commands (it cost 4 s where it had cost
+#: 16 by chance); pinned, an edit keeps them. A hunt (PMDC_PROPERTY_EXAMPLES) draws at
+#: random.
+PINNED_SEED = int(
+    "1105538803588641114258952785462090401152903090955299294867322388765536318756217834"
+    "4720180728144974961765989433306960"
+)
+_pinned = seed(PINNED_SEED) if "PMDC_PROPERTY_EXAMPLES" not in os.environ else (lambda f: f)
+
+
+@_pinned
 @settings(
     max_examples=EXAMPLES,
     deadline=None,
@@ -180,7 +194,12 @@ def test_no_signal_and_no_output_path_harms_an_input_or_leaves_a_partial_file(
     sent: list[int] = []
     sent_at: list[float] = []
     for sig, at in sorted(signals, key=lambda s: s[1]):
-        time.sleep(max(0.0, at - (time.monotonic() - t0)))
+        # until the signal's time, or the command's end if it comes first (a sleep to
+        # that time made a command done in 0.4 s wait for a signal drawn at 1.5 s)
+        left = at - (time.monotonic() - t0)
+        if left > 0:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(timeout=left)
         if proc.poll() is not None:
             break
         proc.send_signal(sig)

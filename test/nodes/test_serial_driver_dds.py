@@ -85,12 +85,16 @@ def test_driver_over_serial_streams_then_survives_the_port_closing(
         # The board resets: one line, safe, re-handshake, samples flow again.
         n_before = len(client.encoder.stamps_ns)
         board.send_signal(signal.SIGUSR1)
-        client.spin_for(2.0)
+        # until the samples flow again (it was a fixed 2 s; a busy host takes longer)
+        client.spin_until(lambda: len(client.encoder.stamps_ns) - n_before > 0.4 * RATE_HZ, 20.0)
         resumed = len(client.encoder.stamps_ns) - n_before
         after_reset = np.array(client.encoder.stamps_ns[n_before:], dtype=np.int64)
         board.send_signal(signal.SIGTERM)  # the pty disappears: a pulled cable
         board.wait(timeout=10)
-        client.spin_for(2.0)
+        # until the driver's ERROR diagnostic names it (1 Hz; it was a fixed 2 s), and
+        # 0.5 s more in which the driver must live on
+        client.spin_until(lambda: any(lvl == 2 and "unplugged?" in m for lvl, m in diags), 20.0)
+        client.spin_for(0.5)
         alive_after_unplug = driver.alive()
     finally:
         client.destroy_node()
