@@ -243,7 +243,10 @@ def _file_buffers(path: Path, schemas: dict[int, str], channels: dict[int, tuple
                 raw = _decompress(compression, bytes(b[p + 8 : p + 8 + n]), size)
                 if raw is None:
                     raise _UnsupportedError
-                inner = np.frombuffer(raw, dtype=np.uint8)
+                # writable, as a file's buffer is: a read-only array (of bytes) is
+                # another signature, and numba compiled the scan's five kernels
+                # again for it (2.8 CPU-s) on the first compressed bag
+                inner = np.frombuffer(bytearray(raw), dtype=np.uint8)
                 pending.append((inner, 0, inner.size))
         is_msg = ops == OP_MESSAGE
         if is_msg.any():

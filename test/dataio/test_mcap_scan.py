@@ -13,11 +13,12 @@ import numpy as np
 import pytest
 from mcap.writer import CompressionType, Writer
 
+from pmdc_ident.core._jit import HAVE_NUMBA
 from pmdc_ident.core.data import Run, Segment
 from pmdc_ident.core.errors import DataError
 from pmdc_ident.core.markers import Marker, MarkerEvent
 from pmdc_ident.core.samples import DriverSamples
-from pmdc_ident.dataio import bagio
+from pmdc_ident.dataio import bagio, mcap_scan
 from pmdc_ident.dataio.bagio import (
     JOINT_STATE,
     STRING,
@@ -133,6 +134,8 @@ def test_chunk_compression_and_namespaces_read_the_same(tmp_path, monkeypatch, c
     assert fast is not None
     _assert_same(fast, _general(path, monkeypatch))
     assert fast.terminal_v is not None and len(fast.markers) == 3
+    if HAVE_NUMBA:  # a decompressed chunk is scanned as a file is: no second compilation
+        assert [str(s[0]) for s in mcap_scan._walk.signatures] == ["array(uint8, 1d, C)"]
 
 
 def test_a_cut_short_file_is_left_to_the_general_reader(tmp_path) -> None:
