@@ -496,6 +496,51 @@ def _assert_safe_after(
         assert np.all((later == 0.0) | np.isnan(later)), later[(later != 0.0)][:5]
 
 
+def test_a_session_over_without_a_job_stops_its_worker_when_the_node_winds_down():
+    """An aborted or refused session leaves its identification worker warming up (~2 s of
+    CPU for nothing): wind-down stops it first, before the node confirms the safe state
+    and lingers for late readers. A worker with a job (a stop while identifying) is left
+    to finish it, and a session still running keeps its worker."""
+    from pmdc_ident.node_logic.session.controller import Phase
+    from pmdc_ident.nodes.identification_node import MIN_LIFE_S, IdentificationNode
+    from pmdc_ident.process.identify_call import IdentificationWorker
+
+    class Controller:  # finished, confirming the safe state for one spin
+        def __init__(self, phase: Phase) -> None:
+            self.phase, self.exit_code, self._confirming = phase, 3, iter([True, False])
+
+        @property
+        def confirming(self) -> bool:
+            return next(self._confirming)
+
+        def confirm_tick(self, now_s: float) -> None:
+            pass
+
+    def node(phase: Phase, worker: IdentificationWorker) -> SimpleNamespace:
+        """What wind-down reads of the node (no DDS), its minimum life over."""
+        n = SimpleNamespace(_worker=worker, _built_s=time.monotonic() - MIN_LIFE_S)
+        n.controller = Controller(phase)
+        n.wait_delivered = lambda timeout_s: True
+        n._stop_idle_worker = lambda: IdentificationNode._stop_idle_worker(n)
+        return n
+
+    seen: list[bool] = []
+    idle = IdentificationWorker()
+    n = node(Phase.FINISHED, idle)
+    IdentificationNode.wind_down(n, lambda timeout_s: seen.append(idle.alive))
+    assert seen == [False] and n._worker is None  # gone before the first confirming spin
+    busy, running = IdentificationWorker(), IdentificationWorker()
+    try:
+        busy._busy = True  # a job submitted, its outcome not yet in
+        for phase, worker in ((Phase.FINISHED, busy), (Phase.RUNNING, running)):
+            n = node(phase, worker)
+            IdentificationNode.wind_down(n, lambda timeout_s: None)
+            assert n._worker is worker and worker.alive, phase
+    finally:
+        busy.terminate()
+        running.terminate()
+
+
 def _variant(tmp_path: Path, name: str, **changes: Any) -> str:
     """A seed-001 motor file with changed parameters or effects (the 'real' motor)."""
     data = yaml.safe_load((REPO / "config" / "motors" / "seed001_110v.yaml").read_text())
