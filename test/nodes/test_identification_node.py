@@ -141,13 +141,16 @@ def _session(
     timeout_s: float = 120.0,
     short: bool = True,
     by_service: bool = False,
+    hold_probe_until: str | None = None,
 ) -> tuple[BringupResult, dict[str, Any]]:
     """One session, seen whole by the probe: the identification node starts once the
     probe receives the driver's samples (``autostart``). ``by_service``: it starts with
     the driver and the recorder, waiting (``autostart`` off), and the probe calls
     ``run_session`` once it receives: the same session, and the node's minimum life
     (``MIN_LIFE_S``, for readers still discovering it) runs while the probe comes up
-    instead of after an early abort."""
+    instead of after an early abort. ``hold_probe_until``: the probe, receiving, is
+    stopped (SIGSTOP: a reader held up on a busy machine) while the node starts, until
+    the node's log says this."""
     env = node_env(domain)
     probe = subprocess.Popen(
         [sys.executable, "-c", _PROBE, str(timeout_s + 30), *(["call"] if by_service else [])],
@@ -164,8 +167,18 @@ def _session(
         deadline = time.monotonic() + 120.0
         for line in probe.stderr:
             if "probe receiving" in line or time.monotonic() > deadline:
+                if hold_probe_until is not None:
+                    probe.send_signal(signal.SIGSTOP)
                 return
         raise AssertionError("the probe exited before receiving a driver sample")
+
+    def watch(procs: dict[str, subprocess.Popen[bytes]], elapsed: float) -> None:
+        if hold_probe_until is not None:
+            log = (tmp_path / "logs" / "identification.log").read_text()
+            if hold_probe_until in log:
+                probe.send_signal(signal.SIGCONT)
+        if during is not None:
+            during(procs, elapsed)
 
     try:
         # the test's watch (``during``) reacts at the nodes' priority, as they run
@@ -184,9 +197,10 @@ def _session(
                 recorder_params={"margin_s": 0.0, **(recorder or {})},
                 log_dir=tmp_path / "logs",
                 timeout_s=timeout_s,
-                during=during,
+                during=watch,
             )
     finally:
+        probe.send_signal(signal.SIGCONT)
         probe.send_signal(signal.SIGINT)  # it takes what is still queued, then reports
         out, err = probe.communicate(timeout=60)
     assert probe.returncode == 0, err
@@ -1006,9 +1020,17 @@ def test_a_larger_stack_asks_for_a_run_by_service_and_a_late_joiner_gets_the_res
 
 
 def test_a_plan_above_the_driver_limit_is_refused_before_anything_moves(tmp_path, ros_domain):
-    # the driver is limited to 48 V; the session asks for 110 V
+    """The driver is limited to 48 V; the session asks for 110 V. The probe, waiting
+    for the session, is held up (stopped) from the node's start until the node has
+    refused: the refusal still reaches it, as the node lives ``MIN_LIFE_S`` for readers
+    still discovering it (a node that left once every reader it knew of had its status
+    lost it: it cannot know of a reader it has not discovered)."""
     res, probe = _session(
-        tmp_path, ros_domain, ident={"voltage_max_v": 110.0}, driver={"voltage_limit_v": 48.0}
+        tmp_path,
+        ros_domain,
+        ident={"voltage_max_v": 110.0},
+        driver={"voltage_limit_v": 48.0},
+        hold_probe_until="plan refused before anything moved",
     )
     assert res.identification_rc == 2, _logs(res)
     final = probe["status"][-1]
