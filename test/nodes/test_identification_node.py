@@ -672,7 +672,7 @@ def _act_mid_session(
                 act(procs)
                 state["acted"] = elapsed
 
-    res, probe = _session(tmp_path, domain, during=during, by_service=True, **session)
+    res, probe = _session(tmp_path, domain, during=during, **session)
     assert "acted" in state, _logs(res)
     return res, probe
 
