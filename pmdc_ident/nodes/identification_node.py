@@ -54,7 +54,7 @@ from std_srvs.srv import Trigger
 from pmdc_ident.core.enums import ExitCode, LogLevel
 from pmdc_ident.core.motors import MotorSpec
 from pmdc_ident.dataio.bagio import parse_joint_state
-from pmdc_ident.node_logic.session.controller import SessionController
+from pmdc_ident.node_logic.session.controller import Phase, SessionController
 from pmdc_ident.node_logic.session.ports import IdentificationJob
 from pmdc_ident.node_logic.session.sequential import DesignOutcome
 from pmdc_ident.nodes.parameters import declare
@@ -125,6 +125,7 @@ class IdentificationNode(Node):
     def wind_down(self, spin_once: Callable[[float], None]) -> None:
         """See the safe state confirmed by the driver, then let every reader have our last
         command, markers, status and result (a Ctrl-C ends here too)."""
+        self._stop_idle_worker()
         while self.controller.confirming:
             spin_once(0.02)
             self.controller.confirm_tick(time.monotonic())
@@ -132,6 +133,16 @@ class IdentificationNode(Node):
             spin_once(0.05)  # readers still discovering us (see MIN_LIFE_S)
         self.wait_delivered(DELIVERY_TIMEOUT_S)
         self.exit_code = self.controller.exit_code
+
+    def _stop_idle_worker(self) -> None:
+        """A session that ended without an identification to run (aborted, refused, or
+        its result already out) leaves its worker warming up or idle: stopped now, not
+        after the wind-down, where its warm-up would take ~2 s of CPU for nothing. A
+        worker with a job (a stop while identifying) is left to it, as before."""
+        done = self.controller.phase in (Phase.FINISHED, Phase.IDLE)
+        if done and self._worker is not None and not self._worker.busy:
+            self._worker.terminate()
+            self._worker = None
 
     def close(self) -> list[str]:
         if self._worker is not None:

@@ -289,6 +289,11 @@ class IdentificationWorker:
     def alive(self) -> bool:
         return self._process.is_alive()
 
+    @property
+    def busy(self) -> bool:
+        """A job was submitted and its outcome not yet returned by :meth:`poll`."""
+        return self._busy
+
     def submit(self, job: IdentificationJob | DesignJob) -> None:
         """Hand a finished session over; :meth:`poll` returns its outcome.
 

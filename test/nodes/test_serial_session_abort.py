@@ -55,7 +55,11 @@ def test_unplugging_the_board_mid_session_aborts_cleanly_with_the_motor_safe(
             [sys.executable, "-m", "pmdc_ident.process.bringup", "--backend", "serial"]
             + ["--port", str(link), "--domain-id", str(ros_domain)]
             + ["--output-dir", str(tmp_path / "bags"), "--timeout", "100"]
-            + ["-p", "driver:baud=1000000", "-p", "driver:rate_hz=500.0"],
+            + ["-p", "driver:baud=1000000", "-p", "driver:rate_hz=500.0"]
+            # the abort (no driver sample) and the unconfirmable safe state (the board is
+            # gone) each come 1.5 s after their cause, as in test_session_lifetimes, not 3 s
+            + ["-p", "identification:safety.data_timeout_s=1.5"]
+            + ["-p", "identification:confirm_timeout_s=1.5"],
             env=env,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
