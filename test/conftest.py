@@ -83,23 +83,39 @@ _FIRST = (
 )
 
 
-#: The tests that take longest on the wall clock (a clean clone's run at 3c75486, 16-47 s
-#: each): each worker starts its share of them right after its share of :data:`_FIRST`.
-#: Left to the path order, the DDS sessions of test/nodes/ come last, and the suite
-#: ended with one worker idle while the other ran a 47 s session alone.
+#: The tests that take longest on the wall clock, with their seconds on a clean clone
+#: (3a3b90d, 27c8f5f; idle): each worker starts its share of them right after its share
+#: of :data:`_FIRST`, the longest first onto the worker with the fewest seconds so far.
+#: Left to the path order, the DDS sessions of test/nodes/ come last, and the suite ended
+#: with one worker idle while the other ran a 45 s session alone. An entry is a node-id
+#: prefix: tests that share a module-scoped session are one entry, kept on one worker
+#: (split, each worker would run the session).
 _LONG = (
-    "test/nodes/test_identification_node.py::test_full_default_sequence_recovers",
-    "test/core/diagnosis/test_diagnosis_decisions.py::test_magnets_losing_flux_as_the_winding",
-    "test/benchmark/test_benchmark_generator.py::test_quick_benchmark_command_prints_the_table",
-    "test/nodes/test_plan_auto_dds.py::test_a_travel_limited_joint_is_identified_to_the_target",
-    "test/benchmark/test_mujoco_plant.py::test_quick_mujoco_benchmark_prints_its_table",
-    "test/core/test_segment_history.py::test_diagnosis_names_a_delay_and_a_resistance_drift",
-    "test/core/diagnosis/test_diagnosis_decisions.py::test_flux_loss_stays_at_its_limit",
+    ("test/nodes/test_identification_node.py::test_full_default_sequence_recovers", 45),
+    ("test/commands/test_property_signals.py::test_no_signal_and_no_output_path", 19),
+    ("test/nodes/test_monitor_node.py::", 18),  # the heating session and its readers
+    ("test/nodes/test_plan_auto_dds.py::test_a_travel_limited_joint", 15),
+    ("test/benchmark/test_mujoco_plant.py::test_quick_mujoco_benchmark_prints", 14),
+    ("test/nodes/test_identification_node.py::test_crashed_recorder_aborts", 13),
+    ("test/nodes/test_identification_node.py::test_a_killed_recorder_aborts", 0),  # same
+    ("test/benchmark/test_benchmark_generator.py::test_quick_benchmark_command_prints", 7),
 )
 
 
-def _is_long(item: pytest.Item) -> bool:
-    return item.nodeid.startswith(_LONG)
+def _long_shares(items: list[pytest.Item], n: int) -> list[list[pytest.Item]]:
+    """:data:`_LONG`'s tests dealt to ``n`` workers: each entry whole, in its order,
+    onto the worker with the fewest seconds so far (an entry of 0 s goes where the one
+    before it went: the same session)."""
+    shares: list[list[pytest.Item]] = [[] for _ in range(n)]
+    load = [0.0] * n
+    k = 0
+    for prefix, seconds in _LONG:  # listed longest first
+        group = [it for it in items if it.nodeid.startswith(prefix)]
+        if seconds > 0:
+            k = min(range(n), key=load.__getitem__)
+        shares[k] += group
+        load[k] += seconds
+    return shares
 
 
 def _workers(config: pytest.Config) -> int:
@@ -120,13 +136,12 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if n < 2:
         return
     first = [it for it in items if it.path.name in _FIRST]
-    long = [it for it in items if it.path.name not in _FIRST and _is_long(it)]
-    if not first and not long:
+    long = _long_shares([it for it in items if it.path.name not in _FIRST], n)
+    taken = {id(it) for share in long for it in share}
+    if not first and not taken:
         return
-    rest = [it for it in items if it.path.name not in _FIRST and not _is_long(it)]
-    shares = [
-        first[k * len(first) // n : (k + 1) * len(first) // n] + long[k::n] for k in range(n)
-    ]
+    rest = [it for it in items if it.path.name not in _FIRST and id(it) not in taken]
+    shares = [first[k * len(first) // n : (k + 1) * len(first) // n] + long[k] for k in range(n)]
     # xdist's first distribution (load, worksteal): each of the n workers in turn takes
     # len(pending) // (workers left) of the pending items, from the front
     order: list[pytest.Item] = []
