@@ -58,15 +58,11 @@ demo: $(STAMP)
 
 # Two test processes (pytest-xdist): the node tests mostly wait on DDS and the clock,
 # the numerics take a core each; each process holds its own DDS domains (test/conftest.py).
-# A third cost 83 s more CPU on a fresh clone (549 -> 632 s: one more collection, more
-# kernels compiled at once by several processes) for no shorter wall on the busy
-# 2-core machine; with the kernels compiled once (test/conftest.py) still 45 s more
-# (561 -> 606 s at load 7-12) and no shorter wall; measured again back to back on fresh
-# clones of 87abeb1: the whole .ci/run 611 -> 780 CPU-s and 725 -> 1004 s wall (load
-# median 10.6 / 12.7), and a DDS service call in a node test timed out. On an idle
-# machine a third saved a minute at no more CPU (fresh clones of a25a861/791df1a: 393 ->
-# 323 s, 613 -> 597 CPU-s; docs/results.md section 9): `make test TEST_WORKERS=3` there.
-# `make test TEST_WORKERS=0` runs them in one process.
+# On a fresh clone of this 2-core machine the whole .ci/run took 252 s idle and 346 s
+# beside two CPU hogs (docs/results.md section 9). A third process saved a minute on an
+# idle machine of an earlier kind at no more CPU, but cost 170 CPU-s more and timed out a
+# DDS service call at load 11-13: `make test TEST_WORKERS=3` on an idle machine if you
+# like; `make test TEST_WORKERS=0` runs the suite in one process.
 TEST_WORKERS ?= 2
 
 # Bytecode is written even where PYTHONDONTWRITEBYTECODE is set: the suite starts
