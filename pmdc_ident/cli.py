@@ -201,8 +201,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     status = _run(argv)
     if argv is None:
+        if _CUT:
+            _end_at_once(status)
         gc.freeze()
     return status
+
+
+#: What a stop signal ended, kept (never freed) while ``pmdc-ident`` itself exits.
+_CUT: list[BaseException] = []
+
+
+def _end_at_once(status: int) -> None:
+    """End ``pmdc-ident`` stopped by a signal, its one line said: the output streams
+    flushed and the ``atexit`` handlers run, then the process ends without freeing what
+    the signal left half-built or finalising the interpreter. Freeing such native
+    objects (llvmlite's, while numba compiled a kernel) crashed the process with SIGSEGV
+    after "plan: interrupted" once (a fresh clone's suite; not reproduced in 75 tries);
+    the files the command wrote are closed, or removed, by then."""
+    import atexit
+
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    atexit._run_exitfuncs()
+    os._exit(status)
 
 
 def _run(argv: Sequence[str] | None) -> int:
@@ -234,8 +258,10 @@ def _run(argv: Sequence[str] | None) -> int:
         if isinstance(exc, SystemExit):
             raise
         status = _exit_status(command, exc, user_errors, names)
-        if _RAISED:
-            _free_what_the_signal_cut(exc, program=argv is None)
+        if _RAISED and argv is None:
+            _CUT.append(exc)  # the program ends at once (main): nothing it cut is freed
+        elif _RAISED:
+            _free_what_the_signal_cut(exc)
         return status
 
 
@@ -243,7 +269,7 @@ def _release(_unraisable: object) -> None:
     """A ``sys.unraisablehook`` that reports nothing."""
 
 
-def _free_what_the_signal_cut(exc: BaseException, *, program: bool) -> None:
+def _free_what_the_signal_cut(exc: BaseException) -> None:
     """Free, without a report, the objects a stop signal left half-built.
 
     A signal raises where it lands: in an ``__init__`` (llvmlite's, while numba compiled
@@ -252,8 +278,7 @@ def _free_what_the_signal_cut(exc: BaseException, *, program: bool) -> None:
     line (SIGTERM 0.5 s into ``identify``: llvmlite's ``PassBuilder`` had no
     ``_as_parameter_``; 1 of 30 random signal times on a cold cache). The frames of the
     exception chain hold them: cleared here, and collected, with such reports dropped.
-    ``program`` (``pmdc-ident`` itself, about to exit): the reports stay dropped, for
-    what is freed only at the exit."""
+    For in-process callers; ``pmdc-ident`` itself frees none of it (:func:`_end_at_once`)."""
     import traceback
 
     old = sys.unraisablehook
@@ -268,8 +293,7 @@ def _free_what_the_signal_cut(exc: BaseException, *, program: bool) -> None:
             e = e.__cause__ or e.__context__
         gc.collect()
     finally:
-        if not program:
-            sys.unraisablehook = old
+        sys.unraisablehook = old
 
 
 def _exit_status(
