@@ -58,8 +58,8 @@ demo: $(STAMP)
 
 # Two test processes (pytest-xdist): the node tests mostly wait on DDS and the clock,
 # the numerics take a core each; each process holds its own DDS domains (test/conftest.py).
-# On a fresh clone of this 2-core machine the whole .ci/run took 252-253 s idle and 330-346 s
-# beside two CPU hogs (docs/results.md section 9). A third process saved a minute on an
+# On a fresh clone of this 2-core machine the whole .ci/run took 252-253 s idle and
+# 330-346 s beside two CPU hogs (docs/results.md section 9). A third process saved a minute on an
 # idle machine of an earlier kind at no more CPU, but cost 170 CPU-s more and timed out a
 # DDS service call at load 11-13: `make test TEST_WORKERS=3` on an idle machine if you
 # like; `make test TEST_WORKERS=0` runs the suite in one process.
