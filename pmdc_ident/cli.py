@@ -201,14 +201,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     status = _run(argv)
     if argv is None:
-        if _CUT:
-            _end_at_once(status)
         gc.freeze()
     return status
-
-
-#: What a stop signal ended, kept (never freed) while ``pmdc-ident`` itself exits.
-_CUT: list[BaseException] = []
 
 
 def _end_at_once(status: int) -> None:
@@ -258,9 +252,9 @@ def _run(argv: Sequence[str] | None) -> int:
         if isinstance(exc, SystemExit):
             raise
         status = _exit_status(command, exc, user_errors, names)
-        if _RAISED and argv is None:
-            _CUT.append(exc)  # the program ends at once (main): nothing it cut is freed
-        elif _RAISED:
+        if _RAISED:
+            if argv is None:  # pmdc-ident itself: ends here, nothing the signal cut freed
+                _end_at_once(status)
             _free_what_the_signal_cut(exc)
         return status
 

@@ -119,6 +119,27 @@ rclpy.try_shutdown()
 """
 
 
+def _start_probe(domain: int, timeout_s: float, stderr: Any) -> subprocess.Popen[str]:
+    """The probe (``_PROBE``) on ``domain``, at the nodes' priority: it observes as they run."""
+    return subprocess.Popen(
+        [sys.executable, "-c", _PROBE, str(timeout_s + 30)],
+        env=node_env(domain),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=stderr,
+        text=True,
+        preexec_fn=priority_setter(-5, realtime=True),
+    )
+
+
+def _probe_report(out: str) -> dict[str, Any]:
+    """What the probe saw, from its last line of output."""
+    data = json.loads(out.strip().splitlines()[-1])
+    data["markers"] = [json.loads(m) for m in data["markers"]]
+    data["status"] = [json.loads(s) for s in data["status"]]
+    return data
+
+
 def _session(
     tmp_path: Path,
     domain: int,
@@ -133,24 +154,12 @@ def _session(
     hold_probe_until: str | None = None,
 ) -> tuple[BringupResult, dict[str, Any]]:
     """One session, seen whole by the probe: the identification node starts once the
-    probe receives the driver's samples (``autostart``). Started with the driver and the
-    recorder instead, waiting for a ``run_session`` call (the node's 4 s minimum life then
-    ran while the probe came up), test/nodes run alone in two processes failed another
-    session's timing checks in 4 of 5 runs (its coast command 0.62-0.68 s late, fewer
-    than 100 commands recorded), 0 of 2 with this start and 0 of 1 at 3a3b90d: three
-    node processes starting at once, at the nodes' priority, beside a running session.
+    probe receives the driver's samples (``autostart``; started with the driver and the
+    recorder instead, the three nodes' start-up made a session on the other core miss its
+    timing checks: 2929e25).
     ``hold_probe_until``: the probe, receiving, is stopped (SIGSTOP: a reader held up on
     a busy machine) while the node starts, until the node's log says this."""
-    env = node_env(domain)
-    probe = subprocess.Popen(
-        [sys.executable, "-c", _PROBE, str(timeout_s + 30)],
-        env=env,
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        preexec_fn=priority_setter(-5, realtime=True),  # it observes as the nodes run
-    )
+    probe = _start_probe(domain, timeout_s, subprocess.PIPE)
 
     def probe_receiving() -> None:  # the whole session is seen by the probe
         assert probe.stderr is not None
@@ -190,10 +199,7 @@ def _session(
         probe.send_signal(signal.SIGINT)  # it takes what is still queued, then reports
         out, err = probe.communicate(timeout=60)
     assert probe.returncode == 0, err
-    data = json.loads(out.strip().splitlines()[-1])
-    data["markers"] = [json.loads(m) for m in data["markers"]]
-    data["status"] = [json.loads(s) for s in data["status"]]
-    return res, data
+    return res, _probe_report(out)
 
 
 def _ident_log(res: BringupResult) -> str:
@@ -671,15 +677,7 @@ def _bringup_with_probe(
     out_dir = tmp_path / "out"
     probe_err = tmp_path / "probe.err"
     with probe_err.open("w") as err_file:
-        probe = subprocess.Popen(
-            [sys.executable, "-c", _PROBE, str(timeout_s + 30)],
-            env=node_env(domain),
-            cwd=REPO,
-            stdout=subprocess.PIPE,
-            stderr=err_file,
-            text=True,
-            preexec_fn=priority_setter(-5, realtime=True),  # it observes as the nodes run
-        )
+        probe = _start_probe(domain, timeout_s, err_file)
     settings = {f"identification:{k}": v for k, v in SHORT.items()}
     settings.update({"driver:watchdog_s": 1.5, "recorder:margin_s": 0.0, **(params or {})})
     cmd = [sys.executable, "-m", "pmdc_ident.process.bringup", "--motor", "seed001_110v"]
@@ -710,10 +708,7 @@ def _bringup_with_probe(
         probe.send_signal(signal.SIGINT)  # it takes what is still queued, then reports
         out, _ = probe.communicate(timeout=60)
     assert probe.returncode == 0, probe_err.read_text()
-    data = json.loads(out.strip().splitlines()[-1])
-    data["markers"] = [json.loads(m) for m in data["markers"]]
-    data["status"] = [json.loads(s) for s in data["status"]]
-    return SimpleNamespace(rc=rc, text="".join(lines), probe=data, out=out_dir)
+    return SimpleNamespace(rc=rc, text="".join(lines), probe=_probe_report(out), out=out_dir)
 
 
 @pytest.fixture(scope="module")
